@@ -1,0 +1,27 @@
+"""Akinci et al. 2012 boundary particles: their volumes and the fluid-boundary neighbour sums."""
+
+import warp as wp
+
+from .sph_kernel import cubic_kernel, cubic_kernel_zero
+
+
+@wp.kernel
+def compute_boundary_volume(
+    grid: wp.uint64,
+    boundary_x: wp.array(dtype=wp.vec3),
+    support_radius: float,
+    boundary_volume: wp.array(dtype=float),
+):
+    """Boundary volume V_b = 1 / (W(0) + sum_k W(x_b - x_k)) over boundary neighbours k (Akinci 2012).
+
+    Computed once per static body, never per step.
+    """
+    b = wp.tid()
+    x = boundary_x[b]
+    s = cubic_kernel_zero(support_radius)
+    query = wp.hash_grid_query(grid, x, support_radius)
+    k = int(0)
+    while wp.hash_grid_query_next(query, k):
+        if k != b:
+            s += cubic_kernel(wp.length(x - boundary_x[k]), support_radius)
+    boundary_volume[b] = 1.0 / s

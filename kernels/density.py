@@ -1,0 +1,47 @@
+"""Density (eq 2 with A = rho) and the DFSPH factor, fused in one neighbour pass."""
+
+import warp as wp
+
+from .sph_kernel import cubic_kernel, cubic_kernel_gradient, cubic_kernel_zero
+
+
+@wp.kernel
+def compute_density_and_factor(
+    x: wp.array(dtype=wp.vec3),
+    fluid_offsets: wp.array(dtype=wp.int32),
+    fluid_neighbours: wp.array(dtype=wp.int32),
+    boundary_x: wp.array(dtype=wp.vec3),
+    boundary_volume: wp.array(dtype=float),
+    boundary_offsets: wp.array(dtype=wp.int32),
+    boundary_neighbours: wp.array(dtype=wp.int32),
+    fluid_volume: float,
+    rest_density: float,
+    support_radius: float,
+    density: wp.array(dtype=float),
+    factor: wp.array(dtype=float),
+):
+    """rho_i = rho0 (V_i W(0) + sum_f V_j W_ij + sum_b V_b W_ib) and the DFSPH factor
+    factor_i = 1 / (|sum_f V_j grad W_ij + sum_b V_b grad W_ib|^2 + sum_f |V_j grad W_ij|^2)
+    (Bender & Koschier 2017; no squared boundary term, 0 when the denominator is tiny)."""
+    i = wp.tid()
+    xi = x[i]
+    rho = fluid_volume * cubic_kernel_zero(support_radius)
+    grad_sum = wp.vec3(0.0)
+    grad_sq = float(0.0)
+    for k in range(fluid_offsets[i], fluid_offsets[i + 1]):
+        x_ij = xi - x[fluid_neighbours[k]]
+        rho += fluid_volume * cubic_kernel(wp.length(x_ij), support_radius)
+        g = fluid_volume * cubic_kernel_gradient(x_ij, support_radius)
+        grad_sum += g
+        grad_sq += wp.dot(g, g)
+    for k in range(boundary_offsets[i], boundary_offsets[i + 1]):
+        b = boundary_neighbours[k]
+        x_ib = xi - boundary_x[b]
+        rho += boundary_volume[b] * cubic_kernel(wp.length(x_ib), support_radius)
+        grad_sum += boundary_volume[b] * cubic_kernel_gradient(x_ib, support_radius)
+    density[i] = rest_density * rho
+    denominator = wp.dot(grad_sum, grad_sum) + grad_sq
+    if denominator > 1.0e-6 / (support_radius * support_radius):
+        factor[i] = 1.0 / denominator
+    else:
+        factor[i] = 0.0

@@ -1,0 +1,37 @@
+"""Constant-density solver of DFSPH: drives the predicted density rho* to rho0."""
+
+import warp as wp
+
+from .pressure import density_rate
+
+
+@wp.kernel
+def compute_density_source(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    fluid_offsets: wp.array(dtype=wp.int32),
+    fluid_neighbours: wp.array(dtype=wp.int32),
+    boundary_x: wp.array(dtype=wp.vec3),
+    boundary_v: wp.array(dtype=wp.vec3),
+    boundary_volume: wp.array(dtype=float),
+    boundary_offsets: wp.array(dtype=wp.int32),
+    boundary_neighbours: wp.array(dtype=wp.int32),
+    density: wp.array(dtype=float),
+    factor: wp.array(dtype=float),
+    fluid_volume: float,
+    rest_density: float,
+    support_radius: float,
+    dt: wp.array(dtype=float),
+    error: wp.array(dtype=float),
+    stiffness: wp.array(dtype=float),
+):
+    """Predicted density rho*_i/rho0 = rho_i/rho0 + dt D(rho_i/rho0)/Dt; source
+    s_i = max(rho*_i/rho0 - 1, 0) (pressure clamped at >= 0) and k_i = s_i factor_i / dt^2."""
+    i = wp.tid()
+    h = dt[0]
+    predicted = density[i] / rest_density + h * density_rate(
+        i, x, v, fluid_offsets, fluid_neighbours, boundary_x, boundary_v, boundary_volume,
+        boundary_offsets, boundary_neighbours, fluid_volume, support_radius)
+    s = wp.max(predicted - 1.0, 0.0)
+    error[i] = s
+    stiffness[i] = s * factor[i] / (h * h)

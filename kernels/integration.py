@@ -1,0 +1,63 @@
+"""Time integration: CFL time step, velocity prediction with gravity, advection, clock."""
+
+import warp as wp
+
+
+@wp.kernel
+def compute_max_speed(v: wp.array(dtype=wp.vec3), max_speed_sq: wp.array(dtype=float)):
+    """max_speed_sq[0] = max_i |v_i|^2 (reset it to 0 first); skips atomics that cannot win."""
+    i = wp.tid()
+    s = wp.length_sq(v[i])
+    if s > max_speed_sq[0]:
+        wp.atomic_max(max_speed_sq, 0, s)
+
+
+@wp.kernel
+def compute_time_step(
+    max_speed_sq: wp.array(dtype=float),
+    particle_diameter: float,
+    cfl_factor: float,
+    dt_min: float,
+    dt_max: float,
+    fixed_dt: float,
+    dt_previous: wp.array(dtype=float),
+    dt: wp.array(dtype=float),
+):
+    """One thread: dt = clamp(cfl * 0.4 * d / max|v|, dt_min, dt_max) (SPlisHSPlasH's CFL
+    rule), or ``fixed_dt`` when it is positive; the old dt moves to ``dt_previous``."""
+    if dt[0] > 0.0:
+        dt_previous[0] = dt[0]
+    if fixed_dt > 0.0:
+        dt[0] = fixed_dt
+        return
+    speed = wp.sqrt(max_speed_sq[0])
+    h = dt_max
+    if speed > 1.0e-9:
+        h = cfl_factor * 0.4 * particle_diameter / speed
+    dt[0] = wp.clamp(h, dt_min, dt_max)
+
+
+@wp.kernel
+def predict_velocity(
+    acceleration: wp.array(dtype=wp.vec3),
+    gravity: wp.vec3,
+    dt: wp.array(dtype=float),
+    v: wp.array(dtype=wp.vec3),
+):
+    """v~ = v^n + dt (a_adv + g) (Algorithm 1, advection)."""
+    i = wp.tid()
+    v[i] = v[i] + dt[0] * (acceleration[i] + gravity)
+
+
+@wp.kernel
+def advect_positions(v: wp.array(dtype=wp.vec3), dt: wp.array(dtype=float), x: wp.array(dtype=wp.vec3)):
+    """x^{n+1} = x^n + dt v (after the density solve)."""
+    i = wp.tid()
+    x[i] = x[i] + dt[0] * v[i]
+
+
+@wp.kernel
+def advance_clock(dt: wp.array(dtype=float), time: wp.array(dtype=wp.float64), steps: wp.array(dtype=wp.int64)):
+    """One thread: t += dt, step += 1, kept on the device so a step needs no host sync."""
+    time[0] = time[0] + wp.float64(dt[0])
+    steps[0] = steps[0] + wp.int64(1)

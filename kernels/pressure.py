@@ -1,0 +1,135 @@
+"""Shared pieces of the two DFSPH pressure solvers (Bender & Koschier 2015/2017).
+
+Both solvers iterate: compute a per-particle source term and stiffness k_i from the
+current velocities, then apply the pressure acceleration of k to the velocities.
+``k`` is pressure over density squared (p / rho^2, per unit rest density), so the
+value accumulated over a step is a physical pressure that warm-starts the next step.
+"""
+
+import warp as wp
+
+from .sph_kernel import cubic_kernel_gradient
+
+
+@wp.func
+def density_rate(
+    i: int,
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    fluid_offsets: wp.array(dtype=wp.int32),
+    fluid_neighbours: wp.array(dtype=wp.int32),
+    boundary_x: wp.array(dtype=wp.vec3),
+    boundary_v: wp.array(dtype=wp.vec3),
+    boundary_volume: wp.array(dtype=float),
+    boundary_offsets: wp.array(dtype=wp.int32),
+    boundary_neighbours: wp.array(dtype=wp.int32),
+    fluid_volume: float,
+    support_radius: float,
+):
+    """D(rho_i/rho0)/Dt = sum_f V_j (v_i - v_j).grad W_ij + sum_b V_b (v_i - v_b).grad W_ib."""
+    xi = x[i]
+    vi = v[i]
+    rate = float(0.0)
+    for k in range(fluid_offsets[i], fluid_offsets[i + 1]):
+        j = fluid_neighbours[k]
+        rate += fluid_volume * wp.dot(vi - v[j], cubic_kernel_gradient(xi - x[j], support_radius))
+    for k in range(boundary_offsets[i], boundary_offsets[i + 1]):
+        b = boundary_neighbours[k]
+        rate += boundary_volume[b] * wp.dot(vi - boundary_v[b], cubic_kernel_gradient(xi - boundary_x[b], support_radius))
+    return rate
+
+
+@wp.kernel
+def apply_pressure_acceleration(
+    stiffness: wp.array(dtype=float),
+    x: wp.array(dtype=wp.vec3),
+    fluid_offsets: wp.array(dtype=wp.int32),
+    fluid_neighbours: wp.array(dtype=wp.int32),
+    boundary_x: wp.array(dtype=wp.vec3),
+    boundary_volume: wp.array(dtype=float),
+    boundary_offsets: wp.array(dtype=wp.int32),
+    boundary_neighbours: wp.array(dtype=wp.int32),
+    fluid_volume: float,
+    support_radius: float,
+    dt: wp.array(dtype=float),
+    accumulate: int,
+    stiffness_sum: wp.array(dtype=float),
+    v: wp.array(dtype=wp.vec3),
+):
+    """v_i -= dt (sum_f V_j (k_i + k_j) grad W_ij + sum_b V_b k_i grad W_ib).
+
+    A boundary neighbour uses k_i only (Akinci 2012 mirroring); with ``accumulate`` set,
+    k_i is added to ``stiffness_sum`` (the pressure used in this step, for warm start)."""
+    i = wp.tid()
+    ki = stiffness[i]
+    xi = x[i]
+    dv = wp.vec3(0.0)
+    for k in range(fluid_offsets[i], fluid_offsets[i + 1]):
+        j = fluid_neighbours[k]
+        dv += fluid_volume * (ki + stiffness[j]) * cubic_kernel_gradient(xi - x[j], support_radius)
+    for k in range(boundary_offsets[i], boundary_offsets[i + 1]):
+        b = boundary_neighbours[k]
+        dv += boundary_volume[b] * ki * cubic_kernel_gradient(xi - boundary_x[b], support_radius)
+    v[i] = v[i] - dt[0] * dv
+    if accumulate != 0:
+        stiffness_sum[i] = stiffness_sum[i] + ki
+
+
+@wp.kernel
+def scale_warm_start(
+    pressure_sum: wp.array(dtype=float),
+    dt: wp.array(dtype=float),
+    dt_previous: wp.array(dtype=float),
+    per_unit_time: int,
+    stiffness: wp.array(dtype=float),
+):
+    """Warm start: k_i = last step's accumulated k_i. The divergence solver's k is a rate
+    (k ~ 1/dt for the same velocity correction), so it is rescaled by dt_prev / dt; the
+    rescaled value also restarts this step's sum."""
+    i = wp.tid()
+    scale = float(1.0)
+    if per_unit_time != 0:
+        scale = dt_previous[0] / dt[0]
+    k = pressure_sum[i] * scale
+    stiffness[i] = k
+    pressure_sum[i] = k
+
+
+@wp.kernel
+def update_solver_status(
+    error_sum: wp.array(dtype=float),
+    num_particles: int,
+    max_error: float,
+    per_unit_time: int,
+    dt: wp.array(dtype=float),
+    min_iterations: int,
+    max_iterations: int,
+    first: int,
+    kind: int,
+    average_error: wp.array(dtype=float),
+    status: wp.array(dtype=wp.int32),
+    totals: wp.array(dtype=wp.int64),
+):
+    """One thread: average error over the fluid and the loop condition, on the device.
+
+    ``status[0]`` is the condition read by ``wp.capture_while`` (1 = iterate again),
+    ``status[1]`` counts the iterations done. The tolerance is ``max_error`` (relative),
+    divided by dt when the error is a rate (divergence solver: SPlisHSPlasH's
+    avg <= maxErrorV / dt). When the loop ends, its iterations are added to
+    ``totals[2 kind]`` and ``totals[2 kind + 1]`` counts the solves."""
+    if first != 0:
+        status[1] = 0
+    else:
+        status[1] = status[1] + 1
+    avg = error_sum[0] / float(wp.max(num_particles, 1))
+    average_error[0] = avg
+    eta = max_error
+    if per_unit_time != 0:
+        eta = max_error / dt[0]
+    iterations = status[1]
+    if (avg > eta or iterations < min_iterations) and iterations < max_iterations:
+        status[0] = 1
+    else:
+        status[0] = 0
+        totals[2 * kind] = totals[2 * kind] + wp.int64(iterations)
+        totals[2 * kind + 1] = totals[2 * kind + 1] + wp.int64(1)

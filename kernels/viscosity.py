@@ -1,0 +1,37 @@
+"""Artificial-viscosity Laplacian (VR paper eq 4, after Koschier et al. 2019)."""
+
+import warp as wp
+
+from .sph_kernel import cubic_kernel_gradient
+
+
+@wp.func
+def artificial_laplacian(a_ij: wp.vec3, x_ij: wp.vec3, volume_j: float, support_radius: float):
+    """One neighbour's term of eq 4: 2(d+2) V_j (A_ij . x_ij) / (|x_ij|^2 + 0.01 H^2) grad W_ij, d = 3.
+
+    Shared by the viscosity of v (eq 4) and the vorticity Laplacian (eq 10)."""
+    return (10.0 * volume_j * wp.dot(a_ij, x_ij) / (wp.dot(x_ij, x_ij) + 0.01 * support_radius * support_radius)) * \
+        cubic_kernel_gradient(x_ij, support_radius)
+
+
+@wp.kernel
+def add_viscosity_acceleration(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    density: wp.array(dtype=float),
+    fluid_offsets: wp.array(dtype=wp.int32),
+    fluid_neighbours: wp.array(dtype=wp.int32),
+    particle_mass: float,
+    viscosity: float,
+    support_radius: float,
+    acceleration: wp.array(dtype=wp.vec3),
+):
+    """a_i += nu * laplacian(v)_i with m_j / rho_j as the neighbour volume (eq 4)."""
+    i = wp.tid()
+    xi = x[i]
+    vi = v[i]
+    lap = wp.vec3(0.0)
+    for k in range(fluid_offsets[i], fluid_offsets[i + 1]):
+        j = fluid_neighbours[k]
+        lap += artificial_laplacian(vi - v[j], xi - x[j], particle_mass / density[j], support_radius)
+    acceleration[i] = acceleration[i] + viscosity * lap

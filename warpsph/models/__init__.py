@@ -1,0 +1,51 @@
+"""Non-pressure models: viscosity and the turbulence models, each a plug-in.
+
+Every model has the same small interface (after SPlisHSPlasH's ``NonPressureForceBase``):
+
+- ``__init__(sim, params)`` allocates the model's own per-particle arrays through
+  ``sim.zeros(owner, ...)`` (so allocations are accounted per model);
+- ``step(sim)`` runs in the non-pressure phase of the step, after the divergence
+  solve, adding to ``sim.fluid.acceleration`` or refining ``sim.fluid.v`` directly;
+- ``reorder(sim, order)`` permutes the model's per-particle state when the fluid is
+  re-sorted by cell;
+- ``fields()`` returns the per-particle arrays it publishes for output, by name.
+
+A scene names its models; a scene without one launches none of their kernels and
+allocates none of their arrays.
+"""
+
+from __future__ import annotations
+
+REGISTRY: dict = {}
+
+
+def register(name):
+    """Class decorator that makes a model available to scenes under ``name``."""
+
+    def wrap(cls):
+        REGISTRY[name] = cls
+        cls.name = name
+        return cls
+
+    return wrap
+
+
+class Model:
+    """Base class with the do-nothing parts of the interface."""
+
+    name = "model"
+
+    def __init__(self, sim, params=None):
+        self.params = params
+
+    def step(self, sim):
+        raise NotImplementedError
+
+    def reorder(self, sim, order):
+        pass
+
+    def fields(self):
+        return {}
+
+
+from . import viscosity  # noqa: E402,F401  (registers the built-in models)

@@ -1,0 +1,87 @@
+"""Neighbour lists for the fluid: fluid-fluid and fluid-boundary, rebuilt once per step."""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from warpsph.kernels import neighbours as nk
+
+GRID_DIM = 128  # hash grid buckets per axis (cells hash into a 128^3 table)
+GROWTH = 1.25  # spare capacity when a neighbour list must grow
+
+
+class NeighbourSearch:
+    """Hash grids and CSR neighbour lists.
+
+    The boundary grid is built once (static boundary particles); the fluid grid and both
+    lists are rebuilt by :meth:`update`, which costs two neighbour-grid passes and one
+    host read of the list sizes per step. The lists keep spare capacity so that their
+    arrays (and any CUDA graph that captured them) rarely change.
+    """
+
+    def __init__(self, sim, boundary_x: wp.array):
+        self.sim = sim
+        n = sim.num_fluid
+        self.support_radius = sim.support_radius
+        self.fluid_grid = wp.HashGrid(GRID_DIM, GRID_DIM, GRID_DIM, device=sim.device)
+        self.boundary_x = boundary_x
+        self.boundary_grid = None
+        if boundary_x.shape[0] > 0:
+            self.boundary_grid = wp.HashGrid(GRID_DIM, GRID_DIM, GRID_DIM, device=sim.device)
+            self.boundary_grid.build(boundary_x, self.support_radius)
+        self.fluid_counts = sim.zeros("neighbours", n + 1, dtype=wp.int32)
+        self.fluid_offsets = sim.zeros("neighbours", n + 1, dtype=wp.int32)
+        self.boundary_counts = sim.zeros("neighbours", n + 1, dtype=wp.int32)
+        self.boundary_offsets = sim.zeros("neighbours", n + 1, dtype=wp.int32)
+        self.fluid_neighbours = sim.zeros("neighbours", max(32 * n, 1), dtype=wp.int32)
+        self.boundary_neighbours = sim.zeros("neighbours", max(8 * n, 1), dtype=wp.int32)
+        self.generation = 0  # bumped when a list array is reallocated
+
+    def update(self, x: wp.array):
+        """Rebuilds the fluid grid and both neighbour lists for positions ``x``."""
+        sim = self.sim
+        n = sim.num_fluid
+        H = self.support_radius
+        self.fluid_grid.build(x, H)
+        sim.launch(nk.count_neighbours, n, [self.fluid_grid.id, x, x, H, 1, self.fluid_counts])
+        wp.utils.array_scan(self.fluid_counts, self.fluid_offsets, inclusive=False)
+        if self.boundary_grid is not None:
+            sim.launch(nk.count_neighbours, n,
+                       [self.boundary_grid.id, x, self.boundary_x, H, 0, self.boundary_counts])
+            wp.utils.array_scan(self.boundary_counts, self.boundary_offsets, inclusive=False)
+        fluid_total = int(self.fluid_offsets[n:].numpy()[0])
+        self.fluid_neighbours = self._ensure_capacity(self.fluid_neighbours, fluid_total)
+        sim.launch(nk.fill_neighbours, n,
+                   [self.fluid_grid.id, x, x, H, 1, self.fluid_offsets, self.fluid_neighbours])
+        if self.boundary_grid is not None:
+            boundary_total = int(self.boundary_offsets[n:].numpy()[0])
+            self.boundary_neighbours = self._ensure_capacity(self.boundary_neighbours, boundary_total)
+            sim.launch(nk.fill_neighbours, n,
+                       [self.boundary_grid.id, x, self.boundary_x, H, 0, self.boundary_offsets,
+                        self.boundary_neighbours])
+
+    def _ensure_capacity(self, array, needed):
+        if needed <= array.shape[0]:
+            return array
+        self.generation += 1
+        return self.sim.zeros("neighbours", int(needed * GROWTH) + 1, dtype=wp.int32)
+
+    def counts(self):
+        """Per-particle (fluid, boundary) neighbour counts as numpy arrays (for tests and stats)."""
+        n = self.sim.num_fluid
+        return self.fluid_counts.numpy()[:n], self.boundary_counts.numpy()[:n]
+
+    @property
+    def nbytes(self):
+        arrays = [self.fluid_counts, self.fluid_offsets, self.boundary_counts, self.boundary_offsets,
+                  self.fluid_neighbours, self.boundary_neighbours]
+        return int(sum(a.capacity for a in arrays))
+
+
+def sort_order(sim, x: wp.array, keys: wp.array, order: wp.array):
+    """Fills ``order`` with the permutation that sorts particles by Z-order cell (on the device)."""
+    n = sim.num_fluid
+    origin = wp.vec3(*np.asarray(sim.scene.domain.min, dtype=np.float32))
+    sim.launch(nk.compute_morton_keys, n, [x, origin, sim.support_radius, keys, order])
+    wp.utils.radix_sort_pairs(keys, order, n)

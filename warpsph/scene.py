@@ -1,0 +1,263 @@
+"""Scene schema: frozen dataclasses, validated once on load.
+
+A scene is a JSON file. Every key is checked against the dataclasses below: an unknown
+key, a wrong type or a value out of range raises :class:`SceneError` naming the file
+and the key path (``fluid_blocks[1].end``), before anything is allocated or written.
+Units are SI: metres, seconds, kilograms.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import difflib
+import json
+import math
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .errors import SceneError
+
+Vec3 = typing.Tuple[float, float, float]
+
+
+def _check(expect, test):
+    """Field metadata: a range check and the words that say what it expects."""
+    return {"expect": expect, "test": test}
+
+
+def _positive():
+    return _check("a number > 0", lambda v: v > 0)
+
+
+@dataclass(frozen=True)
+class Box:
+    min: Vec3
+    max: Vec3
+
+    def validate(self, file, key):
+        if any(lo >= hi for lo, hi in zip(self.min, self.max)):
+            raise SceneError(file, key, f"min {list(self.min)} must be below max {list(self.max)} on every axis")
+
+
+@dataclass(frozen=True)
+class Fluid:
+    density: float = field(default=1000.0, metadata=_positive())  # rest density [kg/m^3]
+    viscosity: float = field(default=0.05, metadata=_check("a number >= 0", lambda v: v >= 0))  # nu [m^2/s], eq 4
+
+
+@dataclass(frozen=True)
+class FluidBlock:
+    """An axis-aligned box filled with particles on a lattice of spacing 2r."""
+
+    start: Vec3
+    end: Vec3
+    velocity: Vec3 = (0.0, 0.0, 0.0)  # initial velocity [m/s]
+
+    def validate(self, file, key):
+        if any(lo >= hi for lo, hi in zip(self.start, self.end)):
+            raise SceneError(file, key, f"start {list(self.start)} must be below end {list(self.end)} on every axis")
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """A static body from a mesh file (OBJ/STL/PLY), surface-sampled once at the particle spacing."""
+
+    mesh: str  # path, relative to the scene file
+    translation: Vec3 = (0.0, 0.0, 0.0)  # [m]
+    scale: Vec3 = (1.0, 1.0, 1.0)
+    rotation_axis: Vec3 = (0.0, 1.0, 0.0)
+    rotation_angle: float = 0.0  # [rad]
+
+
+@dataclass(frozen=True)
+class TimeStepping:
+    cfl: float = field(default=0.5, metadata=_check("a number in (0, 1]", lambda v: 0 < v <= 1))
+    dt_min: float = field(default=1.0e-4, metadata=_positive())  # [s]
+    dt_max: float = field(default=5.0e-3, metadata=_positive())  # [s]
+    fixed_dt: typing.Optional[float] = field(default=None, metadata=_check("null or a number > 0", lambda v: v is None or v > 0))
+
+    def validate(self, file, key):
+        if self.dt_min > self.dt_max:
+            raise SceneError(file, f"{key}.dt_min", f"{self.dt_min} must not exceed dt_max {self.dt_max}")
+
+
+@dataclass(frozen=True)
+class Solver:
+    """DFSPH controls; errors in percent, as in SPlisHSPlasH."""
+
+    density_max_error: float = field(default=0.01, metadata=_positive())  # average, % of rho0
+    divergence_max_error: float = field(default=0.1, metadata=_positive())  # average, % of rho0 per second
+    min_iterations: int = field(default=2, metadata=_check("an integer >= 0", lambda v: v >= 0))
+    max_iterations: int = field(default=100, metadata=_check("an integer >= 1", lambda v: v >= 1))
+    divergence_solver: bool = True
+    divergence_min_iterations: int = field(default=1, metadata=_check("an integer >= 0", lambda v: v >= 0))
+    divergence_max_iterations: int = field(default=100, metadata=_check("an integer >= 1", lambda v: v >= 1))
+    warm_start: bool = True
+    sort_interval: int = field(default=16, metadata=_check("an integer >= 0 (0: never)", lambda v: v >= 0))
+
+    def validate(self, file, key):
+        if self.min_iterations > self.max_iterations:
+            raise SceneError(file, f"{key}.min_iterations", "must not exceed max_iterations")
+
+
+@dataclass(frozen=True)
+class Output:
+    fps: float = field(default=25.0, metadata=_positive())
+    frames: int = field(default=50, metadata=_check("an integer >= 1", lambda v: v >= 1))
+    up_axis: str = field(default="Y", metadata=_check('"Y" or "Z"', lambda v: v in ("Y", "Z")))
+
+
+@dataclass(frozen=True)
+class Scene:
+    particle_radius: float = field(metadata=_positive())  # [m]; support radius is 4r
+    domain: Box
+    fluid_blocks: typing.Tuple[FluidBlock, ...]
+    name: str = "scene"
+    fluid: Fluid = Fluid()
+    gravity: Vec3 = (0.0, -9.81, 0.0)  # [m/s^2]
+    obstacles: typing.Tuple[Obstacle, ...] = ()
+    time: TimeStepping = TimeStepping()
+    solver: Solver = Solver()
+    output: Output = Output()
+    source: typing.Optional[str] = None  # the file it was read from (set by load_scene)
+
+    @property
+    def particle_diameter(self):
+        return 2.0 * self.particle_radius
+
+    @property
+    def support_radius(self):
+        return 4.0 * self.particle_radius
+
+    def validate(self, file, key):
+        if not self.fluid_blocks:
+            raise SceneError(file, "fluid_blocks", "the scene has no fluid: give at least one block")
+        lo, hi = self.domain.min, self.domain.max
+        for n, block in enumerate(self.fluid_blocks):
+            if any(s < a - 1e-9 or e > b + 1e-9 for s, e, a, b in zip(block.start, block.end, lo, hi)):
+                raise SceneError(file, f"fluid_blocks[{n}]",
+                                 f"block {list(block.start)}..{list(block.end)} lies outside the domain {list(lo)}..{list(hi)}")
+        base = Path(file).parent if file else Path(".")
+        for n, obstacle in enumerate(self.obstacles):
+            path = base / obstacle.mesh
+            if not path.is_file():
+                raise SceneError(path, f"obstacles[{n}].mesh", "mesh file not found")
+
+    def mesh_path(self, obstacle: Obstacle) -> Path:
+        base = Path(self.source).parent if self.source else Path(".")
+        return base / obstacle.mesh
+
+
+# ---------------------------------------------------------------------------------------
+# generic parser driven by the dataclass fields
+
+
+def _type_name(tp):
+    if tp is float:
+        return "a number"
+    if tp is int:
+        return "an integer"
+    if tp is bool:
+        return "true or false"
+    if tp is str:
+        return "a string"
+    if tp == Vec3:
+        return "a list of 3 numbers"
+    if dataclasses.is_dataclass(tp):
+        return "an object"
+    return str(tp)
+
+
+def _convert(tp, value, file, key):
+    origin = typing.get_origin(tp)
+    if origin is typing.Union:  # Optional[X]
+        (inner,) = [a for a in typing.get_args(tp) if a is not type(None)]
+        return None if value is None else _convert(inner, value, file, key)
+    if tp == Vec3:
+        if not isinstance(value, list) or len(value) != 3:
+            raise SceneError(file, key, f"expected a list of 3 numbers, got {json.dumps(value)}")
+        return tuple(_convert(float, x, file, f"{key}[{n}]") for n, x in enumerate(value))
+    if origin is tuple:  # Tuple[Dataclass, ...]
+        (inner, _) = typing.get_args(tp)
+        if not isinstance(value, list):
+            raise SceneError(file, key, f"expected a list, got {json.dumps(value)}")
+        return tuple(_convert(inner, x, file, f"{key}[{n}]") for n, x in enumerate(value))
+    if dataclasses.is_dataclass(tp):
+        return parse_dataclass(tp, value, file, key)
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise SceneError(file, key, f"expected true or false, got {json.dumps(value)}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise SceneError(file, key, f"expected an integer, got {json.dumps(value)}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise SceneError(file, key, f"expected a finite number, got {json.dumps(value)}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise SceneError(file, key, f"expected a string, got {json.dumps(value)}")
+        return value
+    raise TypeError(f"unsupported schema type {tp}")
+
+
+def parse_dataclass(cls, data, file=None, key=""):
+    """Builds ``cls`` from a JSON object, checking every key; raises :class:`SceneError`."""
+    where = key or "scene"
+    if not isinstance(data, dict):
+        raise SceneError(file, where, f"expected an object, got {json.dumps(data)}")
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls) if f.name != "source"}
+    for name in data:
+        if name not in fields:
+            close = difflib.get_close_matches(name, fields, n=1)
+            hint = f"; did you mean '{close[0]}'?" if close else f"; known keys: {', '.join(fields)}"
+            raise SceneError(file, f"{key}.{name}" if key else name, f"unknown key{hint}")
+    values = {}
+    for name, f in fields.items():
+        path = f"{key}.{name}" if key else name
+        if name not in data:
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
+                raise SceneError(file, path, f"missing required key ({_type_name(hints[name])})")
+            continue
+        value = _convert(hints[name], data[name], file, path)
+        check = f.metadata.get("test")
+        if check is not None and value is not None and not check(value):
+            raise SceneError(file, path, f"expected {f.metadata['expect']}, got {json.dumps(data[name])}")
+        values[name] = value
+    obj = cls(**values)
+    if hasattr(obj, "validate"):
+        obj.validate(file, where if key else "")
+    return obj
+
+
+def load_scene(path, scale: float = 1.0) -> Scene:
+    """Reads and validates a scene file.
+
+    ``scale`` multiplies the particle count: the particle radius is divided by
+    ``scale ** (1/3)``, so ``scale=0.01`` runs a 1 % version of the scene and the
+    scene file keeps the paper's full-size radius.
+    """
+    path = Path(path)
+    if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
+        raise SceneError(path, "--scale", f"expected a number > 0, got {scale}")
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise SceneError(path, "", f"cannot read the scene file ({exc.strerror})") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise SceneError(path, "", f"not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
+    scene = parse_dataclass(Scene, data, path)
+    return dataclasses.replace(scene, source=str(path), particle_radius=scene.particle_radius / scale ** (1.0 / 3.0))
+
+
+def scene_from_dict(data: dict, base_dir=None, scale: float = 1.0) -> Scene:
+    """Builds a scene from a dict (for scripts and tests); mesh paths resolve against ``base_dir``."""
+    file = Path(base_dir or ".") / "<dict>"
+    scene = parse_dataclass(Scene, data, file)
+    return dataclasses.replace(scene, source=str(file), particle_radius=scene.particle_radius / scale ** (1.0 / 3.0))

@@ -1,0 +1,288 @@
+"""The stepper: DFSPH with non-pressure models, in the order of the VR paper's Algorithm 2."""
+
+from __future__ import annotations
+
+import contextlib
+import time as _time
+from collections import Counter, defaultdict
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+from warpsph import sampling
+from warpsph.kernels.boundary import compute_boundary_volume
+from warpsph.kernels.density import compute_density_and_factor
+from warpsph.kernels.integration import (
+    advance_clock,
+    advect_positions,
+    compute_max_speed,
+    compute_time_step,
+    predict_velocity,
+)
+from warpsph.kernels.neighbours import gather_float, gather_int64, gather_vec3
+from warpsph.models import REGISTRY
+from warpsph.neighbours import NeighbourSearch, sort_order
+from warpsph.scene import Scene
+from warpsph.solver import DFSPHSolver
+
+
+@dataclass
+class FluidParticles:
+    """Per-particle state of the fluid (sorted by cell every ``solver.sort_interval`` steps)."""
+
+    x: wp.array  # position [m]
+    v: wp.array  # velocity [m/s]
+    ids: wp.array  # stable id (int64), follows the particle through re-sorting
+    density: wp.array  # [kg/m^3]
+    factor: wp.array  # DFSPH factor
+    acceleration: wp.array  # non-pressure acceleration of this step [m/s^2]
+
+
+@dataclass
+class BoundaryParticles:
+    """Akinci boundary samples of every static body, sampled and weighed once."""
+
+    x: wp.array
+    v: wp.array
+    volume: wp.array
+    body: np.ndarray  # host: which body each sample belongs to (0 = domain box)
+
+
+# The domain box's boundary layer lies this many particle radii outside its faces. A single
+# Akinci layer sampled at spacing 2r has V_b ~ 1.43 (2r)^3, so a lattice fluid half a spacing
+# from it would start at 1.5 rho0; 2.2 r from the layer it has rest density (within 0.2 %),
+# so a fluid block that touches a face starts at rest.
+WALL_OFFSET = 1.2
+
+
+class StageTimer:
+    """Wall time per stage, synchronising the device around each; free when disabled."""
+
+    def __init__(self, enabled=False):
+        self.enabled = enabled
+        self.seconds = defaultdict(float)
+        self._null = contextlib.nullcontext()
+
+    def __call__(self, name):
+        return self._stage(name) if self.enabled else self._null
+
+    @contextlib.contextmanager
+    def _stage(self, name):
+        wp.synchronize()
+        start = _time.perf_counter()
+        yield
+        wp.synchronize()
+        self.seconds[name] += _time.perf_counter() - start
+
+
+def sample_scene(scene: Scene):
+    """Host-side initial particles: fluid (x, v) and boundary (x, body index)."""
+    d = scene.particle_diameter
+    blocks = [sampling.fill_block(b.start, b.end, d) for b in scene.fluid_blocks]
+    fluid_x = np.concatenate(blocks)
+    fluid_v = np.concatenate([np.tile(np.asarray(b.velocity, np.float32), (len(p), 1))
+                              for b, p in zip(scene.fluid_blocks, blocks)])
+    offset = WALL_OFFSET * scene.particle_radius
+    bodies = [sampling.sample_box_walls(np.asarray(scene.domain.min) - offset, np.asarray(scene.domain.max) + offset, d)]
+    bodies += [sampling.sample_obstacle(o, scene.mesh_path(o), d) for o in scene.obstacles]
+    boundary_x = np.concatenate(bodies)
+    body = np.concatenate([np.full(len(p), n, dtype=np.int32) for n, p in enumerate(bodies)])
+    order = sampling.morton_order(boundary_x, np.asarray(scene.domain.min), scene.support_radius)
+    return fluid_x, fluid_v, boundary_x[order], body[order]
+
+
+class Simulation:
+    """A scene on a device. ``step()`` advances one adaptive time step; ``run()`` frames.
+
+    >>> sim = Simulation(load_scene("scenes/dam_break.json", scale=0.05), device="cpu")
+    >>> sim.run(frames=10)
+    """
+
+    def __init__(self, scene: Scene, device=None, profile=False, use_graph=None):
+        self.scene = scene
+        self.device = wp.get_device(device)
+        self.timer = StageTimer(profile)
+        self.launches = Counter()  # kernel name -> launches (capture counts once)
+        self.allocations = defaultdict(int)  # owner -> bytes
+        r = scene.particle_radius
+        self.support_radius = 4.0 * r
+        self.fluid_volume = (2.0 * r) ** 3  # a lattice of spacing 2r sums to rho0 (see docs)
+        self.rest_density = scene.fluid.density
+        self.particle_mass = self.rest_density * self.fluid_volume
+        self.gravity = wp.vec3(*scene.gravity)
+
+        fluid_x, fluid_v, boundary_x, body = sample_scene(scene)
+        self.num_fluid = len(fluid_x)
+        self.num_boundary = len(boundary_x)
+        with wp.ScopedDevice(self.device):
+            z = self.zeros
+            self.fluid = FluidParticles(
+                x=self.array("fluid", fluid_x, wp.vec3), v=self.array("fluid", fluid_v, wp.vec3),
+                ids=self.array("fluid", np.arange(self.num_fluid, dtype=np.int64), wp.int64),
+                density=z("fluid", self.num_fluid), factor=z("fluid", self.num_fluid),
+                acceleration=z("fluid", self.num_fluid, dtype=wp.vec3))
+            self.boundary = BoundaryParticles(
+                x=self.array("boundary", boundary_x, wp.vec3), v=z("boundary", self.num_boundary, dtype=wp.vec3),
+                volume=z("boundary", self.num_boundary), body=body)
+            self.neighbours = NeighbourSearch(self, self.boundary.x)
+            if self.num_boundary:
+                self.launch(compute_boundary_volume, self.num_boundary,
+                            [self.neighbours.boundary_grid.id, self.boundary.x, self.support_radius, self.boundary.volume])
+            self.pressure_solver = DFSPHSolver(self)
+            self.models = []
+            if scene.fluid.viscosity > 0.0:
+                self.models.append(REGISTRY["viscosity"](self))
+            # clock on the device: dt, previous dt, time, steps, max speed^2
+            self.dt = z("clock", 1)
+            self.dt_previous = self.array("clock", np.array([scene.time.dt_max], np.float32), float)
+            self.time_device = z("clock", 1, dtype=wp.float64)
+            self.steps_device = z("clock", 1, dtype=wp.int64)
+            self.max_speed_sq = z("clock", 1)
+            # scratch for re-sorting
+            self._sort_keys = z("sort", 2 * self.num_fluid, dtype=wp.int32)
+            self._sort_order = z("sort", 2 * self.num_fluid, dtype=wp.int32)
+            self._scratch = {}
+        self.step_count = 0
+        self.use_graph = self.device.is_cuda and wp.is_conditional_graph_supported() if use_graph is None else use_graph
+        self._graph = None
+        self._graph_generation = None
+
+    # -- allocation and launch bookkeeping ---------------------------------------------------
+    def zeros(self, owner, shape, dtype=float):
+        a = wp.zeros(shape, dtype=dtype, device=self.device)
+        self.allocations[owner] += a.capacity
+        return a
+
+    def array(self, owner, data, dtype):
+        a = wp.array(data, dtype=dtype, device=self.device)
+        self.allocations[owner] += a.capacity
+        return a
+
+    def launch(self, kernel, dim, inputs):
+        self.launches[kernel.key] += 1
+        wp.launch(kernel, dim=dim, inputs=inputs, device=self.device)
+
+    # -- re-sorting by cell ------------------------------------------------------------------------
+    _GATHER = {wp.vec3: gather_vec3, wp.float32: gather_float, wp.int64: gather_int64}
+
+    def permute(self, array, order):
+        """array[:] = array[order] for one per-particle array (through a scratch copy)."""
+        key = (array.dtype, array.shape)
+        if key not in self._scratch:
+            self._scratch[key] = self.zeros("sort", array.shape, dtype=array.dtype)
+        scratch = self._scratch[key]
+        self.launch(self._GATHER[array.dtype], self.num_fluid, [array, order, scratch])
+        wp.copy(array, scratch)
+
+    def sort_particles(self):
+        """Re-sorts every fluid particle array (and each model's state) into Z-order of cells."""
+        sort_order(self, self.fluid.x, self._sort_keys, self._sort_order)
+        order = self._sort_order
+        for a in (self.fluid.x, self.fluid.v, self.fluid.ids):
+            self.permute(a, order)
+        self.pressure_solver.reorder(self, order)
+        for m in self.models:
+            m.reorder(self, order)
+
+    # -- the step --------------------------------------------------------------------------------------
+    def step(self):
+        """One DFSPH step with its models (VR paper Algorithm 2; SPlisHSPlasH's step order).
+
+        The divergence correction of Algorithm 1 runs at the start of the step, on the
+        densities of the new positions: it turns v^n (advected at the end of the last
+        step) into the divergence-free v~ that the models refine."""
+        with wp.ScopedDevice(self.device):
+            interval = self.scene.solver.sort_interval
+            if interval and self.step_count % interval == 0:
+                with self.timer("sort"):
+                    self.sort_particles()
+            with self.timer("neighbours"):
+                self.neighbours.update(self.fluid.x)
+            if self.use_graph and not self.timer.enabled:
+                self._step_with_graph()
+            else:
+                self._solve_step()
+        self.step_count += 1
+
+    def _step_with_graph(self):
+        if self._graph is None or self._graph_generation != self.neighbours.generation:
+            if self.step_count == 0:  # load the modules outside the capture
+                self._solve_step()
+                return
+            with wp.ScopedCapture(device=self.device) as capture:
+                self._solve_step()
+            self._graph = capture.graph
+            self._graph_generation = self.neighbours.generation
+        wp.capture_launch(self._graph)
+
+    def _solve_step(self):
+        f, n, t = self.fluid, self.num_fluid, self.timer
+        nb, b = self.neighbours, self.boundary
+        with t("density"):  # rho^n and the DFSPH factor at x^n
+            self.launch(compute_density_and_factor, n,
+                        [f.x, nb.fluid_offsets, nb.fluid_neighbours, b.x, b.volume, nb.boundary_offsets,
+                         nb.boundary_neighbours, self.fluid_volume, self.rest_density, self.support_radius,
+                         f.density, f.factor])
+        with t("time_step"):  # CFL condition on |v^n|
+            self.max_speed_sq.zero_()
+            self.launch(compute_max_speed, n, [f.v, self.max_speed_sq])
+            tm = self.scene.time
+            self.launch(compute_time_step, 1,
+                        [self.max_speed_sq, self.scene.particle_diameter, tm.cfl, tm.dt_min, tm.dt_max,
+                         tm.fixed_dt or 0.0, self.dt_previous, self.dt])
+        with t("divergence_solve"):  # v~ = correctDivergence(v)
+            self.pressure_solver.correct_divergence()
+        with t("non_pressure"):  # a_adv = a_vis (+ models: zeta, stretching, refinement, ...)
+            f.acceleration.zero_()
+            for model in self.models:
+                model.step(self)
+        with t("advection"):  # v_adv = v~ + dt (a_adv + g)
+            self.launch(predict_velocity, n, [f.acceleration, self.gravity, self.dt, f.v])
+        with t("density_solve"):  # projection: rho*(x + dt v_adv) -> rho0
+            self.pressure_solver.correct_density()
+        with t("integration"):  # x^{n+1} = x^n + dt v
+            self.launch(advect_positions, n, [f.v, self.dt, f.x])
+            self.launch(advance_clock, 1, [self.dt, self.time_device, self.steps_device])
+
+    # -- host views -------------------------------------------------------------------------------------
+    @property
+    def time(self) -> float:
+        """Simulated time [s] (reads the device clock)."""
+        return float(self.time_device.numpy()[0])
+
+    def run(self, frames=None, on_frame=None, until_time=None):
+        """Advances ``frames`` output frames at the scene's fps (or until ``until_time``),
+        calling ``on_frame(sim, frame)`` after the initial state and each frame."""
+        fps = self.scene.output.fps
+        frames = self.scene.output.frames if frames is None and until_time is None else frames
+        if until_time is not None:
+            frames = int(np.ceil(until_time * fps - 1e-9))
+        if on_frame is not None:
+            on_frame(self, 0)
+        for frame in range(1, frames + 1):
+            target = frame / fps
+            while self.time < target - 1e-9:
+                self.step()
+            if on_frame is not None:
+                on_frame(self, frame)
+        return self
+
+    def statistics(self):
+        """Solver iterations per solve and the last average errors."""
+        div_it, div_n, dens_it, dens_n = self.pressure_solver.iteration_totals()
+        div_err, dens_err = self.pressure_solver.last_errors()
+        return {
+            "steps": self.step_count,
+            "divergence_iterations": div_it / max(div_n, 1),
+            "density_iterations": dens_it / max(dens_n, 1),
+            "divergence_error": div_err,
+            "density_error": dens_err,
+        }
+
+    def fields(self):
+        """Per-particle fields by name, for every writer (USD, checkpoints, plots)."""
+        out = {"density": self.fluid.density}
+        for m in self.models:
+            out.update(m.fields())
+        return out
