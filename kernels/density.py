@@ -4,6 +4,8 @@ import warp as wp
 
 from .sph_kernel import cubic_kernel, cubic_kernel_gradient, cubic_kernel_zero
 
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.kernel
 def compute_density_and_factor(

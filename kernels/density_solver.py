@@ -4,6 +4,8 @@ import warp as wp
 
 from .pressure import density_rate
 
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.kernel
 def compute_density_source(

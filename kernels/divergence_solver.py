@@ -4,6 +4,8 @@ import warp as wp
 
 from .pressure import density_rate
 
+wp.set_module_options({"enable_backward": False})
+
 # SPlisHSPlasH skips particles with fewer neighbours than this in 3D: near the free
 # surface their density rate is not a reliable divergence estimate.
 MIN_NEIGHBOURS = wp.constant(20)

@@ -2,6 +2,8 @@
 
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.kernel
 def compute_max_speed(v: wp.array(dtype=wp.vec3), max_speed_sq: wp.array(dtype=float)):

@@ -8,6 +8,8 @@ grid and then read by every solver iteration, which is cheaper than repeating th
 
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.kernel
 def count_neighbours(

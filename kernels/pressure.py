@@ -10,6 +10,8 @@ import warp as wp
 
 from .sph_kernel import cubic_kernel_gradient
 
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.func
 def density_rate(
@@ -78,18 +80,24 @@ def apply_pressure_acceleration(
 @wp.kernel
 def scale_warm_start(
     pressure_sum: wp.array(dtype=float),
+    error: wp.array(dtype=float),
     dt: wp.array(dtype=float),
     dt_previous: wp.array(dtype=float),
     per_unit_time: int,
+    warm_start_factor: float,
     stiffness: wp.array(dtype=float),
 ):
-    """Warm start: k_i = last step's accumulated k_i. The divergence solver's k is a rate
-    (k ~ 1/dt for the same velocity correction), so it is rescaled by dt_prev / dt; the
-    rescaled value also restarts this step's sum."""
+    """Warm start: k_i = factor * last step's accumulated k_i, for particles that are
+    compressed now (error_i > 0) and 0 elsewhere (as SPlisHSPlasH): the solvers only add
+    pressure, so stale pressure at an expanding surface would push particles apart.
+    The divergence solver's k is a rate (k ~ 1/dt for the same velocity correction), so
+    it is rescaled by dt_prev / dt. The value also restarts this step's sum."""
     i = wp.tid()
-    scale = float(1.0)
+    scale = warm_start_factor
     if per_unit_time != 0:
-        scale = dt_previous[0] / dt[0]
+        scale = scale * dt_previous[0] / dt[0]
+    if error[i] <= 0.0:
+        scale = 0.0
     k = pressure_sum[i] * scale
     stiffness[i] = k
     pressure_sum[i] = k

@@ -7,6 +7,8 @@ radius), as SPlisHSPlasH does. All kernels in this package take ``H``.
 
 import warp as wp
 
+wp.set_module_options({"enable_backward": False})
+
 PI = wp.constant(3.14159265358979)
 
 

@@ -4,6 +4,8 @@ import warp as wp
 
 from .sph_kernel import cubic_kernel_gradient
 
+wp.set_module_options({"enable_backward": False})
+
 
 @wp.func
 def artificial_laplacian(a_ij: wp.vec3, x_ij: wp.vec3, volume_j: float, support_radius: float):

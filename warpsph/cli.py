@@ -13,7 +13,7 @@ from .errors import SceneError
 def _pick_device(name):
     import warp as wp
 
-    wp.config.quiet = True
+    wp.config.log_level = wp.LOG_WARNING
     wp.init()
     if name == "auto":
         return "cuda:0" if wp.is_cuda_available() else "cpu"

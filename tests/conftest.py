@@ -1,0 +1,44 @@
+"""Shared test helpers: the device list (cpu always, cuda when present) and tiny scenes."""
+
+import os
+
+import numpy as np
+import pytest
+import warp as wp
+
+wp.config.log_level = wp.LOG_WARNING
+wp.init()
+
+from warpsph.scene import scene_from_dict  # noqa: E402
+from warpsph.simulation import Simulation  # noqa: E402
+
+
+def devices():
+    out = ["cpu"]
+    if wp.is_cuda_available():
+        out.append("cuda:0")
+    return out
+
+
+def pytest_generate_tests(metafunc):
+    if "device" in metafunc.fixturenames:
+        metafunc.parametrize("device", devices())
+
+
+def tank_scene(radius=0.02, domain=(0.4, 0.6, 0.4), block=(0.4, 0.4, 0.4), **overrides):
+    """A box of water resting on the floor of a closed tank (all in metres)."""
+    data = {
+        "name": "tank",
+        "particle_radius": radius,
+        "domain": {"min": [0.0, 0.0, 0.0], "max": list(domain)},
+        "fluid_blocks": [{"start": [0.0, 0.0, 0.0], "end": list(block)}],
+    }
+    data.update(overrides)
+    return data
+
+
+def make_sim(data, device="cpu", base_dir=None, **kwargs):
+    return Simulation(scene_from_dict(data, base_dir=base_dir), device=device, **kwargs)
+
+
+SCENES_DIR = os.path.join(os.path.dirname(__file__), "..", "scenes")

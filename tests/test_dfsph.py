@@ -1,0 +1,177 @@
+"""DFSPH physics: rest density, the two solvers, a hydrostatic tank and a dam break."""
+
+import numpy as np
+import pytest
+import warp as wp
+
+from warpsph.solver import DENSITY
+from conftest import make_sim, tank_scene
+
+
+def _densities(sim):
+    sim.neighbours.update(sim.fluid.x)
+    sim._solve_step.__self__  # noqa: B018  (the stepper exists)
+    from warpsph.kernels.density import compute_density_and_factor
+
+    nb, b, f = sim.neighbours, sim.boundary, sim.fluid
+    sim.launch(compute_density_and_factor, sim.num_fluid,
+               [f.x, nb.fluid_offsets, nb.fluid_neighbours, b.x, b.volume, nb.boundary_offsets,
+                nb.boundary_neighbours, sim.fluid_volume, sim.rest_density, sim.support_radius, f.density, f.factor])
+    return f.density.numpy()
+
+
+def test_lattice_density_is_rest_density_in_bulk_and_at_walls(device):
+    r = 0.025
+    sim = make_sim(tank_scene(radius=r, domain=(0.5, 0.5, 0.5), block=(0.5, 0.5, 0.5)), device=device)
+    rho = _densities(sim) / sim.rest_density
+    x = sim.fluid.x.numpy()
+    H = sim.support_radius
+    lo, hi = np.zeros(3), np.full(3, 0.5)
+    dist = np.minimum(x - lo, hi - x)  # distance to each wall pair
+    bulk = np.all(dist > H, axis=1)
+    one_wall = (np.sum(dist < H, axis=1) == 1) & (dist.min(axis=1) < 2 * r)  # the layer touching a face
+    assert bulk.sum() > 50 and one_wall.sum() > 50
+    assert np.max(np.abs(rho[bulk] - 1.0)) < 0.01
+    assert np.max(np.abs(rho[one_wall] - 1.0)) < 0.02
+
+
+def test_boundary_volume_follows_akinci(device):
+    sim = make_sim(tank_scene(), device=device)
+    bx = sim.boundary.x.numpy().astype(np.float64)
+    V = sim.boundary.volume.numpy()
+    H = sim.support_radius
+
+    def W(r):
+        q = r / H
+        k = 8 / (np.pi * H**3)
+        return np.where(q <= 0.5, k * (6 * q**3 - 6 * q**2 + 1), np.where(q <= 1, 2 * k * (1 - q) ** 3, 0))
+
+    for b in range(0, len(bx), 97):
+        expected = 1.0 / W(np.linalg.norm(bx - bx[b], axis=1)).sum()  # includes W(0) of itself
+        assert abs(V[b] - expected) < 1e-4 * expected
+
+
+def test_divergence_solver_removes_compression(device):
+    sim = make_sim(tank_scene(radius=0.02, domain=(0.4, 0.4, 0.4), block=(0.4, 0.4, 0.4),
+                              solver={"divergence_max_error": 0.1}), device=device)
+    x = sim.fluid.x.numpy()
+    c = x.mean(axis=0)
+    v = (-(x - c) * 2.0 + 0.5 * np.sin(6 * x[:, [1, 2, 0]])).astype(np.float32)  # smooth, compressing field
+    sim.fluid.v.assign(v)
+    _densities(sim)
+    sim.dt.assign(np.array([0.002], np.float32))
+    solver = sim.pressure_solver
+
+    def mean_positive_rate():
+        from warpsph.kernels.divergence_solver import compute_divergence_source
+
+        sim.launch(compute_divergence_source, sim.num_fluid, solver._divergence_inputs() + [solver.error, solver.stiffness])
+        return solver.error.numpy().mean()
+
+    before = mean_positive_rate()
+    threshold = 0.1 * 0.01 / 0.002
+    assert before > 5 * threshold
+    solver.correct_divergence()
+    after = mean_positive_rate()
+    assert after <= threshold
+    assert solver.iteration_totals()[0] >= 2
+
+
+def settle_tank(device, seconds, **solver):
+    sim = make_sim(tank_scene(radius=0.02, solver=solver, time={"dt_max": 0.004}), device=device)
+    sim.run(until_time=seconds)
+    return sim
+
+
+@pytest.fixture(scope="module")
+def settled_tank():
+    return settle_tank("cpu", 1.5)
+
+
+def test_hydrostatic_tank_settles(settled_tank):
+    sim = settled_tank
+    x = sim.fluid.x.numpy()
+    height = sim.num_fluid * sim.fluid_volume / (0.4 * 0.4)  # water height from its volume
+    deep = x[:, 1] < x[:, 1].max() - sim.support_radius  # full neighbourhoods, away from the surface
+    rho = sim.fluid.density.numpy()
+    assert abs(rho[deep].mean() / sim.rest_density - 1.0) <= 0.001
+    v = np.linalg.norm(sim.fluid.v.numpy(), axis=1)
+    assert v.max() < 0.1  # m/s; free fall over the column would give ~2 m/s
+    # pressure at mid-depth against rho g h, averaged over 20 steps (the per-step value is noisy)
+    mid = (np.abs(x[:, 1] - height / 2) < sim.scene.particle_radius * 1.5) & \
+        np.all(np.abs(x[:, [0, 2]] - 0.2) < 0.12, axis=1)
+    assert mid.sum() > 10
+    expected = sim.rest_density * 9.81 * (height - x[mid, 1]).mean()
+    samples = []
+    for _ in range(20):
+        sim.step()
+        rho = sim.fluid.density.numpy()
+        ids = sim.fluid.ids.numpy()
+        p = sim.pressure_solver.pressure_sum[DENSITY].numpy() * rho**2 / sim.rest_density
+        samples.append(p[np.isin(ids, settled_ids(sim, mid))].mean())
+    assert abs(np.mean(samples) / expected - 1.0) < 0.05
+
+
+def settled_ids(sim, mask, _cache={}):
+    """Ids of the particles selected by ``mask`` at the first call (they barely move at rest)."""
+    if "ids" not in _cache:
+        _cache["ids"] = sim.fluid.ids.numpy()[mask]
+    return _cache["ids"]
+
+
+def test_warm_start_saves_density_iterations(settled_tank):
+    warm = settled_tank.statistics()["density_iterations"]
+    cold = settle_tank("cpu", 0.3, warm_start=False)
+    assert cold.statistics()["density_iterations"] > warm
+
+
+def test_dam_break_one_second(device):
+    data = tank_scene(radius=0.01, domain=(0.8, 0.5, 0.2), block=(0.2, 0.4, 0.2))
+    sim = make_sim(data, device=device)
+    n0 = sim.num_fluid
+    assert 1000 <= n0 <= 5000
+    ids0 = np.sort(sim.fluid.ids.numpy())
+    sim.run(until_time=1.0)
+    x, v = sim.fluid.x.numpy(), sim.fluid.v.numpy()
+    assert np.all(np.isfinite(x)) and np.all(np.isfinite(v))
+    slack = 1.2 * sim.scene.particle_radius  # the wall layer sits this far outside the box
+    assert np.all(x >= -slack) and np.all(x <= np.array([0.8, 0.5, 0.2]) + slack)
+    assert np.array_equal(np.sort(sim.fluid.ids.numpy()), ids0)
+    # the front has run along the floor (not a frozen column)
+    assert x[:, 0].max() > 0.6
+    # volume: no particle is compressed (no volume lost) and the bulk is at rest density
+    # (not expanded); splashes and the free surface have partial neighbourhoods
+    rho = sim.fluid.density.numpy() / sim.rest_density
+    assert rho.max() < 1.03
+    assert abs(np.median(rho) - 1.0) < 0.01
+
+
+def test_fixed_time_step(device):
+    sim = make_sim(tank_scene(radius=0.04, time={"fixed_dt": 0.002}), device=device)
+    for _ in range(3):
+        sim.step()
+    assert sim.dt.numpy()[0] == pytest.approx(0.002)
+    assert sim.time == pytest.approx(0.006, rel=1e-6)
+
+
+def test_adaptive_time_step_obeys_cfl(device):
+    sim = make_sim(tank_scene(radius=0.04, fluid_blocks=[{"start": [0, 0, 0], "end": [0.4, 0.4, 0.4],
+                                                          "velocity": [5.0, 0, 0]}]), device=device)
+    sim.step()
+    assert sim.dt.numpy()[0] == pytest.approx(0.5 * 0.4 * 0.08 / 5.0, rel=1e-4)  # below dt_max
+
+
+def test_sorting_keeps_each_particle_state(device):
+    sim = make_sim(tank_scene(radius=0.04), device=device)
+    rng = np.random.default_rng(3)
+    sim.fluid.v.assign(rng.normal(size=(sim.num_fluid, 3)).astype(np.float32))
+    sim.fluid.x.assign(sim.fluid.x.numpy()[rng.permutation(sim.num_fluid)])  # scramble positions
+    before = {int(i): (x.tolist(), v.tolist()) for i, x, v in
+              zip(sim.fluid.ids.numpy(), sim.fluid.x.numpy(), sim.fluid.v.numpy())}
+    sim.sort_particles()
+    after = {int(i): (x.tolist(), v.tolist()) for i, x, v in
+             zip(sim.fluid.ids.numpy(), sim.fluid.x.numpy(), sim.fluid.v.numpy())}
+    assert before == after
+    x = sim.fluid.x.numpy()
+    # cell order: consecutive particles are close together
+    assert np.median(np.linalg.norm(np.diff(x, axis=0), axis=1)) < 2 * sim.support_radius
