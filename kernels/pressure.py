@@ -77,27 +77,44 @@ def apply_pressure_acceleration(
         stiffness_sum[i] = stiffness_sum[i] + ki
 
 
+REDUCE_THREADS = wp.constant(4096)  # threads of reduce_error; each strides over n / REDUCE_THREADS values
+
+
+@wp.kernel
+def reduce_error(error: wp.array(dtype=float), count: int, error_stats: wp.array(dtype=float)):
+    """error_stats[0] += sum of error, error_stats[1] = max(error_stats[1], max of error)
+    (update_solver_status resets both after reading). Grid-stride partial results, one
+    atomic per thread; unlike ``wp.utils.array_sum`` it allocates nothing, so it can sit
+    inside a captured ``wp.capture_while`` body."""
+    t = wp.tid()
+    threads = wp.min(count, REDUCE_THREADS)
+    s = float(0.0)
+    m = float(0.0)
+    for i in range(t, count, threads):
+        e = error[i]
+        s += e
+        m = wp.max(m, e)
+    wp.atomic_add(error_stats, 0, s)
+    wp.atomic_max(error_stats, 1, m)
+
+
 @wp.kernel
 def scale_warm_start(
     pressure_sum: wp.array(dtype=float),
-    error: wp.array(dtype=float),
     dt: wp.array(dtype=float),
     dt_previous: wp.array(dtype=float),
     per_unit_time: int,
     warm_start_factor: float,
     stiffness: wp.array(dtype=float),
 ):
-    """Warm start: k_i = factor * last step's accumulated k_i, for particles that are
-    compressed now (error_i > 0) and 0 elsewhere (as SPlisHSPlasH): the solvers only add
-    pressure, so stale pressure at an expanding surface would push particles apart.
+    """Warm start: k_i = factor * last step's accumulated k_i (factor < 1: the solvers only
+    add pressure, so a full warm start cannot release pressure that is no longer needed).
     The divergence solver's k is a rate (k ~ 1/dt for the same velocity correction), so
     it is rescaled by dt_prev / dt. The value also restarts this step's sum."""
     i = wp.tid()
     scale = warm_start_factor
     if per_unit_time != 0:
         scale = scale * dt_previous[0] / dt[0]
-    if error[i] <= 0.0:
-        scale = 0.0
     k = pressure_sum[i] * scale
     stiffness[i] = k
     pressure_sum[i] = k
@@ -105,9 +122,10 @@ def scale_warm_start(
 
 @wp.kernel
 def update_solver_status(
-    error_sum: wp.array(dtype=float),
+    error_stats: wp.array(dtype=float),
     num_particles: int,
     max_error: float,
+    max_peak_error: float,
     per_unit_time: int,
     dt: wp.array(dtype=float),
     min_iterations: int,
@@ -115,29 +133,36 @@ def update_solver_status(
     first: int,
     kind: int,
     average_error: wp.array(dtype=float),
-    status: wp.array(dtype=wp.int32),
+    condition: wp.array(dtype=wp.int32),
+    iterations: wp.array(dtype=wp.int32),
     totals: wp.array(dtype=wp.int64),
 ):
     """One thread: average error over the fluid and the loop condition, on the device.
 
-    ``status[0]`` is the condition read by ``wp.capture_while`` (1 = iterate again),
-    ``status[1]`` counts the iterations done. The tolerance is ``max_error`` (relative),
+    ``condition[0]`` is read by ``wp.capture_while`` (1 = iterate again), ``iterations[0]``
+    counts the iterations done. The tolerance is ``max_error`` (relative),
     divided by dt when the error is a rate (divergence solver: SPlisHSPlasH's
-    avg <= maxErrorV / dt). When the loop ends, its iterations are added to
+    avg <= maxErrorV / dt). Besides the average, the largest error must be below
+    ``max_peak_error``: in a tall column the average hides a crushed bottom layer. When the loop ends, its iterations are added to
     ``totals[2 kind]`` and ``totals[2 kind + 1]`` counts the solves."""
     if first != 0:
-        status[1] = 0
+        iterations[0] = 0
     else:
-        status[1] = status[1] + 1
-    avg = error_sum[0] / float(wp.max(num_particles, 1))
+        iterations[0] = iterations[0] + 1
+    avg = error_stats[0] / float(wp.max(num_particles, 1))
+    peak = error_stats[1]
+    error_stats[0] = 0.0  # ready for the next reduce_error, without a memset in the loop body
+    error_stats[1] = 0.0
     average_error[0] = avg
     eta = max_error
+    eta_peak = max_peak_error
     if per_unit_time != 0:
         eta = max_error / dt[0]
-    iterations = status[1]
-    if (avg > eta or iterations < min_iterations) and iterations < max_iterations:
-        status[0] = 1
+        eta_peak = max_peak_error / dt[0]
+    done = iterations[0]
+    if (avg > eta or peak > eta_peak or done < min_iterations) and done < max_iterations:
+        condition[0] = 1
     else:
-        status[0] = 0
-        totals[2 * kind] = totals[2 * kind] + wp.int64(iterations)
+        condition[0] = 0
+        totals[2 * kind] = totals[2 * kind] + wp.int64(done)
         totals[2 * kind + 1] = totals[2 * kind + 1] + wp.int64(1)

@@ -1,0 +1,114 @@
+"""Benchmark: the dam break at ~1M fluid particles, ms per step in total and per stage.
+
+    python tools/bench_dam_break.py --device cuda --particles 1e6 --out tools/results/bench_dam_break_h100.json
+
+Runs ``--warmup`` steps, then ``--steps`` steps with a synchronised per-stage timer
+(stage times), then ``--steps`` steps as the production stepper runs them (CUDA graph
+for the solver part where available) for the total. Writes JSON with the device, Warp
+version and commit, memory per particle (device free memory before/after) and the mean
+solver iterations.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import time
+from pathlib import Path
+
+import warp as wp
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def commit():
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    except OSError:
+        return "unknown"
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scene", default=str(ROOT / "scenes" / "dam_break.json"))
+    parser.add_argument("--device", default="cuda")
+    parser.add_argument("--particles", type=float, default=1e6, help="target fluid particle count")
+    parser.add_argument("--warmup", type=int, default=100)
+    parser.add_argument("--steps", type=int, default=50)
+    parser.add_argument("--density-error", type=float, help="override solver.density_max_error [%]")
+    parser.add_argument("--out", help="JSON file to write")
+    args = parser.parse_args()
+
+    wp.config.log_level = wp.LOG_WARNING
+    wp.init()
+    import dataclasses
+
+    from warpsph.scene import load_scene
+    from warpsph.simulation import Simulation
+
+    base = load_scene(args.scene)
+    from warpsph.simulation import sample_scene
+
+    n_base = len(sample_scene(base)[0])
+    scene = load_scene(args.scene, scale=args.particles / n_base)
+    if args.density_error:
+        scene = dataclasses.replace(scene, solver=dataclasses.replace(scene.solver, density_max_error=args.density_error))
+    device = wp.get_device(args.device)
+    wp.synchronize_device(device)
+    free_before = device.free_memory if device.is_cuda else None
+    sim = Simulation(scene, device=device)
+    for _ in range(args.warmup):
+        sim.step()
+    wp.synchronize_device(device)
+    free_after = device.free_memory if device.is_cuda else None
+
+    # per-stage times (synchronised around every stage; no graph)
+    sim.timer.enabled = True
+    sim.timer.seconds.clear()
+    it0 = sim.pressure_solver.iteration_totals()
+    for _ in range(args.steps):
+        sim.step()
+    stages = {k: 1e3 * v / args.steps for k, v in sim.timer.seconds.items()}
+    sim.timer.enabled = False
+
+    # production stepping (graph where available), total only
+    wp.synchronize_device(device)
+    start = time.perf_counter()
+    for _ in range(args.steps):
+        sim.step()
+    wp.synchronize_device(device)
+    total_ms = 1e3 * (time.perf_counter() - start) / args.steps
+    it1 = sim.pressure_solver.iteration_totals()
+    solves = max(it1[1] - it0[1], 1), max(it1[3] - it0[3], 1)
+    result = {
+        "benchmark": "dam_break",
+        "device": device.name if device.is_cuda else "cpu",
+        "warp": wp.__version__,
+        "commit": commit(),
+        "fluid_particles": sim.num_fluid,
+        "boundary_particles": sim.num_boundary,
+        "particle_radius": scene.particle_radius,
+        "density_max_error_percent": scene.solver.density_max_error,
+        "divergence_max_error_percent": scene.solver.divergence_max_error,
+        "graph": bool(sim.use_graph),
+        "simulated_time_s": sim.time,
+        "steps_total": sim.step_count,
+        "ms_per_step": total_ms,
+        "ms_per_step_by_stage_synchronised": stages,
+        "mean_divergence_iterations": (it1[0] - it0[0]) / solves[0],
+        "mean_density_iterations": (it1[2] - it0[2]) / solves[1],
+        "bytes_per_fluid_particle_device": None if free_before is None else (free_before - free_after) / sim.num_fluid,
+        "bytes_per_fluid_particle_arrays": sum(sim.allocations.values()) / sim.num_fluid,
+        "allocations_bytes": dict(sim.allocations),
+        "dt_last": float(sim.dt.numpy()[0]),
+    }
+    text = json.dumps(result, indent=2)
+    print(text)
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
