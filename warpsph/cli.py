@@ -25,11 +25,11 @@ def _pick_device(name):
 class Progress:
     """One status line per frame on stderr: frames, sim time, steps/s, solver iterations."""
 
-    def __init__(self, frames, stream=sys.stderr):
+    def __init__(self, frames, stream=None):
         self.frames = frames
-        self.stream = stream
+        self.stream = stream or sys.stderr
         self.start = time.perf_counter()
-        self.tty = stream.isatty()
+        self.tty = self.stream.isatty()
 
     def __call__(self, sim, frame):
         elapsed = time.perf_counter() - self.start
