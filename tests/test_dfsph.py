@@ -9,9 +9,10 @@ from conftest import make_sim, tank_scene
 
 
 def _densities(sim):
-    sim.neighbours.update(sim.fluid.x)
-    sim._solve_step.__self__  # noqa: B018  (the stepper exists)
+    """Densities of the current positions, computed as the stepper does (no step taken)."""
     from warpsph.kernels.density import compute_density_and_factor
+
+    sim.neighbours.update(sim.fluid.x)
 
     nb, b, f = sim.neighbours, sim.boundary, sim.fluid
     sim.launch(compute_density_and_factor, sim.num_fluid,
