@@ -2,6 +2,7 @@
 
 import warp as wp
 
+from .particles import Boundary, Neighbours
 from .sph_kernel import cubic_kernel, cubic_kernel_gradient, cubic_kernel_zero
 
 wp.set_module_options({"enable_backward": False})
@@ -10,12 +11,8 @@ wp.set_module_options({"enable_backward": False})
 @wp.kernel
 def compute_density_and_factor(
     x: wp.array(dtype=wp.vec3),
-    fluid_offsets: wp.array(dtype=wp.int32),
-    fluid_neighbours: wp.array(dtype=wp.int32),
-    boundary_x: wp.array(dtype=wp.vec3),
-    boundary_volume: wp.array(dtype=float),
-    boundary_offsets: wp.array(dtype=wp.int32),
-    boundary_neighbours: wp.array(dtype=wp.int32),
+    nb: Neighbours,
+    boundary: Boundary,
     fluid_volume: float,
     rest_density: float,
     support_radius: float,
@@ -30,17 +27,17 @@ def compute_density_and_factor(
     rho = fluid_volume * cubic_kernel_zero(support_radius)
     grad_sum = wp.vec3(0.0)
     grad_sq = float(0.0)
-    for k in range(fluid_offsets[i], fluid_offsets[i + 1]):
-        x_ij = xi - x[fluid_neighbours[k]]
+    for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
+        x_ij = xi - x[nb.fluid[k]]
         rho += fluid_volume * cubic_kernel(wp.length(x_ij), support_radius)
         g = fluid_volume * cubic_kernel_gradient(x_ij, support_radius)
         grad_sum += g
         grad_sq += wp.dot(g, g)
-    for k in range(boundary_offsets[i], boundary_offsets[i + 1]):
-        b = boundary_neighbours[k]
-        x_ib = xi - boundary_x[b]
-        rho += boundary_volume[b] * cubic_kernel(wp.length(x_ib), support_radius)
-        grad_sum += boundary_volume[b] * cubic_kernel_gradient(x_ib, support_radius)
+    for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
+        b = nb.boundary[k]
+        x_ib = xi - boundary.x[b]
+        rho += boundary.volume[b] * cubic_kernel(wp.length(x_ib), support_radius)
+        grad_sum += boundary.volume[b] * cubic_kernel_gradient(x_ib, support_radius)
     density[i] = rest_density * rho
     denominator = wp.dot(grad_sum, grad_sum) + grad_sq
     if denominator > 1.0e-6 / (support_radius * support_radius):

@@ -2,6 +2,7 @@
 
 import warp as wp
 
+from .particles import Boundary, Neighbours
 from .pressure import density_rate
 
 wp.set_module_options({"enable_backward": False})
@@ -11,13 +12,8 @@ wp.set_module_options({"enable_backward": False})
 def compute_density_source(
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
-    fluid_offsets: wp.array(dtype=wp.int32),
-    fluid_neighbours: wp.array(dtype=wp.int32),
-    boundary_x: wp.array(dtype=wp.vec3),
-    boundary_v: wp.array(dtype=wp.vec3),
-    boundary_volume: wp.array(dtype=float),
-    boundary_offsets: wp.array(dtype=wp.int32),
-    boundary_neighbours: wp.array(dtype=wp.int32),
+    nb: Neighbours,
+    boundary: Boundary,
     density: wp.array(dtype=float),
     factor: wp.array(dtype=float),
     fluid_volume: float,
@@ -31,9 +27,7 @@ def compute_density_source(
     s_i = max(rho*_i/rho0 - 1, 0) (pressure clamped at >= 0) and k_i = s_i factor_i / dt^2."""
     i = wp.tid()
     h = dt[0]
-    predicted = density[i] / rest_density + h * density_rate(
-        i, x, v, fluid_offsets, fluid_neighbours, boundary_x, boundary_v, boundary_volume,
-        boundary_offsets, boundary_neighbours, fluid_volume, support_radius)
+    predicted = density[i] / rest_density + h * density_rate(i, x, v, nb, boundary, fluid_volume, support_radius)
     s = wp.max(predicted - 1.0, 0.0)
     error[i] = s
     stiffness[i] = s * factor[i] / (h * h)

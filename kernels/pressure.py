@@ -8,6 +8,7 @@ value accumulated over a step is a physical pressure that warm-starts the next s
 
 import warp as wp
 
+from .particles import Boundary, Neighbours
 from .sph_kernel import cubic_kernel_gradient
 
 wp.set_module_options({"enable_backward": False})
@@ -18,13 +19,8 @@ def density_rate(
     i: int,
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
-    fluid_offsets: wp.array(dtype=wp.int32),
-    fluid_neighbours: wp.array(dtype=wp.int32),
-    boundary_x: wp.array(dtype=wp.vec3),
-    boundary_v: wp.array(dtype=wp.vec3),
-    boundary_volume: wp.array(dtype=float),
-    boundary_offsets: wp.array(dtype=wp.int32),
-    boundary_neighbours: wp.array(dtype=wp.int32),
+    nb: Neighbours,
+    boundary: Boundary,
     fluid_volume: float,
     support_radius: float,
 ):
@@ -32,12 +28,12 @@ def density_rate(
     xi = x[i]
     vi = v[i]
     rate = float(0.0)
-    for k in range(fluid_offsets[i], fluid_offsets[i + 1]):
-        j = fluid_neighbours[k]
+    for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
+        j = nb.fluid[k]
         rate += fluid_volume * wp.dot(vi - v[j], cubic_kernel_gradient(xi - x[j], support_radius))
-    for k in range(boundary_offsets[i], boundary_offsets[i + 1]):
-        b = boundary_neighbours[k]
-        rate += boundary_volume[b] * wp.dot(vi - boundary_v[b], cubic_kernel_gradient(xi - boundary_x[b], support_radius))
+    for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
+        b = nb.boundary[k]
+        rate += boundary.volume[b] * wp.dot(vi - boundary.v[b], cubic_kernel_gradient(xi - boundary.x[b], support_radius))
     return rate
 
 
@@ -45,12 +41,8 @@ def density_rate(
 def apply_pressure_acceleration(
     stiffness: wp.array(dtype=float),
     x: wp.array(dtype=wp.vec3),
-    fluid_offsets: wp.array(dtype=wp.int32),
-    fluid_neighbours: wp.array(dtype=wp.int32),
-    boundary_x: wp.array(dtype=wp.vec3),
-    boundary_volume: wp.array(dtype=float),
-    boundary_offsets: wp.array(dtype=wp.int32),
-    boundary_neighbours: wp.array(dtype=wp.int32),
+    nb: Neighbours,
+    boundary: Boundary,
     fluid_volume: float,
     support_radius: float,
     dt: wp.array(dtype=float),
@@ -66,12 +58,12 @@ def apply_pressure_acceleration(
     ki = stiffness[i]
     xi = x[i]
     dv = wp.vec3(0.0)
-    for k in range(fluid_offsets[i], fluid_offsets[i + 1]):
-        j = fluid_neighbours[k]
+    for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
+        j = nb.fluid[k]
         dv += fluid_volume * (ki + stiffness[j]) * cubic_kernel_gradient(xi - x[j], support_radius)
-    for k in range(boundary_offsets[i], boundary_offsets[i + 1]):
-        b = boundary_neighbours[k]
-        dv += boundary_volume[b] * ki * cubic_kernel_gradient(xi - boundary_x[b], support_radius)
+    for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
+        b = nb.boundary[k]
+        dv += boundary.volume[b] * ki * cubic_kernel_gradient(xi - boundary.x[b], support_radius)
     v[i] = v[i] - dt[0] * dv
     if accumulate != 0:
         stiffness_sum[i] = stiffness_sum[i] + ki

@@ -2,6 +2,7 @@
 
 import warp as wp
 
+from .particles import Neighbours
 from .sph_kernel import cubic_kernel_gradient
 
 wp.set_module_options({"enable_backward": False})
@@ -21,8 +22,7 @@ def add_viscosity_acceleration(
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
     density: wp.array(dtype=float),
-    fluid_offsets: wp.array(dtype=wp.int32),
-    fluid_neighbours: wp.array(dtype=wp.int32),
+    nb: Neighbours,
     particle_mass: float,
     viscosity: float,
     support_radius: float,
@@ -33,7 +33,7 @@ def add_viscosity_acceleration(
     xi = x[i]
     vi = v[i]
     lap = wp.vec3(0.0)
-    for k in range(fluid_offsets[i], fluid_offsets[i + 1]):
-        j = fluid_neighbours[k]
+    for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
+        j = nb.fluid[k]
         lap += artificial_laplacian(vi - v[j], xi - x[j], particle_mass / density[j], support_radius)
     acceleration[i] = acceleration[i] + viscosity * lap

@@ -14,10 +14,10 @@ def _densities(sim):
 
     sim.neighbours.update(sim.fluid.x)
 
-    nb, b, f = sim.neighbours, sim.boundary, sim.fluid
+    f = sim.fluid
     sim.launch(compute_density_and_factor, sim.num_fluid,
-               [f.x, nb.fluid_offsets, nb.fluid_neighbours, b.x, b.volume, nb.boundary_offsets,
-                nb.boundary_neighbours, sim.fluid_volume, sim.rest_density, sim.support_radius, f.density, f.factor])
+               [f.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume, sim.rest_density,
+                sim.support_radius, f.density, f.factor])
     return f.density.numpy()
 
 

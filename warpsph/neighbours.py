@@ -6,6 +6,7 @@ import numpy as np
 import warp as wp
 
 from warpsph.kernels import neighbours as nk
+from warpsph.kernels.particles import Neighbours
 
 GRID_DIM = 128  # hash grid buckets per axis (cells hash into a 128^3 table)
 GROWTH = 1.25  # spare capacity when a neighbour list must grow
@@ -60,6 +61,16 @@ class NeighbourSearch:
             sim.launch(nk.fill_neighbours, n,
                        [self.boundary_grid.id, x, self.boundary_x, H, 0, self.boundary_offsets,
                         self.boundary_neighbours])
+
+    @property
+    def lists(self) -> Neighbours:
+        """The current lists as the struct the kernels take."""
+        s = Neighbours()
+        s.fluid_offsets = self.fluid_offsets
+        s.fluid = self.fluid_neighbours
+        s.boundary_offsets = self.boundary_offsets
+        s.boundary = self.boundary_neighbours
+        return s
 
     def _ensure_capacity(self, array, needed):
         if needed <= array.shape[0]:

@@ -21,6 +21,7 @@ from warpsph.kernels.integration import (
     predict_velocity,
 )
 from warpsph.kernels.neighbours import gather_float, gather_int64, gather_vec3
+from warpsph.kernels.particles import Boundary
 from warpsph.models import REGISTRY
 from warpsph.neighbours import NeighbourSearch, sort_order
 from warpsph.scene import Scene
@@ -47,6 +48,13 @@ class BoundaryParticles:
     v: wp.array
     volume: wp.array
     body: np.ndarray  # host: which body each sample belongs to (0 = domain box)
+
+    @property
+    def samples(self) -> Boundary:
+        """The arrays as the struct the kernels take."""
+        s = Boundary()
+        s.x, s.v, s.volume = self.x, self.v, self.volume
+        return s
 
 
 # The domain box's boundary layer lies this many particle radii outside its faces. A single
@@ -218,12 +226,10 @@ class Simulation:
 
     def _solve_step(self):
         f, n, t = self.fluid, self.num_fluid, self.timer
-        nb, b = self.neighbours, self.boundary
         with t("density"):  # rho^n and the DFSPH factor at x^n
             self.launch(compute_density_and_factor, n,
-                        [f.x, nb.fluid_offsets, nb.fluid_neighbours, b.x, b.volume, nb.boundary_offsets,
-                         nb.boundary_neighbours, self.fluid_volume, self.rest_density, self.support_radius,
-                         f.density, f.factor])
+                        [f.x, self.neighbours.lists, self.boundary.samples, self.fluid_volume, self.rest_density,
+                         self.support_radius, f.density, f.factor])
         with t("time_step"):  # CFL condition on |v^n|
             self.max_speed_sq.zero_()
             self.launch(compute_max_speed, n, [f.v, self.max_speed_sq])

@@ -70,10 +70,8 @@ class DFSPHSolver:
 
     # -------------------------------------------------------------------------------------
     def _common(self):
-        sim, f, nb = self.sim, self.sim.fluid, self.sim.neighbours
-        b = sim.boundary
-        return [f.x, f.v, nb.fluid_offsets, nb.fluid_neighbours, b.x, b.v, b.volume,
-                nb.boundary_offsets, nb.boundary_neighbours]
+        sim = self.sim
+        return [sim.fluid.x, sim.fluid.v, sim.neighbours.lists, sim.boundary.samples]
 
     def _divergence_inputs(self):
         sim = self.sim
@@ -85,11 +83,10 @@ class DFSPHSolver:
                                  sim.support_radius, sim.dt]
 
     def _apply(self, kind, accumulate):
-        sim, nb, b = self.sim, self.sim.neighbours, self.sim.boundary
+        sim = self.sim
         sim.launch(apply_pressure_acceleration, sim.num_fluid,
-                   [self.stiffness, sim.fluid.x, nb.fluid_offsets, nb.fluid_neighbours, b.x, b.volume,
-                    nb.boundary_offsets, nb.boundary_neighbours, sim.fluid_volume, sim.support_radius,
-                    sim.dt, accumulate, self.pressure_sum[kind], sim.fluid.v])
+                   [self.stiffness, sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume,
+                    sim.support_radius, sim.dt, accumulate, self.pressure_sum[kind], sim.fluid.v])
 
     def _measure(self, kind, source_kernel, inputs, max_error, min_it, max_it, first):
         sim = self.sim

@@ -11,7 +11,6 @@ class Viscosity(Model):
 
     def step(self, sim):
         f = sim.fluid
-        nb = sim.neighbours
         sim.launch(add_viscosity_acceleration, sim.num_fluid,
-                   [f.x, f.v, f.density, nb.fluid_offsets, nb.fluid_neighbours, sim.particle_mass,
+                   [f.x, f.v, f.density, sim.neighbours.lists, sim.particle_mass,
                     sim.scene.fluid.viscosity, sim.support_radius, f.acceleration])
