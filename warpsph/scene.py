@@ -109,6 +109,41 @@ class Output:
 
 
 @dataclass(frozen=True)
+class VorticityRefinement:
+    """Vorticity refinement (VR paper, Algorithm 2): v <- v~ + alpha dv (eq 17)."""
+
+    alpha: float = field(default=1.0, metadata=_check("a number >= 0", lambda v: v >= 0))
+    viscosity: typing.Optional[float] = field(  # nu_v of eq 10 [m^2/s]; default: the fluid's
+        default=None, metadata=_check("null or a number >= 0", lambda v: v is None or v >= 0))
+
+
+@dataclass(frozen=True)
+class RankineFeedback:
+    """Rankine vortex feedback (Rankine paper, Algorithm 1): r_c = beta sqrt(4 1.25643 nu dt)."""
+
+    beta: float = field(default=1.0, metadata=_check("a number in [0, 1]", lambda v: 0 <= v <= 1))
+    viscosity: typing.Optional[float] = field(  # nu of eq 11 [m^2/s]; default: the fluid's
+        default=None, metadata=_check("null or a number >= 0", lambda v: v is None or v >= 0))
+
+
+@dataclass(frozen=True)
+class Micropolar:
+    """Micropolar turbulence (Bender et al. 2017/2018), the papers' baseline."""
+
+    transfer_coefficient: float = field(default=0.05, metadata=_check("a number >= 0", lambda v: v >= 0))  # nu_t
+    inverse_inertia: float = field(default=0.5, metadata=_positive())  # Theta^-1
+    viscosity_omega: float = field(default=0.1, metadata=_check("a number >= 0", lambda v: v >= 0))  # zeta
+
+
+# scene "models" entries: {"type": NAME, ...parameters}
+MODEL_TYPES = {"vorticity_refinement": VorticityRefinement, "rankine": RankineFeedback, "micropolar": Micropolar}
+
+
+class ModelConfig:
+    """Marker type of a "models" entry: one of MODEL_TYPES, chosen by its "type" key."""
+
+
+@dataclass(frozen=True)
 class Scene:
     particle_radius: float = field(metadata=_positive())  # [m]; support radius is 4r
     domain: Box
@@ -120,6 +155,7 @@ class Scene:
     time: TimeStepping = TimeStepping()
     solver: Solver = Solver()
     output: Output = Output()
+    models: typing.Tuple[ModelConfig, ...] = ()  # turbulence models, e.g. [{"type": "rankine", "beta": 0.6}]
     source: typing.Optional[str] = None  # the file it was read from (set by load_scene)
 
     @property
@@ -138,6 +174,10 @@ class Scene:
             if any(s < a - 1e-9 or e > b + 1e-9 for s, e, a, b in zip(block.start, block.end, lo, hi)):
                 raise SceneError(file, f"fluid_blocks[{n}]",
                                  f"block {list(block.start)}..{list(block.end)} lies outside the domain {list(lo)}..{list(hi)}")
+        kinds = [type(m) for m in self.models]
+        for n, kind in enumerate(kinds):
+            if kinds.index(kind) != n:
+                raise SceneError(file, f"models[{n}]", "this model is already enabled")
         base = Path(file).parent if file else Path(".")
         for n, obstacle in enumerate(self.obstacles):
             path = base / obstacle.mesh
@@ -183,6 +223,8 @@ def _convert(tp, value, file, key):
         if not isinstance(value, list):
             raise SceneError(file, key, f"expected a list, got {json.dumps(value)}")
         return tuple(_convert(inner, x, file, f"{key}[{n}]") for n, x in enumerate(value))
+    if tp is ModelConfig:
+        return _parse_model(value, file, key)
     if dataclasses.is_dataclass(tp):
         return parse_dataclass(tp, value, file, key)
     if tp is bool:
@@ -202,6 +244,18 @@ def _convert(tp, value, file, key):
             raise SceneError(file, key, f"expected a string, got {json.dumps(value)}")
         return value
     raise TypeError(f"unsupported schema type {tp}")
+
+
+def _parse_model(value, file, key):
+    if not isinstance(value, dict) or "type" not in value:
+        raise SceneError(file, key, f'expected an object with a "type" ({", ".join(MODEL_TYPES)})')
+    name = value["type"]
+    if name not in MODEL_TYPES:
+        close = difflib.get_close_matches(str(name), MODEL_TYPES, n=1)
+        hint = f"; did you mean '{close[0]}'?" if close else f"; known: {', '.join(MODEL_TYPES)}"
+        raise SceneError(file, f"{key}.type", f"unknown model {json.dumps(name)}{hint}")
+    params = {k: v for k, v in value.items() if k != "type"}
+    return parse_dataclass(MODEL_TYPES[name], params, file, key)
 
 
 def parse_dataclass(cls, data, file=None, key=""):

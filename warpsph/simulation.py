@@ -23,8 +23,11 @@ from warpsph.kernels.integration import (
 from warpsph.kernels.neighbours import gather_float, gather_int64, gather_vec3
 from warpsph.kernels.particles import Boundary
 from warpsph.models import REGISTRY
+from warpsph.models.vorticity import VorticityField
 from warpsph.neighbours import NeighbourSearch, sort_order
-from warpsph.scene import Scene
+from warpsph.scene import MODEL_TYPES, Scene
+
+MODEL_NAMES = {cls: name for name, cls in MODEL_TYPES.items()}
 from warpsph.solver import DFSPHSolver
 
 
@@ -141,6 +144,12 @@ class Simulation:
             self.models = []
             if scene.fluid.viscosity > 0.0:
                 self.models.append(REGISTRY["viscosity"](self))
+            self.models += [REGISTRY[MODEL_NAMES[type(p)]](self, p) for p in scene.models]
+            self.turbulence_models = self.models[1:] if scene.fluid.viscosity > 0.0 else list(self.models)
+            # the vorticity of v~, shared by the models, exists only when one reads it
+            self.vorticity_field = None
+            if any(m.needs_vorticity for m in self.models):
+                self.vorticity_field = VorticityField(self, any(m.needs_gradient for m in self.models))
             # clock on the device: dt, previous dt, time, steps, max speed^2
             self.dt = z("clock", 1)
             self.dt_previous = self.array("clock", np.array([scene.time.dt_max], np.float32), float)
@@ -239,8 +248,10 @@ class Simulation:
                          tm.fixed_dt or 0.0, self.dt_previous, self.dt])
         with t("divergence_solve"):  # v~ = correctDivergence(v)
             self.pressure_solver.correct_divergence()
-        with t("non_pressure"):  # a_adv = a_vis (+ models: zeta, stretching, refinement, ...)
+        with t("non_pressure"):  # a_adv = a_vis; turbulence models refine v~ (Algorithm 2)
             f.acceleration.zero_()
+            if self.vorticity_field is not None:  # zeta~ = curl v~, once for all models
+                self.vorticity_field.update(self)
             for model in self.models:
                 model.step(self)
         with t("advection"):  # v_adv = v~ + dt (a_adv + g)
@@ -289,6 +300,8 @@ class Simulation:
     def fields(self):
         """Per-particle fields by name, for every writer (USD, checkpoints, plots)."""
         out = {"density": self.fluid.density}
+        if self.vorticity_field is not None:
+            out["vorticity"] = self.vorticity_field.vorticity
         for m in self.models:
             out.update(m.fields())
         return out

@@ -8,7 +8,10 @@ Every model has the same small interface (after SPlisHSPlasH's ``NonPressureForc
   solve, adding to ``sim.fluid.acceleration`` or refining ``sim.fluid.v`` directly;
 - ``reorder(sim, order)`` permutes the model's per-particle state when the fluid is
   re-sorted by cell;
-- ``fields()`` returns the per-particle arrays it publishes for output, by name.
+- ``fields()`` returns the per-particle arrays it publishes for output, by name;
+  ``state()`` the arrays a checkpoint must keep;
+- ``needs_vorticity`` / ``needs_gradient`` ask the stepper for the shared vorticity
+  field (and velocity gradient), computed once per step after the divergence solve.
 
 A scene names its models; a scene without one launches none of their kernels and
 allocates none of their arrays.
@@ -34,6 +37,8 @@ class Model:
     """Base class with the do-nothing parts of the interface."""
 
     name = "model"
+    needs_vorticity = False
+    needs_gradient = False
 
     def __init__(self, sim, params=None):
         self.params = params
@@ -47,5 +52,8 @@ class Model:
     def fields(self):
         return {}
 
+    def state(self):
+        return {}
 
-from . import viscosity  # noqa: E402,F401  (registers the built-in models)
+
+from . import micropolar, rankine, viscosity, vorticity_refinement  # noqa: E402,F401  (register the models)

@@ -1,0 +1,39 @@
+"""Rankine vortex feedback (Rankine paper, Algorithm 1) as a non-pressure model."""
+
+import warp as wp
+
+from warpsph.kernels.rankine import apply_rankine_feedback, compute_vorticity_change
+
+from . import Model, register
+
+
+@register("rankine")
+class RankineModel(Model):
+    """Per step: omega^n = curl v (shared field, fluid only), d omega = omega^n - omega^{n-1},
+    v += sum_j r_c^2/(2r) d omega_j x e_theta, before advection. Two launches."""
+
+    needs_vorticity = True
+    needs_gradient = False
+
+    def __init__(self, sim, params):
+        super().__init__(sim, params)
+        n = sim.num_fluid
+        self.previous = sim.zeros(self.name, n, dtype=wp.vec3)  # omega^{n-1}
+        self.change = sim.zeros(self.name, n, dtype=wp.vec3)  # d omega
+        self.viscosity = sim.scene.fluid.viscosity if params.viscosity is None else params.viscosity
+        self.has_previous = 0
+
+    def step(self, sim):
+        n = sim.num_fluid
+        sim.launch(compute_vorticity_change, n,
+                   [sim.vorticity_field.vorticity, self.has_previous, self.previous, self.change])
+        sim.launch(apply_rankine_feedback, n,
+                   [sim.fluid.x, sim.neighbours.lists, self.change, self.params.beta, self.viscosity, sim.dt,
+                    sim.fluid.v])
+        self.has_previous = 1
+
+    def reorder(self, sim, order):
+        sim.permute(self.previous, order)
+
+    def state(self):
+        return {"rankine_previous_vorticity": self.previous}
