@@ -33,9 +33,18 @@ def test_cli_writes_a_usd_cache_that_reopens(tmp_path, capsys):
     assert np.allclose(np.array(points.GetWidthsAttr().Get(1)), 0.08)
     density = UsdGeom.PrimvarsAPI(points.GetPrim()).GetPrimvar("density")
     assert density.GetTimeSamples() == [0.0, 1.0, 2.0, 3.0]
-    assert 900 < np.mean(density.Get(3)) < 1010
+    assert 900 < np.mean(density.Get(0)) < 1010 and 900 < np.mean(density.Get(3)) < 1010
     # the fluid fell: frame 3 is lower than frame 0 or equal at rest, never higher
     assert np.array(points.GetPointsAttr().Get(3))[:, 1].mean() <= np.array(points.GetPointsAttr().Get(0))[:, 1].mean() + 1e-3
+    # no turbulence model: no vorticity primvar
+    assert not UsdGeom.PrimvarsAPI(points.GetPrim()).GetPrimvar("vorticity")
+    # the diagnostics CSV beside the cache: one row per frame, energy accounted
+    from warpsph.diagnostics import read_csv
+
+    rows = read_csv(out.with_suffix(".stats.csv"))
+    assert list(rows["frame"]) == [0, 1, 2, 3]
+    assert rows["kinetic_energy"][0] == 0.0 and rows["kinetic_energy"][3] > 0.0  # it starts at rest, then falls
+    assert rows["potential_energy"][3] < rows["potential_energy"][0]
     boundary = UsdGeom.Points(stage.GetPrimAtPath("/World/Boundary"))
     assert boundary.GetPointsAttr().GetTimeSamples() == []  # static: written once
     assert len(boundary.GetPointsAttr().Get()) > 0
@@ -63,3 +72,21 @@ def test_a_run_that_stops_early_leaves_the_frames_done(tmp_path):
     points = UsdGeom.Points(stage.GetPrimAtPath("/World/Fluid"))
     assert points.GetPointsAttr().GetTimeSamples() == [0.0, 1.0, 2.0]
     assert stage.GetEndTimeCode() == 2
+
+
+def test_turbulence_model_adds_vorticity_primvars_and_rotational_energy(tmp_path):
+    scene = tmp_path / "vr.json"
+    scene.write_text(json.dumps(tank_scene(radius=0.04, output={"fps": 20, "frames": 2},
+                                           models=[{"type": "micropolar"}])))
+    out = tmp_path / "vr.usdc"
+    assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "--quiet"]) == 0
+    stage = Usd.Stage.Open(str(out))
+    api = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath("/World/Fluid"))
+    vorticity, magnitude = api.GetPrimvar("vorticity"), api.GetPrimvar("vorticity_magnitude")
+    assert str(vorticity.GetTypeName()) == "float3[]" and str(magnitude.GetTypeName()) == "float[]"
+    np.testing.assert_allclose(np.linalg.norm(np.array(vorticity.Get(2)), axis=1), np.array(magnitude.Get(2)), rtol=1e-5)
+    assert api.GetPrimvar("angular_velocity").GetTimeSamples() == [0.0, 1.0, 2.0]
+    from warpsph.diagnostics import read_csv
+
+    rows = read_csv(out.with_suffix(".stats.csv"))
+    assert rows["enstrophy"][2] > 0.0 and rows["rotational_energy"][2] > 0.0

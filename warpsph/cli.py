@@ -44,6 +44,7 @@ class Progress:
 
 
 def run_command(args):
+    from .diagnostics import DiagnosticsWriter
     from .io.usd import UsdPointCache, frame_writer
     from .scene import load_scene
 
@@ -59,22 +60,28 @@ def run_command(args):
     cache = UsdPointCache(out, scene.output.fps, scene.output.up_axis,
                           boundary_points=sim.boundary.x.numpy(), boundary_radius=scene.particle_radius)
     write = frame_writer(cache)
+    diagnostics = DiagnosticsWriter(out.with_suffix(".stats.csv"))
     progress = None if args.quiet else Progress(frames)
 
     def on_frame(sim, frame):
         write(sim, frame)
+        diagnostics(sim, frame)
         if progress is not None:
             progress(sim, frame)
 
     start = time.perf_counter()
-    sim.run(frames=frames, on_frame=on_frame)
+    try:
+        sim.run(frames=frames, on_frame=on_frame)
+    finally:
+        diagnostics.close()
     wall = time.perf_counter() - start
     stats = sim.statistics()
     if progress is not None and progress.tty:
         print(file=sys.stderr)
     print(f"done: {frames} frames, {stats['steps']} steps, {sim.time:.3f} s simulated in {wall:.1f} s wall "
           f"({stats['steps'] / max(wall, 1e-9):.1f} steps/s); mean iterations: divergence "
-          f"{stats['divergence_iterations']:.2f}, density {stats['density_iterations']:.2f}; wrote {out}",
+          f"{stats['divergence_iterations']:.2f}, density {stats['density_iterations']:.2f}; wrote {out} and "
+          f"{out.with_suffix('.stats.csv').name}",
           file=sys.stderr)
     return 0
 

@@ -160,6 +160,9 @@ class Simulation:
             self._sort_keys = z("sort", 2 * self.num_fluid, dtype=wp.int32)
             self._sort_order = z("sort", 2 * self.num_fluid, dtype=wp.int32)
             self._scratch = {}
+            # densities of the initial state, so that frame 0 has them
+            self.neighbours.update(self.fluid.x)
+            self._compute_density()
         self.step_count = 0
         self.use_graph = self.device.is_cuda and wp.is_conditional_graph_supported() if use_graph is None else use_graph
         self._graph = None
@@ -236,9 +239,7 @@ class Simulation:
     def _solve_step(self):
         f, n, t = self.fluid, self.num_fluid, self.timer
         with t("density"):  # rho^n and the DFSPH factor at x^n
-            self.launch(compute_density_and_factor, n,
-                        [f.x, self.neighbours.lists, self.boundary.samples, self.fluid_volume, self.rest_density,
-                         self.support_radius, f.density, f.factor])
+            self._compute_density()
         with t("time_step"):  # CFL condition on |v^n|
             self.max_speed_sq.zero_()
             self.launch(compute_max_speed, n, [f.v, self.max_speed_sq])
@@ -261,6 +262,12 @@ class Simulation:
         with t("integration"):  # x^{n+1} = x^n + dt v
             self.launch(advect_positions, n, [f.v, self.dt, f.x])
             self.launch(advance_clock, 1, [self.dt, self.time_device, self.steps_device])
+
+    def _compute_density(self):
+        f = self.fluid
+        self.launch(compute_density_and_factor, self.num_fluid,
+                    [f.x, self.neighbours.lists, self.boundary.samples, self.fluid_volume, self.rest_density,
+                     self.support_radius, f.density, f.factor])
 
     # -- host views -------------------------------------------------------------------------------------
     @property

@@ -5,7 +5,8 @@ Layout of the stage (``metersPerUnit`` = 1, ``upAxis`` from the scene,
 
 - ``/World/Fluid`` (Points): time-sampled ``points``, ``velocities`` [m/s], ``ids``
   (int64, stable across re-sorting), ``widths`` (diameter), ``extent``, and one primvar
-  per published field (``density``, ...);
+  per published field (``density``; with a turbulence model ``vorticity`` (float3) and
+  ``vorticity_magnitude``; micropolar ``angular_velocity``);
 - ``/World/Boundary`` (Points, purpose ``guide``): the static boundary samples, written
   once without time samples.
 
@@ -87,6 +88,8 @@ def frame_writer(cache: UsdPointCache):
     def on_frame(sim, frame):
         f = sim.fluid
         fields = {name: a.numpy() for name, a in sim.fields().items()}
+        if "vorticity" in fields:
+            fields["vorticity_magnitude"] = np.linalg.norm(fields["vorticity"], axis=1)
         cache.write_frame(frame, f.x.numpy(), f.v.numpy(), f.ids.numpy(), sim.scene.particle_radius, fields)
 
     return on_frame
