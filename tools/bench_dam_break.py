@@ -37,6 +37,8 @@ def main():
     parser.add_argument("--warmup", type=int, default=100)
     parser.add_argument("--steps", type=int, default=50)
     parser.add_argument("--density-error", type=float, help="override solver.density_max_error [%]")
+    parser.add_argument("--model", choices=["none", "vorticity_refinement", "rankine", "micropolar"], default="none",
+                        help="turbulence model to enable with its default parameters")
     parser.add_argument("--out", help="JSON file to write")
     args = parser.parse_args()
 
@@ -54,6 +56,10 @@ def main():
     scene = load_scene(args.scene, scale=args.particles / n_base)
     if args.density_error:
         scene = dataclasses.replace(scene, solver=dataclasses.replace(scene.solver, density_max_error=args.density_error))
+    if args.model != "none":
+        from warpsph.scene import MODEL_TYPES
+
+        scene = dataclasses.replace(scene, models=(MODEL_TYPES[args.model](),))
     device = wp.get_device(args.device)
     wp.synchronize_device(device)
     free_before = device.free_memory if device.is_cuda else None
@@ -83,6 +89,7 @@ def main():
     solves = max(it1[1] - it0[1], 1), max(it1[3] - it0[3], 1)
     result = {
         "benchmark": "dam_break",
+        "model": args.model,
         "device": device.name if device.is_cuda else "cpu",
         "warp": wp.__version__,
         "commit": commit(),
