@@ -28,7 +28,8 @@ class RankineModel(Model):
         sim.launch(compute_vorticity_change, n,
                    [sim.vorticity_field.vorticity, self.has_previous, self.previous, self.change])
         sim.launch(apply_rankine_feedback, n,
-                   [sim.fluid.x, sim.neighbours.lists, self.change, self.params.beta, self.viscosity, sim.dt,
+                   [sim.fluid.x, sim.neighbours.lists, self.change, self.params.beta, self.viscosity,
+                    sim.scene.particle_radius, sim.dt,
                     sim.fluid.v])
         self.has_previous = 1
 
