@@ -26,14 +26,36 @@ def add_viscosity_acceleration(
     particle_mass: float,
     viscosity: float,
     support_radius: float,
+    with_vorticity: int,
+    with_gradient: int,
     acceleration: wp.array(dtype=wp.vec3),
+    vorticity: wp.array(dtype=wp.vec3),
+    velocity_gradient: wp.array(dtype=wp.mat33),
 ):
-    """a_i += nu * laplacian(v)_i with m_j / rho_j as the neighbour volume (eq 4)."""
+    """a_i += nu * laplacian(v)_i with m_j / rho_j as the neighbour volume (eq 4).
+
+    When a turbulence model needs them, the same neighbour loop also yields the vorticity
+    zeta_i = sum_j (m_j/rho_j)(v_i - v_j) x grad W_ij (eq 6) and, with ``with_gradient``, the
+    velocity gradient G_i = sum_j (m_j/rho_j)(v_j - v_i) (x) grad W_ij (eq 8): one pass instead of two."""
     i = wp.tid()
     xi = x[i]
     vi = v[i]
     lap = wp.vec3(0.0)
+    curl = wp.vec3(0.0)
+    grad = wp.mat33(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         j = nb.fluid[k]
-        lap += artificial_laplacian(vi - v[j], xi - x[j], particle_mass / density[j], support_radius)
+        x_ij = xi - x[j]
+        volume = particle_mass / density[j]
+        v_ij = vi - v[j]
+        lap += artificial_laplacian(v_ij, x_ij, volume, support_radius)
+        if with_vorticity != 0:
+            gw = cubic_kernel_gradient(x_ij, support_radius)
+            curl += volume * wp.cross(v_ij, gw)
+            if with_gradient != 0:
+                grad -= volume * wp.outer(v_ij, gw)
     acceleration[i] = acceleration[i] + viscosity * lap
+    if with_vorticity != 0:
+        vorticity[i] = curl
+        if with_gradient != 0:
+            velocity_gradient[i] = grad

@@ -34,8 +34,29 @@ def test_a_scene_without_models_launches_and_allocates_none_of_theirs(device):
         sim.step()
         assert kernels <= set(sim.launches)
         assert spec["type"] in sim.allocations
-        # the shared vorticity is computed once per step, whatever reads it
-        assert sim.launches["compute_vorticity"] + sim.launches["compute_vorticity_and_gradient"] == 1
+        # the shared vorticity comes from the one viscosity pass, not from a pass of its own
+        assert sim.launches["compute_vorticity"] + sim.launches["compute_vorticity_and_gradient"] == 0
+        assert sim.launches["add_viscosity_acceleration"] == 1
+    # without viscosity it is computed by its own pass, once per step
+    sim = make_sim(dam([{"type": "vorticity_refinement"}], fluid={"viscosity": 0.0}), device=device)
+    sim.step()
+    assert sim.launches["compute_vorticity_and_gradient"] == 1 and "add_viscosity_acceleration" not in sim.launches
+
+
+def test_fused_viscosity_pass_gives_the_same_vorticity(device):
+    sim = make_sim(dam([{"type": "vorticity_refinement"}]), device=device)
+    rng = np.random.default_rng(4)
+    sim.fluid.v.assign(rng.normal(size=(sim.num_fluid, 3)).astype(np.float32))
+    sim.neighbours.update(sim.fluid.x)
+    sim._compute_density()
+    field = sim.vorticity_field
+    sim.models[0].step(sim)  # viscosity, fused
+    fused = field.vorticity.numpy().copy(), field.gradient.numpy().copy()
+    field.vorticity.zero_()
+    field.gradient.zero_()
+    field.update(sim)  # the stand-alone pass
+    np.testing.assert_allclose(fused[0], field.vorticity.numpy(), rtol=1e-5, atol=1e-5 * np.abs(fused[0]).max())
+    np.testing.assert_allclose(fused[1], field.gradient.numpy(), rtol=1e-5, atol=1e-5 * np.abs(fused[1]).max())
 
 
 @pytest.mark.parametrize("spec", [{"type": "vorticity_refinement", "alpha": 0.0}, {"type": "rankine", "beta": 0.0}])

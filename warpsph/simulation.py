@@ -251,7 +251,8 @@ class Simulation:
             self.pressure_solver.correct_divergence()
         with t("non_pressure"):  # a_adv = a_vis; turbulence models refine v~ (Algorithm 2)
             f.acceleration.zero_()
-            if self.vorticity_field is not None:  # zeta~ = curl v~, once for all models
+            # zeta~ = curl v~, once for all models: in the viscosity pass when there is one
+            if self.vorticity_field is not None and not any(getattr(m, "computes_vorticity", False) for m in self.models):
                 self.vorticity_field.update(self)
             for model in self.models:
                 model.step(self)

@@ -1,5 +1,7 @@
 """Artificial viscosity (VR paper eq 4), the fluid's own non-pressure force."""
 
+import warp as wp
+
 from warpsph.kernels.viscosity import add_viscosity_acceleration
 
 from . import Model, register
@@ -9,8 +11,18 @@ from . import Model, register
 class Viscosity(Model):
     """a_i += nu laplacian(v)_i; enabled whenever the scene's fluid viscosity is > 0."""
 
+    computes_vorticity = True  # fills sim.vorticity_field in the same pass when it exists
+
+    def __init__(self, sim, params=None):
+        super().__init__(sim, params)
+        self._empty_vec3 = wp.empty(0, dtype=wp.vec3, device=sim.device)
+        self._empty_mat33 = wp.empty(0, dtype=wp.mat33, device=sim.device)
+
     def step(self, sim):
-        f = sim.fluid
+        f, field = sim.fluid, sim.vorticity_field
+        vorticity = field.vorticity if field is not None else self._empty_vec3
+        gradient = field.gradient if field is not None and field.gradient is not None else self._empty_mat33
         sim.launch(add_viscosity_acceleration, sim.num_fluid,
-                   [f.x, f.v, f.density, sim.neighbours.lists, sim.particle_mass,
-                    sim.scene.fluid.viscosity, sim.support_radius, f.acceleration])
+                   [f.x, f.v, f.density, sim.neighbours.lists, sim.particle_mass, sim.scene.fluid.viscosity,
+                    sim.support_radius, int(field is not None), int(field is not None and field.gradient is not None),
+                    f.acceleration, vorticity, gradient])
