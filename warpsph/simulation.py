@@ -164,6 +164,7 @@ class Simulation:
             self.neighbours.update(self.fluid.x)
             self._compute_density()
         self.step_count = 0
+        self.frame = 0  # last output frame reached by run()
         self.use_graph = self.device.is_cuda and wp.is_conditional_graph_supported() if use_graph is None else use_graph
         self._graph = None
         self._graph_generation = None
@@ -277,18 +278,20 @@ class Simulation:
         return float(self.time_device.numpy()[0])
 
     def run(self, frames=None, on_frame=None, until_time=None):
-        """Advances ``frames`` output frames at the scene's fps (or until ``until_time``),
-        calling ``on_frame(sim, frame)`` after the initial state and each frame."""
+        """Advances to output frame ``frames`` at the scene's fps (or to ``until_time``), calling
+        ``on_frame(sim, frame)`` after the initial state and each frame. A simulation restored
+        from a checkpoint continues after its last frame (``self.frame``)."""
         fps = self.scene.output.fps
         frames = self.scene.output.frames if frames is None and until_time is None else frames
         if until_time is not None:
             frames = int(np.ceil(until_time * fps - 1e-9))
-        if on_frame is not None:
+        if on_frame is not None and self.frame == 0 and self.step_count == 0:
             on_frame(self, 0)
-        for frame in range(1, frames + 1):
+        for frame in range(self.frame + 1, frames + 1):
             target = frame / fps
             while self.time < target - 1e-9:
                 self.step()
+            self.frame = frame
             if on_frame is not None:
                 on_frame(self, frame)
         return self
