@@ -128,6 +128,7 @@ def update_solver_status(
     condition: wp.array(dtype=wp.int32),
     iterations: wp.array(dtype=wp.int32),
     totals: wp.array(dtype=wp.int64),
+    max_iteration_streak: wp.array(dtype=wp.int32),
 ):
     """One thread: average error over the fluid and the loop condition, on the device.
 
@@ -136,7 +137,8 @@ def update_solver_status(
     divided by dt when the error is a rate (divergence solver: SPlisHSPlasH's
     avg <= maxErrorV / dt). Besides the average, the largest error must be below
     ``max_peak_error``: in a tall column the average hides a crushed bottom layer. When the loop ends, its iterations are added to
-    ``totals[2 kind]`` and ``totals[2 kind + 1]`` counts the solves."""
+    ``totals[2 kind]`` and ``totals[2 kind + 1]`` counts the solves; ``max_iteration_streak[kind]``
+    counts the consecutive solves that stopped at ``max_iterations``."""
     if first != 0:
         iterations[0] = 0
     else:
@@ -158,3 +160,7 @@ def update_solver_status(
         condition[0] = 0
         totals[2 * kind] = totals[2 * kind] + wp.int64(done)
         totals[2 * kind + 1] = totals[2 * kind + 1] + wp.int64(1)
+        if done >= max_iterations:  # consecutive solves that ran out of iterations
+            max_iteration_streak[kind] = max_iteration_streak[kind] + 1
+        else:
+            max_iteration_streak[kind] = 0

@@ -22,6 +22,7 @@ from warpsph.kernels.integration import (
 )
 from warpsph.kernels.neighbours import gather_float, gather_int64, gather_vec3
 from warpsph.kernels.particles import Boundary
+from warpsph.kernels.stability import DENSITY_LIMIT, NOT_FINITE, OUTSIDE_DOMAIN, check_particles
 from warpsph.models import REGISTRY
 from warpsph.models.vorticity import VorticityField
 from warpsph.neighbours import NeighbourSearch, sort_order
@@ -65,6 +66,27 @@ class BoundaryParticles:
 # from it would start at 1.5 rho0; 2.2 r from the layer it has rest density (within 0.2 %),
 # so a fluid block that touches a face starts at rest.
 WALL_OFFSET = 1.2
+
+
+# Health limits checked after every step (see check_health)
+# rho / rho0 above which the solver has lost control: a 2000-particle dam break peaks at 1.22 for one
+# step as its front corner shoots out (then recovers); the 1M run that exploded reached 2.2
+DENSITY_HARD_LIMIT = 1.5
+ESCAPE_MARGIN = 4.0  # particle radii beyond the domain box (its wall layer is at 1.2 r)
+MAX_ITERATION_STREAK = 50  # consecutive solves that stop at max_iterations
+RETRIES = 4  # reduce-dt policy: halvings of dt tried for one step
+CHECK_NAMES = {int(NOT_FINITE): "NaN or inf in position, velocity or density",
+               int(OUTSIDE_DOMAIN): "particle left the domain",
+               int(DENSITY_LIMIT): f"density above {DENSITY_HARD_LIMIT:g} rho0"}
+
+
+class InstabilityError(RuntimeError):
+    """The simulation became unstable; the message names the step, time, check and particle."""
+
+    def __init__(self, step, time, check, particle_id=None, position=None):
+        self.step, self.time, self.check, self.particle_id, self.position = step, time, check, particle_id, position
+        where = "" if particle_id is None else f", particle id {particle_id} at {np.round(position, 4).tolist()}"
+        super().__init__(f"unstable at step {step} (t = {time:.4f} s): {check}{where}")
 
 
 class StageTimer:
@@ -156,6 +178,8 @@ class Simulation:
             self.time_device = z("clock", 1, dtype=wp.float64)
             self.steps_device = z("clock", 1, dtype=wp.int64)
             self.max_speed_sq = z("clock", 1)
+            self.health_counts = z("health", 4, dtype=wp.int32)
+            self.health_first = z("health", 4, dtype=wp.int32)
             # scratch for re-sorting
             self._sort_keys = z("sort", 2 * self.num_fluid, dtype=wp.int32)
             self._sort_order = z("sort", 2 * self.num_fluid, dtype=wp.int32)
@@ -165,6 +189,8 @@ class Simulation:
             self._compute_density()
         self.step_count = 0
         self.frame = 0  # last output frame reached by run()
+        self.on_instability = "stop"  # or "reduce-dt": retry the step with a smaller dt
+        self._dt_scale = 1.0
         self.use_graph = self.device.is_cuda and wp.is_conditional_graph_supported() if use_graph is None else use_graph
         self._graph = None
         self._graph_generation = None
@@ -220,7 +246,7 @@ class Simulation:
                     self.sort_particles()
             with self.timer("neighbours"):
                 self.neighbours.update(self.fluid.x)
-            if self.use_graph and not self.timer.enabled:
+            if self.use_graph and not self.timer.enabled and self._dt_scale == 1.0:
                 self._step_with_graph()
             else:
                 self._solve_step()
@@ -247,7 +273,7 @@ class Simulation:
             tm = self.scene.time
             self.launch(compute_time_step, 1,
                         [self.max_speed_sq, self.scene.particle_diameter, tm.cfl, tm.dt_min, tm.dt_max,
-                         tm.fixed_dt or 0.0, self.dt_previous, self.dt])
+                         tm.fixed_dt or 0.0, self._dt_scale, self.dt_previous, self.dt])
         with t("divergence_solve"):  # v~ = correctDivergence(v)
             self.pressure_solver.correct_divergence()
         with t("non_pressure"):  # a_adv = a_vis; turbulence models refine v~ (Algorithm 2)
@@ -264,6 +290,14 @@ class Simulation:
         with t("integration"):  # x^{n+1} = x^n + dt v
             self.launch(advect_positions, n, [f.v, self.dt, f.x])
             self.launch(advance_clock, 1, [self.dt, self.time_device, self.steps_device])
+        with t("health"):  # NaN/inf, escaped particles, runaway density: counted on the device
+            self.health_counts.zero_()
+            self.health_first.fill_(2**31 - 1)
+            lo = np.asarray(self.scene.domain.min) - ESCAPE_MARGIN * self.scene.particle_radius
+            hi = np.asarray(self.scene.domain.max) + ESCAPE_MARGIN * self.scene.particle_radius
+            self.launch(check_particles, n, [f.x, f.v, f.density, wp.vec3(*lo), wp.vec3(*hi),
+                                             DENSITY_HARD_LIMIT * self.rest_density, self.health_counts,
+                                             self.health_first])
 
     def _compute_density(self):
         f = self.fluid
@@ -276,6 +310,81 @@ class Simulation:
     def time(self) -> float:
         """Simulated time [s] (reads the device clock)."""
         return float(self.time_device.numpy()[0])
+
+    def check_health(self):
+        """The first failed health check of the last step as an :class:`InstabilityError`, or None."""
+        counts, first = self.health_counts.numpy(), self.health_first.numpy()
+        for check in (int(NOT_FINITE), int(OUTSIDE_DOMAIN), int(DENSITY_LIMIT)):
+            if counts[check]:
+                i = int(first[check])
+                return InstabilityError(self.step_count, self.time, f"{CHECK_NAMES[check]} ({counts[check]} particles)",
+                                        int(self.fluid.ids.numpy()[i]), self.fluid.x.numpy()[i])
+        streak = self.pressure_solver.max_iteration_streak.numpy()
+        if streak.max() >= MAX_ITERATION_STREAK:
+            which = "divergence" if streak[0] >= MAX_ITERATION_STREAK else "density"
+            return InstabilityError(self.step_count, self.time,
+                                    f"{which} solver hit max_iterations {int(streak.max())} steps in a row")
+        return None
+
+    # -- state: what a checkpoint keeps and a retried step restores -----------------------------------------
+    def state_arrays(self):
+        """Every device array that carries state from one step to the next, by name."""
+        out = {"fluid/x": self.fluid.x, "fluid/v": self.fluid.v, "fluid/ids": self.fluid.ids,
+               "solver/totals": self.pressure_solver.totals,
+               "solver/max_iteration_streak": self.pressure_solver.max_iteration_streak,
+               "clock/time": self.time_device, "clock/steps": self.steps_device, "clock/dt": self.dt,
+               "clock/dt_previous": self.dt_previous}
+        for n, a in enumerate(self.pressure_solver.pressure_sum):
+            out[f"solver/pressure_sum_{n}"] = a
+        for m in self.turbulence_models:
+            for name, a in m.state().items():
+                out[f"models/{m.name}/{name}"] = a
+        return out
+
+    def state_flags(self):
+        """Host-side state: step and frame counters and the models' flags."""
+        out = {"step": self.step_count, "frame": self.frame}
+        for m in self.turbulence_models:
+            out.update({f"{m.name}.{k}": v for k, v in vars(m).items() if k.startswith("has_")})
+        return out
+
+    def restore_flags(self, flags):
+        self.step_count, self.frame = int(flags["step"]), int(flags["frame"])
+        for m in self.turbulence_models:
+            for k in vars(m):
+                if k.startswith("has_"):
+                    setattr(m, k, int(flags[f"{m.name}.{k}"]))
+
+    def _snapshot(self):
+        return {k: wp.clone(a) for k, a in self.state_arrays().items()}, self.state_flags()
+
+    def _restore(self, snapshot):
+        arrays, flags = snapshot
+        for k, a in self.state_arrays().items():
+            wp.copy(a, arrays[k])
+        self.restore_flags(flags)
+
+    def _checked_step(self):
+        """One step and its health check; with ``on_instability == "reduce-dt"`` a failed step
+        is undone and retried with dt halved, up to RETRIES times."""
+        snapshot = self._snapshot() if self.on_instability == "reduce-dt" else None
+        self.step()
+        problem = self.check_health()
+        if problem is None:
+            return
+        if snapshot is None:
+            raise problem
+        try:
+            for _ in range(RETRIES):
+                self._restore(snapshot)
+                self._dt_scale *= 0.5
+                self.step()
+                problem = self.check_health()
+                if problem is None:
+                    return
+            raise problem
+        finally:
+            self._dt_scale = 1.0
 
     def run(self, frames=None, on_frame=None, until_time=None):
         """Advances to output frame ``frames`` at the scene's fps (or to ``until_time``), calling
@@ -290,7 +399,7 @@ class Simulation:
         for frame in range(self.frame + 1, frames + 1):
             target = frame / fps
             while self.time < target - 1e-9:
-                self.step()
+                self._checked_step()
             self.frame = frame
             if on_frame is not None:
                 on_frame(self, frame)

@@ -50,6 +50,7 @@ class DFSPHSolver:
         self.iterations = z("pressure", 1, dtype=wp.int32)
         # per solver: [iterations summed over steps, solves]
         self.totals = z("pressure", 4, dtype=wp.int64)
+        self.max_iteration_streak = z("pressure", 2, dtype=wp.int32)
 
     def reorder(self, sim, order):
         for a in self.pressure_sum:
@@ -96,7 +97,8 @@ class DFSPHSolver:
         sim.launch(reduce_error, min(sim.num_fluid, REDUCE_THREADS), [self.error, sim.num_fluid, self.error_stats])
         sim.launch(update_solver_status, 1,
                    [self.error_stats, sim.num_fluid, max_error, max_error * PEAK_ERROR_RATIO, int(kind == DIVERGENCE), sim.dt, min_it, max_it,
-                    int(first), kind, self.average_error[kind], self.condition, self.iterations, self.totals])
+                    int(first), kind, self.average_error[kind], self.condition, self.iterations, self.totals,
+                    self.max_iteration_streak])
 
     def _solve(self, kind, source_kernel, inputs, max_error, min_it, max_it):
         sim = self.sim
