@@ -72,6 +72,17 @@ def test_unreadable_mesh_names_the_file(tmp_path):
         Simulation(scene, device="cpu")
 
 
+def test_absurd_particle_counts_are_refused_before_sampling(tmp_path):
+    from warpsph.simulation import Simulation
+
+    scene = load_scene(write(tmp_path, tank_scene(radius=1e-6)))
+    with pytest.raises(SceneError, match="particle_radius.*over the"):
+        Simulation(scene, device="cpu")
+    scene = load_scene(write(tmp_path, tank_scene(radius=0.05, fluid_blocks=[{"start": [0, 0, 0], "end": [0.05, 0.4, 0.4]}])))
+    with pytest.raises(SceneError, match="fluid_blocks.*thinner"):
+        Simulation(scene, device="cpu")
+
+
 def test_default_scene_loads_and_scales():
     path = Path(SCENES_DIR) / "dam_break.json"
     full = load_scene(path)

@@ -1,13 +1,25 @@
-"""Command line: ``warpsph run SCENE.json [--device cpu|cuda] [--out FILE.usdc] [--frames N] [--scale S]``."""
+"""Command line.
+
+    warpsph run SCENE.json [--device auto|cpu|cuda] [--out FILE.usdc] [--frames N] [--scale S]
+                           [--overwrite] [--checkpoint-every N] [--on-instability stop|reduce-dt] [--dry-run]
+    warpsph resume CHECKPOINT.h5 [--device ...] [--frames N]
+
+Exit codes: 0 done, 2 bad input (scene, mesh, device, existing output, memory), 3 unstable,
+130 / 143 stopped by SIGINT / SIGTERM (after finishing the frame, saving the cache and a checkpoint).
+"""
 
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
 import time
 from pathlib import Path
 
 from .errors import SceneError
+
+EXIT_UNSTABLE = 3
 
 
 def _pick_device(name):
@@ -29,13 +41,18 @@ class Progress:
         self.frames = frames
         self.stream = stream or sys.stderr
         self.start = time.perf_counter()
+        self.first = None  # (frame, steps) at the first call: a resumed run starts mid-way
         self.tty = self.stream.isatty()
 
     def __call__(self, sim, frame):
+        if self.first is None:
+            self.first = (frame, sim.step_count)
         elapsed = time.perf_counter() - self.start
         stats = sim.statistics()
-        rate = sim.step_count / elapsed if elapsed > 0 else 0.0
-        eta = elapsed / frame * (self.frames - frame) if frame else 0.0
+        steps = sim.step_count - self.first[1]
+        rate = steps / elapsed if elapsed > 0 else 0.0
+        done = frame - self.first[0]
+        eta = elapsed / done * (self.frames - frame) if done else 0.0
         line = (f"frame {frame}/{self.frames}  t={sim.time:.3f}s  steps={sim.step_count}  {rate:.1f} steps/s  "
                 f"iterations div {stats['divergence_iterations']:.1f} dens {stats['density_iterations']:.1f}  "
                 f"eta {eta:.0f}s")
@@ -43,61 +60,179 @@ class Progress:
         self.stream.flush()
 
 
-def run_command(args):
+class Outputs:
+    """The files of one run: the USD cache (written as NAME.partial.usdc and renamed when the run
+    stops), the diagnostics CSV and the latest checkpoint, all beside each other."""
+
+    def __init__(self, out):
+        self.out = Path(out)
+        self.partial = self.out.with_name(self.out.stem + ".partial" + self.out.suffix)
+        self.stats = self.out.with_suffix(".stats.csv")
+        self.checkpoint = self.out.with_suffix(".checkpoint.h5")
+
+    def existing(self):
+        return [p for p in (self.out, self.partial, self.stats, self.checkpoint) if p.exists()]
+
+    def finish(self):
+        """Renames the partial cache to its final name (it is complete up to its last frame)."""
+        if self.partial.exists():
+            os.replace(self.partial, self.out)
+
+
+class StopRequest(Exception):
+    def __init__(self, signum):
+        self.signum = signum
+
+
+def _simulate(sim, outputs, frames, args, options, append):
     from .diagnostics import DiagnosticsWriter
+    from .io.checkpoint import save_checkpoint
     from .io.usd import UsdPointCache, frame_writer
-    from .scene import load_scene
 
-    scene = load_scene(args.scene, scale=args.scale)
-    device = _pick_device(args.device)
-    from .simulation import Simulation
-
-    sim = Simulation(scene, device=device)
-    frames = args.frames or scene.output.frames
-    out = Path(args.out or f"out/{scene.name}.usdc")
-    print(f"warpsph: {scene.name} on {device}: {sim.num_fluid} fluid + {sim.num_boundary} boundary particles, "
-          f"r = {scene.particle_radius:.4g} m, {frames} frames at {scene.output.fps:g} fps -> {out}", file=sys.stderr)
-    cache = UsdPointCache(out, scene.output.fps, scene.output.up_axis,
-                          boundary_points=sim.boundary.x.numpy(), boundary_radius=scene.particle_radius)
+    scene = sim.scene
+    if append and outputs.out.exists():
+        os.replace(outputs.out, outputs.partial)
+    cache = UsdPointCache(outputs.partial, scene.output.fps, scene.output.up_axis,
+                          boundary_points=None if append else sim.boundary.x.numpy(),
+                          boundary_radius=scene.particle_radius, append=append)
     write = frame_writer(cache)
-    diagnostics = DiagnosticsWriter(out.with_suffix(".stats.csv"))
+    diagnostics = DiagnosticsWriter(outputs.stats, append=append)
     progress = None if args.quiet else Progress(frames)
+    every = options.get("checkpoint_every", 0)
+    stop = {}
+
+    def request_stop(signum, _frame):
+        stop["signum"] = signum
+
+    def checkpoint():
+        save_checkpoint(sim, outputs.checkpoint, extra={**options, "output": str(outputs.out), "frames": frames})
 
     def on_frame(sim, frame):
         write(sim, frame)
         diagnostics(sim, frame)
         if progress is not None:
             progress(sim, frame)
+        if "signum" in stop:
+            checkpoint()
+            raise StopRequest(stop["signum"])
+        if every and frame and frame % every == 0:
+            checkpoint()
 
+    previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
     start = time.perf_counter()
+    steps0 = sim.step_count
     try:
         sim.run(frames=frames, on_frame=on_frame)
+    except StopRequest as stopped:
+        name = signal.Signals(stopped.signum).name
+        print(f"\nwarpsph: {name}: stopped after frame {sim.frame}; the cache {outputs.out} holds frames 0..{sim.frame}; "
+              f"continue with: warpsph resume {outputs.checkpoint}", file=sys.stderr)
+        return 128 + stopped.signum
+    except Exception as exc:
+        from .simulation import InstabilityError
+
+        if not isinstance(exc, InstabilityError):
+            raise
+        hint = "" if not outputs.checkpoint.exists() else f"; last checkpoint: {outputs.checkpoint}"
+        print(f"\nwarpsph: {exc}. The cache {outputs.out} keeps frames 0..{sim.frame}{hint}. "
+              f"Try a smaller time step (time.dt_max, time.cfl) or --on-instability reduce-dt.", file=sys.stderr)
+        return EXIT_UNSTABLE
     finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
         diagnostics.close()
+        outputs.finish()
     wall = time.perf_counter() - start
     stats = sim.statistics()
+    steps = sim.step_count - steps0
     if progress is not None and progress.tty:
         print(file=sys.stderr)
-    print(f"done: {frames} frames, {stats['steps']} steps, {sim.time:.3f} s simulated in {wall:.1f} s wall "
-          f"({stats['steps'] / max(wall, 1e-9):.1f} steps/s); mean iterations: divergence "
-          f"{stats['divergence_iterations']:.2f}, density {stats['density_iterations']:.2f}; wrote {out} and "
-          f"{out.with_suffix('.stats.csv').name}",
-          file=sys.stderr)
+    print(f"done: frame {frames}, {steps} steps, {sim.time:.3f} s simulated, {wall:.1f} s wall "
+          f"({steps / max(wall, 1e-9):.1f} steps/s); mean iterations: divergence "
+          f"{stats['divergence_iterations']:.2f}, density {stats['density_iterations']:.2f}; wrote {outputs.out} and "
+          f"{outputs.stats.name}", file=sys.stderr)
     return 0
 
 
+def run_command(args):
+    from .resources import estimate_bytes, free_bytes
+    from .scene import load_scene
+    from .simulation import sample_scene
+
+    scene = load_scene(args.scene, scale=args.scale)
+    frames = args.frames or scene.output.frames
+    if frames < 1:
+        raise SceneError(None, "--frames", "expected an integer >= 1")
+    outputs = Outputs(args.out or f"out/{scene.name}.usdc")
+    if args.dry_run:
+        import warp as wp
+
+        device = wp.get_device(_pick_device(args.device))
+        fluid, _, boundary, _ = sample_scene(scene)
+        need, free = estimate_bytes(scene, len(fluid), len(boundary)), free_bytes(device)
+        print(f"{scene.name}: {len(fluid)} fluid + {len(boundary)} boundary particles, r = {scene.particle_radius:.4g} m, "
+              f"{frames} frames; about {need / 2**20:.1f} MiB on {device}"
+              + ("" if free is None else f" ({free / 2**20:.0f} MiB free)") + f"; would write {outputs.out}")
+        return 0
+    existing = outputs.existing()
+    if existing and not args.overwrite:
+        raise SceneError(existing[0], "--out", "exists; pass --overwrite to replace it, or choose another --out")
+    for path in existing:
+        path.unlink()
+    device = _pick_device(args.device)
+    from .simulation import Simulation
+
+    sim = Simulation(scene, device=device)
+    sim.on_instability = args.on_instability
+    print(f"warpsph: {scene.name} on {device}: {sim.num_fluid} fluid + {sim.num_boundary} boundary particles, "
+          f"r = {scene.particle_radius:.4g} m, {frames} frames at {scene.output.fps:g} fps -> {outputs.out}",
+          file=sys.stderr)
+    options = {"checkpoint_every": args.checkpoint_every, "on_instability": args.on_instability}
+    return _simulate(sim, outputs, frames, args, options, append=False)
+
+
+def resume_command(args):
+    import h5py
+
+    from .io.checkpoint import load_checkpoint
+
+    device = _pick_device(args.device)
+    sim = load_checkpoint(args.checkpoint, device=device)
+    with h5py.File(args.checkpoint, "r") as f:
+        options = {k: (v.item() if hasattr(v, "item") else v) for k, v in f.attrs.items() if k.startswith("run:")}
+    options = {k[4:]: v for k, v in options.items()}
+    frames = args.frames or int(options.get("frames", sim.scene.output.frames))
+    outputs = Outputs(options["output"])
+    sim.on_instability = options.get("on_instability", "stop")
+    print(f"warpsph: resuming {sim.scene.name} at frame {sim.frame} (t = {sim.time:.3f} s) on {device} -> {outputs.out}",
+          file=sys.stderr)
+    run_options = {"checkpoint_every": int(options.get("checkpoint_every", 0)), "on_instability": sim.on_instability}
+    return _simulate(sim, outputs, frames, args, run_options, append=True)
+
+
 def build_parser():
-    parser = argparse.ArgumentParser(prog="warpsph", description=__doc__)
+    parser = argparse.ArgumentParser(prog="warpsph", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="simulate a scene and write a USD point cache")
     run.add_argument("scene", help="scene file (JSON), e.g. scenes/dam_break.json")
-    run.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
     run.add_argument("--out", help="output .usdc/.usda file (default out/<scene name>.usdc)")
-    run.add_argument("--frames", type=int, help="frames to simulate (default: the scene's output.frames)")
     run.add_argument("--scale", type=float, default=1.0,
                      help="particle-count factor: 0.1 runs about a tenth of the particles (radius / scale^(1/3))")
-    run.add_argument("--quiet", action="store_true", help="no progress line")
+    run.add_argument("--overwrite", action="store_true", help="replace an existing output (refused otherwise)")
+    run.add_argument("--checkpoint-every", type=int, default=0, metavar="N",
+                     help="write OUT.checkpoint.h5 every N frames (atomically; the latest one is kept)")
+    run.add_argument("--on-instability", choices=["stop", "reduce-dt"], default="stop",
+                     help="stop with a diagnostic (default), or retry an unstable step with dt halved (up to 4 times)")
+    run.add_argument("--dry-run", action="store_true", help="print particle counts and the memory estimate, run nothing")
     run.set_defaults(func=run_command)
+    resume = sub.add_parser("resume", help="continue a run from its checkpoint")
+    resume.add_argument("checkpoint", help="OUT.checkpoint.h5 written by --checkpoint-every or at Ctrl-C")
+    resume.set_defaults(func=resume_command)
+    for p in (run, resume):
+        p.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
+        p.add_argument("--frames", type=int, help="last frame to simulate (default: the scene's output.frames)")
+        p.add_argument("--quiet", action="store_true", help="no progress line")
     return parser
 
 
@@ -108,9 +243,6 @@ def main(argv=None):
     except SceneError as exc:
         print(f"warpsph: error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("\nwarpsph: interrupted; the frames written so far are in the output file", file=sys.stderr)
-        return 130
 
 
 if __name__ == "__main__":

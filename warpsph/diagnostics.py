@@ -76,13 +76,15 @@ class Diagnostics:
 class DiagnosticsWriter:
     """An ``on_frame`` callback that appends one CSV row per frame (flushed, so a stopped run keeps its rows)."""
 
-    def __init__(self, path):
+    def __init__(self, path, append=False):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.diagnostics = Diagnostics()
-        self._file = open(self.path, "w", newline="")
+        append = append and self.path.exists()
+        self._file = open(self.path, "a" if append else "w", newline="")
         self._csv = csv.DictWriter(self._file, fieldnames=COLUMNS)
-        self._csv.writeheader()
+        if not append:
+            self._csv.writeheader()
         self.rows = []
 
     def __call__(self, sim, frame):

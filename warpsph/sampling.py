@@ -77,10 +77,20 @@ def rotation_matrix(axis, angle):
     return trimesh.transformations.rotation_matrix(angle, axis / norm)[:3, :3]
 
 
-def sample_obstacle(obstacle, path, spacing):
-    """Surface samples of a static obstacle in world space (scale, then rotate, then translate)."""
+def sample_obstacle(obstacle, path, spacing, domain_size):
+    """Surface samples of a static obstacle in world space (scale, then rotate, then translate).
+
+    A mesh far larger than the domain (say, authored in millimetres) or smaller than one
+    particle spacing is refused with a :class:`SceneError` naming the file."""
     mesh = load_mesh(path)
     v = np.asarray(mesh.vertices) * np.asarray(obstacle.scale)
+    size = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+    if size > 100.0 * domain_size:
+        raise SceneError(path, "scale", f"the scaled mesh is {size:.3g} m across, over 100x the domain "
+                                        f"({domain_size:.3g} m): wrong units or scale?")
+    if size < spacing:
+        raise SceneError(path, "scale", f"the scaled mesh is {size:.3g} m across, smaller than one particle "
+                                        f"spacing ({spacing:.3g} m)")
     v = v @ rotation_matrix(obstacle.rotation_axis, obstacle.rotation_angle).T + np.asarray(obstacle.translation)
     return sample_triangles(v, mesh.faces, spacing)
 

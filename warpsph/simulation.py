@@ -26,6 +26,8 @@ from warpsph.kernels.stability import DENSITY_LIMIT, NOT_FINITE, OUTSIDE_DOMAIN,
 from warpsph.models import REGISTRY
 from warpsph.models.vorticity import VorticityField
 from warpsph.neighbours import NeighbourSearch, sort_order
+from warpsph.resources import check_fits
+from warpsph.errors import SceneError
 from warpsph.scene import MODEL_TYPES, Scene
 
 MODEL_NAMES = {cls: name for name, cls in MODEL_TYPES.items()}
@@ -72,7 +74,7 @@ WALL_OFFSET = 1.2
 # rho / rho0 above which the solver has lost control: a 2000-particle dam break peaks at 1.22 for one
 # step as its front corner shoots out (then recovers); the 1M run that exploded reached 2.2
 DENSITY_HARD_LIMIT = 1.5
-ESCAPE_MARGIN = 4.0  # particle radii beyond the domain box (its wall layer is at 1.2 r)
+ESCAPE_MARGIN = WALL_OFFSET  # particle radii beyond the domain box: past its wall layer = tunnelled through
 MAX_ITERATION_STREAK = 50  # consecutive solves that stop at max_iterations
 RETRIES = 4  # reduce-dt policy: halvings of dt tried for one step
 CHECK_NAMES = {int(NOT_FINITE): "NaN or inf in position, velocity or density",
@@ -109,8 +111,28 @@ class StageTimer:
         self.seconds[name] += _time.perf_counter() - start
 
 
+# Neighbour lists index with int32: about 40 neighbours a particle keeps 50M particles below 2^31.
+MAX_PARTICLES = 50_000_000
+
+
+def count_particles(scene: Scene):
+    """Fluid and domain-wall particle counts, computed before anything is sampled."""
+    d = scene.particle_diameter
+    fluid = sum(int(np.prod(np.floor((np.subtract(b.end, b.start)) / d + 1e-6))) for b in scene.fluid_blocks)
+    ext = np.subtract(scene.domain.max, scene.domain.min) + 2 * WALL_OFFSET * scene.particle_radius
+    walls = int(2 * (ext[0] * ext[1] + ext[1] * ext[2] + ext[0] * ext[2]) / d**2)
+    return fluid, walls
+
+
 def sample_scene(scene: Scene):
     """Host-side initial particles: fluid (x, v) and boundary (x, body index)."""
+    fluid, walls = count_particles(scene)
+    if fluid > MAX_PARTICLES or walls > MAX_PARTICLES:
+        raise SceneError(scene.source, "particle_radius",
+                         f"r = {scene.particle_radius:.3g} m needs about {max(fluid, walls):.3g} particles, over the "
+                         f"{MAX_PARTICLES:,} limit: use a larger radius or a smaller --scale")
+    if fluid == 0:
+        raise SceneError(scene.source, "fluid_blocks", "every block is thinner than one particle spacing: no fluid")
     d = scene.particle_diameter
     blocks = [sampling.fill_block(b.start, b.end, d) for b in scene.fluid_blocks]
     fluid_x = np.concatenate(blocks)
@@ -118,7 +140,8 @@ def sample_scene(scene: Scene):
                               for b, p in zip(scene.fluid_blocks, blocks)])
     offset = WALL_OFFSET * scene.particle_radius
     bodies = [sampling.sample_box_walls(np.asarray(scene.domain.min) - offset, np.asarray(scene.domain.max) + offset, d)]
-    bodies += [sampling.sample_obstacle(o, scene.mesh_path(o), d) for o in scene.obstacles]
+    size = float(np.linalg.norm(np.subtract(scene.domain.max, scene.domain.min)))
+    bodies += [sampling.sample_obstacle(o, scene.mesh_path(o), d, size) for o in scene.obstacles]
     boundary_x = np.concatenate(bodies)
     body = np.concatenate([np.full(len(p), n, dtype=np.int32) for n, p in enumerate(bodies)])
     order = sampling.morton_order(boundary_x, np.asarray(scene.domain.min), scene.support_radius)
@@ -148,6 +171,7 @@ class Simulation:
         fluid_x, fluid_v, boundary_x, body = sample_scene(scene)
         self.num_fluid = len(fluid_x)
         self.num_boundary = len(boundary_x)
+        self.estimated_bytes = check_fits(scene, self.num_fluid, self.num_boundary, self.device)
         with wp.ScopedDevice(self.device):
             z = self.zeros
             self.fluid = FluidParticles(

@@ -32,9 +32,9 @@ def scene_hash(scene) -> str:
     return hashlib.sha256(scene_json(scene).encode()).hexdigest()[:16]
 
 
-def save_checkpoint(sim, path):
+def save_checkpoint(sim, path, extra=None):
     """Writes the state to ``path`` through a temporary file and a rename: a crash never
-    leaves a corrupt file under ``path``."""
+    leaves a corrupt file under ``path``. ``extra`` (run options) is kept as ``run:`` attributes."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
@@ -47,6 +47,8 @@ def save_checkpoint(sim, path):
         f.attrs["particle_radius"] = sim.scene.particle_radius
         f.attrs["time"] = sim.time  # for people; the state is in clock/time
         f.attrs["frame"] = sim.frame
+        for k, v in (extra or {}).items():
+            f.attrs[f"run:{k}"] = v
         for k, v in sim.state_flags().items():
             f.attrs[f"flag:{k}"] = v
         for name, a in sim.state_arrays().items():

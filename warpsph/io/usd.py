@@ -25,9 +25,19 @@ _PRIMVAR_TYPES = {1: Sdf.ValueTypeNames.FloatArray, 3: Sdf.ValueTypeNames.Float3
 
 
 class UsdPointCache:
-    def __init__(self, path, fps, up_axis="Y", boundary_points=None, boundary_radius=None):
+    """Writes frames into ``path``; ``append=True`` reopens an existing cache to continue it."""
+
+    def __init__(self, path, fps, up_axis="Y", boundary_points=None, boundary_radius=None, append=False):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._primvars = {}
+        self.frames = 0
+        if append:
+            self.stage = Usd.Stage.Open(str(self.path))
+            self.points = UsdGeom.Points(self.stage.GetPrimAtPath("/World/Fluid"))
+            api = UsdGeom.PrimvarsAPI(self.points.GetPrim())
+            self._primvars = {pv.GetPrimvarName(): pv for pv in api.GetPrimvars()}
+            return
         if self.path.exists():
             self.path.unlink()
         self.stage = Usd.Stage.CreateNew(str(self.path))
@@ -41,7 +51,6 @@ class UsdPointCache:
         world = UsdGeom.Xform.Define(stage, "/World")
         stage.SetDefaultPrim(world.GetPrim())
         self.points = UsdGeom.Points.Define(stage, "/World/Fluid")
-        self._primvars = {}
         if boundary_points is not None and len(boundary_points):
             boundary = UsdGeom.Points.Define(stage, "/World/Boundary")
             boundary.CreatePurposeAttr(UsdGeom.Tokens.guide)
@@ -49,7 +58,6 @@ class UsdPointCache:
             boundary.CreateWidthsAttr(Vt.FloatArray.FromNumpy(
                 np.full(len(boundary_points), 2.0 * boundary_radius, np.float32)))
             boundary.CreateExtentAttr(_extent(boundary_points))
-        self.frames = 0
 
     def write_frame(self, frame, points, velocities, ids, radius, fields=None):
         """Writes one frame at time code ``frame`` and saves the layer."""

@@ -1,0 +1,163 @@
+"""Reliability: output safety, interruption and resume, instability policy, memory, devices, meshes."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import trimesh
+import warp as wp
+from pxr import Usd, UsdGeom
+
+from warpsph import SceneError, load_scene
+from warpsph.cli import main
+from conftest import tank_scene
+
+
+def write_scene(tmp_path, data, name="scene.json"):
+    path = tmp_path / name
+    path.write_text(json.dumps(data))
+    return path
+
+
+def time_samples(path):
+    stage = Usd.Stage.Open(str(path))
+    return UsdGeom.Points(stage.GetPrimAtPath("/World/Fluid")).GetPointsAttr().GetTimeSamples()
+
+
+def test_existing_output_is_refused_unless_overwrite(tmp_path, capsys):
+    scene = write_scene(tmp_path, tank_scene(radius=0.05, output={"frames": 1}))
+    out = tmp_path / "o.usdc"
+    assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "--quiet"]) == 0
+    assert out.exists() and not (tmp_path / "o.partial.usdc").exists()  # renamed when complete
+    stamp = out.stat().st_mtime_ns
+    assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "--quiet"]) == 2
+    assert "--overwrite" in capsys.readouterr().err
+    assert out.stat().st_mtime_ns == stamp
+    assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "--quiet", "--overwrite"]) == 0
+
+
+def test_dry_run_prints_the_estimate_and_writes_nothing(tmp_path, capsys):
+    scene = write_scene(tmp_path, tank_scene(radius=0.02))
+    out = tmp_path / "o.usdc"
+    assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "--dry-run"]) == 0
+    text = capsys.readouterr().out
+    assert "1000 fluid" in text and "MiB" in text
+    assert not list(tmp_path.glob("o*"))
+
+
+def test_a_scene_too_large_for_the_device_is_refused_before_allocation(tmp_path, monkeypatch, capsys):
+    import warpsph.resources as resources
+
+    monkeypatch.setattr(resources, "free_bytes", lambda device: 10 * 2**20)
+    scene = write_scene(tmp_path, tank_scene(radius=0.02))
+    out = tmp_path / "o.usdc"
+    assert main(["run", str(scene), "--device", "cpu", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "particle_radius" in err and "GiB" in err and "free" in err
+    assert not out.exists()
+
+
+def test_cuda_without_a_gpu_says_so(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(wp, "is_cuda_available", lambda: False)
+    scene = write_scene(tmp_path, tank_scene(radius=0.05))
+    assert main(["run", str(scene), "--device", "cuda", "--out", str(tmp_path / "o.usdc")]) == 2
+    assert "--device cpu" in capsys.readouterr().err
+    from warpsph.cli import _pick_device
+
+    assert _pick_device("auto") == "cpu"
+
+
+CRASH = {"name": "crash", "particle_radius": 0.04, "domain": {"min": [0, 0, 0], "max": [1.0, 0.6, 0.4]},
+         "gravity": [0, 0, 0], "fluid_blocks": [{"start": [0.3, 0.1, 0.05], "end": [0.6, 0.4, 0.35], "velocity": [8, 0, 0]}],
+         "time": {"fixed_dt": 0.04}, "output": {"fps": 25, "frames": 4}}
+
+
+def test_instability_stops_with_a_diagnostic_and_keeps_the_frames(tmp_path, capsys):
+    scene = write_scene(tmp_path, CRASH)
+    out = tmp_path / "crash.usdc"
+    assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "--quiet"]) == 3
+    err = capsys.readouterr().err
+    assert "unstable at step" in err and "left the domain" in err and "particle id" in err
+    assert time_samples(out)[0] == 0.0  # the frames done are kept, under the final name
+
+
+def test_reduce_dt_retries_the_unstable_step(tmp_path):
+    scene = write_scene(tmp_path, CRASH)
+    out = tmp_path / "crash.usdc"
+    assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "--quiet", "--on-instability", "reduce-dt"]) == 0
+    assert time_samples(out) == [0.0, 1.0, 2.0, 3.0, 4.0]
+
+
+def test_nan_is_caught_on_the_step_it_appears():
+    from conftest import make_sim
+    from warpsph.simulation import InstabilityError
+
+    sim = make_sim(tank_scene(radius=0.05))
+    x = sim.fluid.x.numpy().copy()
+    x[3] = np.nan
+    sim.fluid.x.assign(x)
+    with pytest.raises(InstabilityError, match="NaN"):
+        sim.run(frames=1)
+
+
+def test_density_runaway_and_solver_streak_are_caught(monkeypatch):
+    import warpsph.simulation as simulation
+    from conftest import make_sim
+
+    monkeypatch.setattr(simulation, "DENSITY_HARD_LIMIT", 0.5)  # every particle is "too dense"
+    sim = make_sim(tank_scene(radius=0.05))
+    with pytest.raises(simulation.InstabilityError, match="density above"):
+        sim.run(frames=1)
+    monkeypatch.setattr(simulation, "DENSITY_HARD_LIMIT", 1.5)
+    monkeypatch.setattr(simulation, "MAX_ITERATION_STREAK", 3)
+    sim = make_sim(tank_scene(radius=0.03, solver={"min_iterations": 0, "max_iterations": 1,
+                                                   "density_max_error": 1e-6}))
+    with pytest.raises(simulation.InstabilityError, match="density solver hit max_iterations 3 steps in a row"):
+        sim.run(frames=2)
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_signal_finishes_the_frame_saves_and_resume_completes(tmp_path, signum, code):
+    data = tank_scene(radius=0.03, domain=(0.6, 0.4, 0.2), block=(0.2, 0.3, 0.2), output={"fps": 50, "frames": 400})
+    scene = write_scene(tmp_path, data)
+    out = tmp_path / "long.usdc"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "warpsph.cli", "run", str(scene), "--device", "cpu", "--out", str(out)],
+                            stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
+    stats = out.with_suffix(".stats.csv")
+    deadline = time.time() + 120
+    while time.time() < deadline and (not stats.exists() or len(stats.read_text().splitlines()) < 4):
+        time.sleep(0.2)
+    proc.send_signal(signum)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == code, err
+    assert signal.Signals(signum).name in err and "resume" in err
+    checkpoint = out.with_suffix(".checkpoint.h5")
+    assert checkpoint.exists() and out.exists()
+    done = time_samples(out)
+    assert done == [float(f) for f in range(len(done))] and 3 <= len(done) < 401
+    rows = len(stats.read_text().splitlines())
+    assert main(["resume", str(checkpoint), "--device", "cpu", "--frames", str(len(done) + 1), "--quiet"]) == 0
+    assert time_samples(out) == [float(f) for f in range(len(done) + 2)]
+    assert len(stats.read_text().splitlines()) == rows + 2
+
+
+def test_mesh_problems_name_the_file(tmp_path):
+    (tmp_path / "empty.obj").write_text("# nothing here\n")
+    big = trimesh.creation.box(extents=[1000.0, 1000.0, 1000.0])  # millimetres by mistake
+    big.export(tmp_path / "big.stl")
+    tiny = trimesh.creation.box(extents=[1e-4, 1e-4, 1e-4])
+    tiny.export(tmp_path / "tiny.ply")
+    from warpsph.simulation import Simulation
+
+    for name, words in [("empty.obj", "no triangles"), ("big.stl", "wrong units"), ("tiny.ply", "smaller than one particle")]:
+        scene = load_scene(write_scene(tmp_path, tank_scene(obstacles=[{"mesh": name}])))
+        with pytest.raises(SceneError, match=words) as info:
+            Simulation(scene, device="cpu")
+        assert name in str(info.value)
