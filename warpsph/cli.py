@@ -61,22 +61,27 @@ class Progress:
 
 
 class Outputs:
-    """The files of one run: the USD cache (written as NAME.partial.usdc and renamed when the run
-    stops), the diagnostics CSV and the latest checkpoint, all beside each other."""
+    """The files of one run: the USD cache (single file: written as NAME.partial.usdc and renamed
+    when the run stops; value clips: NAME.clips/ stitched into NAME when the run stops), the
+    diagnostics CSV and the latest checkpoint, all beside each other."""
 
     def __init__(self, out):
         self.out = Path(out)
         self.partial = self.out.with_name(self.out.stem + ".partial" + self.out.suffix)
+        self.clips = self.out.with_name(self.out.stem + ".clips")
         self.stats = self.out.with_suffix(".stats.csv")
         self.checkpoint = self.out.with_suffix(".checkpoint.h5")
 
     def existing(self):
-        return [p for p in (self.out, self.partial, self.stats, self.checkpoint) if p.exists()]
+        return [p for p in (self.out, self.partial, self.clips, self.stats, self.checkpoint) if p.exists()]
 
-    def finish(self):
-        """Renames the partial cache to its final name (it is complete up to its last frame)."""
-        if self.partial.exists():
-            os.replace(self.partial, self.out)
+    def remove(self, path):
+        if path.is_dir():
+            import shutil
+
+            shutil.rmtree(path)
+        else:
+            path.unlink()
 
 
 class StopRequest(Exception):
@@ -87,14 +92,18 @@ class StopRequest(Exception):
 def _simulate(sim, outputs, frames, args, options, append):
     from .diagnostics import DiagnosticsWriter
     from .io.checkpoint import save_checkpoint
-    from .io.usd import UsdPointCache, frame_writer
+    from .io.usd import UsdClipCache, UsdPointCache, frame_writer
 
     scene = sim.scene
-    if append and outputs.out.exists():
-        os.replace(outputs.out, outputs.partial)
-    cache = UsdPointCache(outputs.partial, scene.output.fps, scene.output.up_axis,
-                          boundary_points=None if append else sim.boundary.x.numpy(),
-                          boundary_radius=scene.particle_radius, append=append)
+    boundary = None if append else sim.boundary.x.numpy()
+    if options.get("clips"):
+        cache = UsdClipCache(outputs.out, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
+                             boundary_radius=scene.particle_radius, append=append)
+    else:
+        if append and outputs.out.exists():
+            os.replace(outputs.out, outputs.partial)
+        cache = UsdPointCache(outputs.partial, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
+                              boundary_radius=scene.particle_radius, append=append)
     write = frame_writer(cache)
     diagnostics = DiagnosticsWriter(outputs.stats, append=append)
     progress = None if args.quiet else Progress(frames)
@@ -141,7 +150,7 @@ def _simulate(sim, outputs, frames, args, options, append):
         for s, handler in previous.items():
             signal.signal(s, handler)
         diagnostics.close()
-        outputs.finish()
+        cache.finish(outputs.out)
     wall = time.perf_counter() - start
     stats = sim.statistics()
     steps = sim.step_count - steps0
@@ -178,7 +187,7 @@ def run_command(args):
     if existing and not args.overwrite:
         raise SceneError(existing[0], "--out", "exists; pass --overwrite to replace it, or choose another --out")
     for path in existing:
-        path.unlink()
+        outputs.remove(path)
     device = _pick_device(args.device)
     from .simulation import Simulation
 
@@ -187,7 +196,7 @@ def run_command(args):
     print(f"warpsph: {scene.name} on {device}: {sim.num_fluid} fluid + {sim.num_boundary} boundary particles, "
           f"r = {scene.particle_radius:.4g} m, {frames} frames at {scene.output.fps:g} fps -> {outputs.out}",
           file=sys.stderr)
-    options = {"checkpoint_every": args.checkpoint_every, "on_instability": args.on_instability}
+    options = {"checkpoint_every": args.checkpoint_every, "on_instability": args.on_instability, "clips": int(args.clips)}
     return _simulate(sim, outputs, frames, args, options, append=False)
 
 
@@ -206,7 +215,8 @@ def resume_command(args):
     sim.on_instability = options.get("on_instability", "stop")
     print(f"warpsph: resuming {sim.scene.name} at frame {sim.frame} (t = {sim.time:.3f} s) on {device} -> {outputs.out}",
           file=sys.stderr)
-    run_options = {"checkpoint_every": int(options.get("checkpoint_every", 0)), "on_instability": sim.on_instability}
+    run_options = {"checkpoint_every": int(options.get("checkpoint_every", 0)), "on_instability": sim.on_instability,
+                   "clips": int(options.get("clips", 0))}
     return _simulate(sim, outputs, frames, args, run_options, append=True)
 
 
@@ -224,6 +234,8 @@ def build_parser():
                      help="write OUT.checkpoint.h5 every N frames (atomically; the latest one is kept)")
     run.add_argument("--on-instability", choices=["stop", "reduce-dt"], default="stop",
                      help="stop with a diagnostic (default), or retry an unstable step with dt halved (up to 4 times)")
+    run.add_argument("--clips", action="store_true",
+                     help="large runs: one USD layer per frame in OUT.clips/, stitched into OUT with value clips")
     run.add_argument("--dry-run", action="store_true", help="print particle counts and the memory estimate, run nothing")
     run.set_defaults(func=run_command)
     resume = sub.add_parser("resume", help="continue a run from its checkpoint")

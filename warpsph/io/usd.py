@@ -6,80 +6,150 @@ Layout of the stage (``metersPerUnit`` = 1, ``upAxis`` from the scene,
 - ``/World/Fluid`` (Points): time-sampled ``points``, ``velocities`` [m/s], ``ids``
   (int64, stable across re-sorting), ``widths`` (diameter), ``extent``, and one primvar
   per published field (``density``; with a turbulence model ``vorticity`` (float3) and
-  ``vorticity_magnitude``; micropolar ``angular_velocity``);
+  ``vorticity_magnitude``; micropolar ``angular_velocity``), float/float3 only;
 - ``/World/Boundary`` (Points, purpose ``guide``): the static boundary samples, written
   once without time samples.
 
-The layer is saved after every frame, so a run that stops early leaves a readable file
-holding the frames done.
+Two writers with one interface (``write_frame``, ``finish``):
+
+- :class:`UsdPointCache`, a single file saved after every frame (small runs);
+- :class:`UsdClipCache`, one layer per frame stitched with USD value clips
+  (``UsdUtils.StitchClips``: a topology layer with the prim and attribute declarations, a
+  manifest, and a small top-level file), for large runs: the writer holds one frame at a time.
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, Vt
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdUtils, Vt
 
 _PRIMVAR_TYPES = {1: Sdf.ValueTypeNames.FloatArray, 3: Sdf.ValueTypeNames.Float3Array}
 
 
+def _set_stage_metadata(stage, fps, up_axis):
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up_axis == "Y" else UsdGeom.Tokens.z)
+    stage.SetTimeCodesPerSecond(fps)
+    stage.SetFramesPerSecond(fps)
+
+
+def _define_boundary(stage, boundary_points, boundary_radius):
+    if boundary_points is None or not len(boundary_points):
+        return
+    boundary = UsdGeom.Points.Define(stage, "/World/Boundary")
+    boundary.CreatePurposeAttr(UsdGeom.Tokens.guide)
+    boundary.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(boundary_points, np.float32)))
+    boundary.CreateWidthsAttr(Vt.FloatArray.FromNumpy(np.full(len(boundary_points), 2.0 * boundary_radius, np.float32)))
+    boundary.CreateExtentAttr(_extent(boundary_points))
+
+
+def _write_points(points_prim, frame, points, velocities, ids, radius, fields):
+    """One frame's time samples on a Points prim."""
+    p, t = points_prim, Usd.TimeCode(frame)
+    points = np.ascontiguousarray(points, np.float32)
+    p.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(points), t)
+    p.GetVelocitiesAttr().Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(velocities, np.float32)), t)
+    p.GetIdsAttr().Set(Vt.Int64Array.FromNumpy(np.ascontiguousarray(ids, np.int64)), t)
+    p.GetWidthsAttr().Set(Vt.FloatArray.FromNumpy(np.full(len(points), 2.0 * radius, np.float32)), t)
+    p.GetExtentAttr().Set(_extent(points, radius), t)
+    api = UsdGeom.PrimvarsAPI(p.GetPrim())
+    for name, values in (fields or {}).items():
+        values = np.ascontiguousarray(values, np.float32)
+        width = 1 if values.ndim == 1 else values.shape[1]
+        primvar = api.GetPrimvar(name)
+        if not primvar:
+            primvar = api.CreatePrimvar(name, _PRIMVAR_TYPES[width], UsdGeom.Tokens.vertex)
+        primvar.Set(Vt.FloatArray.FromNumpy(values) if width == 1 else Vt.Vec3fArray.FromNumpy(values), t)
+
+
 class UsdPointCache:
-    """Writes frames into ``path``; ``append=True`` reopens an existing cache to continue it."""
+    """A single file, saved after every frame (a stopped run leaves the frames done).
+    ``append=True`` reopens an existing cache to continue it."""
 
     def __init__(self, path, fps, up_axis="Y", boundary_points=None, boundary_radius=None, append=False):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._primvars = {}
         self.frames = 0
         if append:
             self.stage = Usd.Stage.Open(str(self.path))
             self.points = UsdGeom.Points(self.stage.GetPrimAtPath("/World/Fluid"))
-            api = UsdGeom.PrimvarsAPI(self.points.GetPrim())
-            self._primvars = {pv.GetPrimvarName(): pv for pv in api.GetPrimvars()}
             return
         if self.path.exists():
             self.path.unlink()
         self.stage = Usd.Stage.CreateNew(str(self.path))
-        stage = self.stage
-        UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y if up_axis == "Y" else UsdGeom.Tokens.z)
-        stage.SetTimeCodesPerSecond(fps)
-        stage.SetFramesPerSecond(fps)
-        stage.SetStartTimeCode(0)
-        stage.SetEndTimeCode(0)
-        world = UsdGeom.Xform.Define(stage, "/World")
-        stage.SetDefaultPrim(world.GetPrim())
-        self.points = UsdGeom.Points.Define(stage, "/World/Fluid")
-        if boundary_points is not None and len(boundary_points):
-            boundary = UsdGeom.Points.Define(stage, "/World/Boundary")
-            boundary.CreatePurposeAttr(UsdGeom.Tokens.guide)
-            boundary.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(boundary_points, np.float32)))
-            boundary.CreateWidthsAttr(Vt.FloatArray.FromNumpy(
-                np.full(len(boundary_points), 2.0 * boundary_radius, np.float32)))
-            boundary.CreateExtentAttr(_extent(boundary_points))
+        _set_stage_metadata(self.stage, fps, up_axis)
+        self.stage.SetStartTimeCode(0)
+        self.stage.SetEndTimeCode(0)
+        self.stage.SetDefaultPrim(UsdGeom.Xform.Define(self.stage, "/World").GetPrim())
+        self.points = UsdGeom.Points.Define(self.stage, "/World/Fluid")
+        _define_boundary(self.stage, boundary_points, boundary_radius)
 
     def write_frame(self, frame, points, velocities, ids, radius, fields=None):
         """Writes one frame at time code ``frame`` and saves the layer."""
-        p = self.points
-        t = Usd.TimeCode(frame)
-        points = np.ascontiguousarray(points, np.float32)
-        p.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(points), t)
-        p.GetVelocitiesAttr().Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(velocities, np.float32)), t)
-        p.GetIdsAttr().Set(Vt.Int64Array.FromNumpy(np.ascontiguousarray(ids, np.int64)), t)
-        p.GetWidthsAttr().Set(Vt.FloatArray.FromNumpy(np.full(len(points), 2.0 * radius, np.float32)), t)
-        p.GetExtentAttr().Set(_extent(points, radius), t)
-        for name, values in (fields or {}).items():
-            values = np.ascontiguousarray(values, np.float32)
-            width = 1 if values.ndim == 1 else values.shape[1]
-            if name not in self._primvars:
-                api = UsdGeom.PrimvarsAPI(p.GetPrim())
-                self._primvars[name] = api.CreatePrimvar(name, _PRIMVAR_TYPES[width], UsdGeom.Tokens.vertex)
-            array = Vt.FloatArray.FromNumpy(values) if width == 1 else Vt.Vec3fArray.FromNumpy(values)
-            self._primvars[name].Set(array, t)
+        _write_points(self.points, frame, points, velocities, ids, radius, fields)
         self.stage.SetEndTimeCode(max(frame, self.stage.GetEndTimeCode()))
         self.stage.GetRootLayer().Save()
         self.frames += 1
+
+    def finish(self, final_path):
+        """The cache is complete up to its last frame: move it to its final name."""
+        if Path(final_path) != self.path and self.path.exists():
+            os.replace(self.path, final_path)
+
+
+class UsdClipCache:
+    """One layer per frame in ``FINAL.clips/``, stitched into ``FINAL`` by :meth:`finish`.
+
+    Memory does not grow with the number of frames: each frame's stage is written and
+    released. The top-level file is made when the run ends or stops; the frame layers of a
+    crashed run stay readable on their own."""
+
+    def __init__(self, final_path, fps, up_axis="Y", boundary_points=None, boundary_radius=None, append=False):
+        self.final = Path(final_path)
+        self.dir = self.final.with_name(self.final.stem + ".clips")
+        self.dir.mkdir(parents=True, exist_ok=True)
+        self.fps, self.up_axis = fps, up_axis
+        self.boundary = (None if boundary_points is None else np.asarray(boundary_points), boundary_radius)
+        self.boundary_file = self.dir / "boundary.npz"
+        if boundary_points is not None:
+            np.savez(self.boundary_file, points=np.asarray(boundary_points), radius=boundary_radius)
+        self.frames = 0
+
+    def frame_path(self, frame):
+        return self.dir / f"frame.{frame:06d}.usdc"
+
+    def write_frame(self, frame, points, velocities, ids, radius, fields=None):
+        stage = Usd.Stage.CreateNew(str(self.frame_path(frame)))
+        stage.SetStartTimeCode(frame)  # StitchClips activates each clip at its layer's start
+        stage.SetEndTimeCode(frame)
+        UsdGeom.Xform.Define(stage, "/World")
+        _write_points(UsdGeom.Points.Define(stage, "/World/Fluid"), frame, points, velocities, ids, radius, fields)
+        stage.GetRootLayer().Save()
+        del stage
+        self.frames += 1
+
+    def finish(self, final_path=None):
+        """Stitches every frame layer into the top-level file (value clips + topology layer)."""
+        final = Path(final_path or self.final)
+        frames = sorted(self.dir.glob("frame.*.usdc"))
+        if not frames:
+            return
+        for stale in (final, final.with_name(final.stem + ".topology" + final.suffix)):
+            if stale.exists():
+                stale.unlink()
+        layer = Sdf.Layer.CreateNew(str(final))
+        numbers = [int(f.name.split(".")[1]) for f in frames]
+        UsdUtils.StitchClips(layer, [str(f) for f in frames], Sdf.Path("/World"), min(numbers), max(numbers))
+        stage = Usd.Stage.Open(layer)
+        _set_stage_metadata(stage, self.fps, self.up_axis)
+        stage.SetDefaultPrim(stage.GetPrimAtPath("/World"))
+        if self.boundary_file.exists():
+            data = np.load(self.boundary_file)
+            _define_boundary(stage, data["points"], float(data["radius"]))
+        layer.Save()
 
 
 def _extent(points, pad=0.0):
@@ -90,7 +160,7 @@ def _extent(points, pad=0.0):
     return Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))])
 
 
-def frame_writer(cache: UsdPointCache):
+def frame_writer(cache):
     """An ``on_frame`` callback for :meth:`Simulation.run` that writes every frame to ``cache``."""
 
     def on_frame(sim, frame):
