@@ -306,6 +306,10 @@ def load_scene(path, scale: float = 1.0) -> Scene:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise SceneError(path, "", f"not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
+    from .io.splishsplash import convert, is_splishsplash
+
+    if is_splishsplash(data):  # a SPlisHSPlasH scene file
+        data = convert(data, path)
     scene = parse_dataclass(Scene, data, path)
     return rescale(dataclasses.replace(scene, source=str(path)), scale)
 
