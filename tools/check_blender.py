@@ -1,0 +1,64 @@
+"""Imports a warpsph USD cache into Blender (headless) and reports what Blender sees.
+
+Run it with a Python that has Blender as a module (``pip install bpy==5.0.1``, Python 3.11):
+
+    python tools/check_blender.py out/dam_break.usdc --frames 0 10 [--json report.json]
+
+Prints (and writes) JSON: Blender's version, and per frame the point count, the attributes of
+the imported point cloud, and the first point's velocity, radius and density. ``tests/test_blender.py``
+compares that with what pxr reads from the same file, for the single-file and value-clip modes.
+"""
+
+import argparse
+import json
+import sys
+
+
+def inspect(path, frames):
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    if "FINISHED" not in bpy.ops.wm.usd_import(filepath=str(path)):
+        raise SystemExit(f"check_blender: Blender could not import {path}")
+    clouds = [o for o in bpy.data.objects if o.type == "POINTCLOUD"]
+    report = {"blender": bpy.app.version_string, "objects": {o.name: o.type for o in bpy.data.objects}, "frames": {}}
+    scene = bpy.context.scene
+    for frame in frames:
+        scene.frame_set(frame)
+        depsgraph = bpy.context.evaluated_depsgraph_get()
+        for obj in clouds:
+            data = obj.evaluated_get(depsgraph).data
+            attrs = data.attributes
+            entry = {"object": obj.name, "points": len(data.points), "attributes": sorted(a.name for a in attrs)}
+            if len(data.points):
+                if "velocity" in attrs:
+                    entry["velocity0"] = list(attrs["velocity"].data[0].vector)
+                if "radius" in attrs:
+                    entry["radius0"] = attrs["radius"].data[0].value
+                if "density" in attrs:
+                    values = [d.value for d in attrs["density"].data]
+                    entry["density_mean"] = sum(values) / len(values)
+            report["frames"][str(frame)] = entry
+    return report
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("cache", help="a .usdc/.usda cache written by warpsph")
+    parser.add_argument("--frames", type=int, nargs="+", default=[0, 1])
+    parser.add_argument("--json", help="also write the report here")
+    args = parser.parse_args(argv)
+    try:
+        import bpy  # noqa: F401
+    except ImportError:
+        sys.exit("check_blender: needs Blender as a Python module: pip install bpy==5.0.1 (Python 3.11)")
+    report = inspect(args.cache, args.frames)
+    text = json.dumps(report, indent=2)
+    print(text)
+    if args.json:
+        with open(args.json, "w") as f:
+            f.write(text + "\n")
+
+
+if __name__ == "__main__":
+    main()
