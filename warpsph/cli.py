@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import argparse
 import os
+
+import numpy as np
 import signal
 import sys
 import time
@@ -108,6 +110,7 @@ def _simulate(sim, outputs, frames, args, options, append):
     diagnostics = DiagnosticsWriter(outputs.stats, append=append)
     progress = None if args.quiet else Progress(frames)
     every = options.get("checkpoint_every", 0)
+    preview = options.get("preview", 0)
     stop = {}
 
     def request_stop(signum, _frame):
@@ -126,6 +129,14 @@ def _simulate(sim, outputs, frames, args, options, append):
             raise StopRequest(stop["signum"])
         if every and frame and frame % every == 0:
             checkpoint()
+        if preview and frame % preview == 0:
+            from .plots import plot_slice
+
+            fields = sim.fields()
+            values = (np.linalg.norm(fields["vorticity"].numpy(), axis=1) if "vorticity" in fields
+                      else np.linalg.norm(sim.fluid.v.numpy(), axis=1))
+            plot_slice(sim.fluid.x.numpy(), values, outputs.out.with_name(f"{outputs.out.stem}.preview.{frame:05d}.png"),
+                       "z", thickness=2.0 * scene.particle_diameter, title=f"{scene.name}, frame {frame}, t = {sim.time:.3f} s")
 
     previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
     start = time.perf_counter()
@@ -196,7 +207,8 @@ def run_command(args):
     print(f"warpsph: {scene.name} on {device}: {sim.num_fluid} fluid + {sim.num_boundary} boundary particles, "
           f"r = {scene.particle_radius:.4g} m, {frames} frames at {scene.output.fps:g} fps -> {outputs.out}",
           file=sys.stderr)
-    options = {"checkpoint_every": args.checkpoint_every, "on_instability": args.on_instability, "clips": int(args.clips)}
+    options = {"checkpoint_every": args.checkpoint_every, "on_instability": args.on_instability, "clips": int(args.clips),
+               "preview": args.preview}
     return _simulate(sim, outputs, frames, args, options, append=False)
 
 
@@ -216,8 +228,23 @@ def resume_command(args):
     print(f"warpsph: resuming {sim.scene.name} at frame {sim.frame} (t = {sim.time:.3f} s) on {device} -> {outputs.out}",
           file=sys.stderr)
     run_options = {"checkpoint_every": int(options.get("checkpoint_every", 0)), "on_instability": sim.on_instability,
-                   "clips": int(options.get("clips", 0))}
+                   "clips": int(options.get("clips", 0)), "preview": int(options.get("preview", 0))}
     return _simulate(sim, outputs, frames, args, run_options, append=True)
+
+
+def plot_energy_command(args):
+    from .plots import plot_energy
+
+    print(f"wrote {plot_energy(args.runs, args.out, args.labels)}")
+    return 0
+
+
+def plot_slice_command(args):
+    from .plots import slice_from_cache
+
+    path, shown = slice_from_cache(args.run, args.frame, args.axis, args.out)
+    print(f"wrote {path} ({shown} particles in the slab)")
+    return 0
 
 
 def build_parser():
@@ -236,11 +263,26 @@ def build_parser():
                      help="stop with a diagnostic (default), or retry an unstable step with dt halved (up to 4 times)")
     run.add_argument("--clips", action="store_true",
                      help="large runs: one USD layer per frame in OUT.clips/, stitched into OUT with value clips")
+    run.add_argument("--preview", type=int, default=0, metavar="K",
+                     help="every K frames write OUT.preview.FRAME.png, a mid-depth slab coloured by vorticity (or speed)")
     run.add_argument("--dry-run", action="store_true", help="print particle counts and the memory estimate, run nothing")
     run.set_defaults(func=run_command)
     resume = sub.add_parser("resume", help="continue a run from its checkpoint")
     resume.add_argument("checkpoint", help="OUT.checkpoint.h5 written by --checkpoint-every or at Ctrl-C")
     resume.set_defaults(func=resume_command)
+    plot = sub.add_parser("plot", help="PNG plots of finished runs (needs matplotlib)")
+    kinds = plot.add_subparsers(dest="kind", required=True)
+    energy = kinds.add_parser("energy", help="energy over time for several runs (like Fig 7 of the VR paper)")
+    energy.add_argument("runs", nargs="+", help="OUT.usdc of each run (or its OUT.stats.csv)")
+    energy.add_argument("--labels", nargs="+", help="one label per run")
+    energy.add_argument("--out", default="energy.png")
+    energy.set_defaults(func=plot_energy_command)
+    slab = kinds.add_parser("slice", help="particles in a thin slab coloured by vorticity magnitude")
+    slab.add_argument("run", help="OUT.usdc (or the top-level OUT.usda of a --clips run)")
+    slab.add_argument("--frame", type=int, default=0)
+    slab.add_argument("--axis", choices=["x", "y", "z"], default="z")
+    slab.add_argument("--out", default="slice.png")
+    slab.set_defaults(func=plot_slice_command)
     for p in (run, resume):
         p.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
         p.add_argument("--frames", type=int, help="last frame to simulate (default: the scene's output.frames)")
