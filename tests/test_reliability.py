@@ -128,7 +128,8 @@ def test_a_signal_finishes_the_frame_saves_and_resume_completes(tmp_path, signum
     scene = write_scene(tmp_path, data)
     out = tmp_path / "long.usdc"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "warpsph.cli", "run", str(scene), "--device", "cpu", "--out", str(out)],
+    proc = subprocess.Popen([sys.executable, "-m", "warpsph.cli", "run", str(scene), "--device", "cpu", "--out", str(out),
+                             "--particles-h5"],
                             stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
     stats = out.with_suffix(".stats.csv")
     deadline = time.time() + 120
@@ -146,6 +147,12 @@ def test_a_signal_finishes_the_frame_saves_and_resume_completes(tmp_path, signum
     assert main(["resume", str(checkpoint), "--device", "cpu", "--frames", str(len(done) + 1), "--quiet"]) == 0
     assert time_samples(out) == [float(f) for f in range(len(done) + 2)]
     assert len(stats.read_text().splitlines()) == rows + 2
+    import h5py
+
+    with h5py.File(out.with_suffix(".particles.h5"), "r") as f:  # the frame data went on after the resume
+        assert sorted(f["frames"]) == [f"{n:06d}" for n in range(len(done) + 2)]
+        last = f["frames"][f"{len(done) + 1:06d}"]
+        assert last["x"].shape == (45, 3) and last.attrs["time"] > 0 and "density" in last
 
 
 def test_mesh_problems_name_the_file(tmp_path):

@@ -73,9 +73,10 @@ class Outputs:
         self.clips = self.out.with_name(self.out.stem + ".clips")
         self.stats = self.out.with_suffix(".stats.csv")
         self.checkpoint = self.out.with_suffix(".checkpoint.h5")
+        self.particles = self.out.with_suffix(".particles.h5")
 
     def existing(self):
-        return [p for p in (self.out, self.partial, self.clips, self.stats, self.checkpoint) if p.exists()]
+        return [p for p in (self.out, self.partial, self.clips, self.stats, self.checkpoint, self.particles) if p.exists()]
 
     def remove(self, path):
         if path.is_dir():
@@ -108,6 +109,11 @@ def _simulate(sim, outputs, frames, args, options, append):
                               boundary_radius=scene.particle_radius, append=append)
     write = frame_writer(cache)
     diagnostics = DiagnosticsWriter(outputs.stats, append=append)
+    particles = None
+    if options.get("particles_h5"):
+        from .io.particles_h5 import ParticleFrames
+
+        particles = ParticleFrames(outputs.particles, append=append)
     progress = None if args.quiet else Progress(frames)
     every = options.get("checkpoint_every", 0)
     preview = options.get("preview", 0)
@@ -122,6 +128,8 @@ def _simulate(sim, outputs, frames, args, options, append):
     def on_frame(sim, frame):
         write(sim, frame)
         diagnostics(sim, frame)
+        if particles is not None:
+            particles(sim, frame)
         if progress is not None:
             progress(sim, frame)
         if "signum" in stop:
@@ -161,6 +169,8 @@ def _simulate(sim, outputs, frames, args, options, append):
         for s, handler in previous.items():
             signal.signal(s, handler)
         diagnostics.close()
+        if particles is not None:
+            particles.close()
         cache.finish(outputs.out)
     wall = time.perf_counter() - start
     stats = sim.statistics()
@@ -208,7 +218,7 @@ def run_command(args):
           f"r = {scene.particle_radius:.4g} m, {frames} frames at {scene.output.fps:g} fps -> {outputs.out}",
           file=sys.stderr)
     options = {"checkpoint_every": args.checkpoint_every, "on_instability": args.on_instability, "clips": int(args.clips),
-               "preview": args.preview}
+               "preview": args.preview, "particles_h5": int(args.particles_h5)}
     return _simulate(sim, outputs, frames, args, options, append=False)
 
 
@@ -228,7 +238,8 @@ def resume_command(args):
     print(f"warpsph: resuming {sim.scene.name} at frame {sim.frame} (t = {sim.time:.3f} s) on {device} -> {outputs.out}",
           file=sys.stderr)
     run_options = {"checkpoint_every": int(options.get("checkpoint_every", 0)), "on_instability": sim.on_instability,
-                   "clips": int(options.get("clips", 0)), "preview": int(options.get("preview", 0))}
+                   "clips": int(options.get("clips", 0)), "preview": int(options.get("preview", 0)),
+                   "particles_h5": int(options.get("particles_h5", 0))}
     return _simulate(sim, outputs, frames, args, run_options, append=True)
 
 
@@ -263,6 +274,8 @@ def build_parser():
                      help="stop with a diagnostic (default), or retry an unstable step with dt halved (up to 4 times)")
     run.add_argument("--clips", action="store_true",
                      help="large runs: one USD layer per frame in OUT.clips/, stitched into OUT with value clips")
+    run.add_argument("--particles-h5", action="store_true",
+                     help="also write every frame's particles to OUT.particles.h5 (for numpy/pandas)")
     run.add_argument("--preview", type=int, default=0, metavar="K",
                      help="every K frames write OUT.preview.FRAME.png, a mid-depth slab coloured by vorticity (or speed)")
     run.add_argument("--dry-run", action="store_true", help="print particle counts and the memory estimate, run nothing")
