@@ -5,6 +5,7 @@ import warp as wp
 
 from .particles import Neighbours
 from .sph_kernel import cubic_kernel, cubic_kernel_gradient
+from .vorticity import curl_term
 
 wp.set_module_options({"enable_backward": False})
 
@@ -37,7 +38,7 @@ def micropolar_step(
         j = nb.fluid[k]
         x_ij = xi - x[j]
         w_ij = wi - omega[j]
-        curl_omega += particle_mass * wp.cross(w_ij, cubic_kernel_gradient(x_ij, support_radius))
+        curl_omega += curl_term(w_ij, cubic_kernel_gradient(x_ij, support_radius), particle_mass)
         smooth += (particle_mass / density[j]) * cubic_kernel(wp.length(x_ij), support_radius) * w_ij
     h = dt[0]
     acceleration[i] = acceleration[i] + (transfer_coefficient / density[i]) * curl_omega

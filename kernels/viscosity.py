@@ -4,6 +4,7 @@ import warp as wp
 
 from .particles import Neighbours
 from .sph_kernel import cubic_kernel_gradient
+from .vorticity import curl_term
 
 wp.set_module_options({"enable_backward": False})
 
@@ -51,7 +52,7 @@ def add_viscosity_acceleration(
         lap += artificial_laplacian(v_ij, x_ij, volume, support_radius)
         if with_vorticity != 0:
             gw = cubic_kernel_gradient(x_ij, support_radius)
-            curl += volume * wp.cross(v_ij, gw)
+            curl += curl_term(v_ij, gw, volume)
             if with_gradient != 0:
                 grad -= volume * wp.outer(v_ij, gw)
     acceleration[i] = acceleration[i] + viscosity * lap

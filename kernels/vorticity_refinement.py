@@ -6,6 +6,7 @@ import warp as wp
 from .particles import Neighbours
 from .sph_kernel import PI, cubic_kernel_gradient
 from .viscosity import artificial_laplacian
+from .vorticity import curl_term
 
 wp.set_module_options({"enable_backward": False})
 
@@ -81,6 +82,6 @@ def apply_vorticity_refinement(
     dv = wp.vec3(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         j = nb.fluid[k]
-        dv += (particle_mass / density[j]) * wp.cross(psi_i - stream_function[j],
-                                                      cubic_kernel_gradient(xi - x[j], support_radius))
+        dv += curl_term(psi_i - stream_function[j], cubic_kernel_gradient(xi - x[j], support_radius),
+                        particle_mass / density[j])
     v[i] = v[i] + alpha * dv

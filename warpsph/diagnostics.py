@@ -33,7 +33,8 @@ class Diagnostics:
         f = sim.fluid
         sim.neighbours.update(f.x)  # the lists of the current positions
         sim.launch(compute_vorticity, sim.num_fluid,
-                   [f.x, f.v, f.density, sim.neighbours.lists, sim.particle_mass, sim.support_radius, self._vorticity])
+                   [f.x, f.v, f.density, sim.neighbours.lists, sim.particle_mass, sim.support_radius, 0,
+                    self._vorticity, wp.empty(0, dtype=wp.mat33, device=sim.device)])
         return self._vorticity.numpy()
 
     def measure(self, sim, frame):

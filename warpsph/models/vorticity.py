@@ -2,7 +2,7 @@
 
 import warp as wp
 
-from warpsph.kernels.vorticity import compute_vorticity, compute_vorticity_and_gradient
+from warpsph.kernels.vorticity import compute_vorticity
 
 
 class VorticityField:
@@ -15,11 +15,11 @@ class VorticityField:
         n = sim.num_fluid
         self.vorticity = sim.zeros("vorticity", n, dtype=wp.vec3)
         self.gradient = sim.zeros("vorticity", n, dtype=wp.mat33) if with_gradient else None
+        self._no_gradient = wp.empty(0, dtype=wp.mat33, device=sim.device)
 
     def update(self, sim):
         f = sim.fluid
-        common = [f.x, f.v, f.density, sim.neighbours.lists, sim.particle_mass, sim.support_radius, self.vorticity]
-        if self.gradient is None:
-            sim.launch(compute_vorticity, sim.num_fluid, common)
-        else:
-            sim.launch(compute_vorticity_and_gradient, sim.num_fluid, common + [self.gradient])
+        with_gradient = self.gradient is not None
+        sim.launch(compute_vorticity, sim.num_fluid,
+                   [f.x, f.v, f.density, sim.neighbours.lists, sim.particle_mass, sim.support_radius, int(with_gradient),
+                    self.vorticity, self.gradient if with_gradient else self._no_gradient])
