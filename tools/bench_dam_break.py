@@ -39,6 +39,7 @@ def main():
     parser.add_argument("--density-error", type=float, help="override solver.density_max_error [%]")
     parser.add_argument("--model", choices=["none", "vorticity_refinement", "rankine", "micropolar"], default="none",
                         help="turbulence model to enable with its default parameters")
+    parser.add_argument("--sort-interval", type=int, help="override solver.sort_interval (0: never re-sort)")
     parser.add_argument("--out", help="JSON file to write")
     args = parser.parse_args()
 
@@ -56,6 +57,8 @@ def main():
     scene = load_scene(args.scene, scale=args.particles / n_base)
     if args.density_error:
         scene = dataclasses.replace(scene, solver=dataclasses.replace(scene.solver, density_max_error=args.density_error))
+    if args.sort_interval is not None:
+        scene = dataclasses.replace(scene, solver=dataclasses.replace(scene.solver, sort_interval=args.sort_interval))
     if args.model != "none":
         from warpsph.scene import MODEL_TYPES
 
@@ -97,6 +100,7 @@ def main():
         "boundary_particles": sim.num_boundary,
         "particle_radius": scene.particle_radius,
         "density_max_error_percent": scene.solver.density_max_error,
+        "sort_interval": scene.solver.sort_interval,
         "divergence_max_error_percent": scene.solver.divergence_max_error,
         "graph": bool(sim.use_graph),
         "simulated_time_s": sim.time,
