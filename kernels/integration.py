@@ -22,12 +22,13 @@ def compute_time_step(
     dt_min: float,
     dt_max: float,
     fixed_dt: float,
+    viscous_dt: float,
     dt_scale: float,
     dt_previous: wp.array(dtype=float),
     dt: wp.array(dtype=float),
 ):
-    """One thread: dt = clamp(cfl * 0.4 * d / max|v|, dt_min, dt_max) (SPlisHSPlasH's CFL
-    rule), or ``fixed_dt`` when it is positive, times ``dt_scale`` (< 1 when a step is retried
+    """One thread: dt = clamp(min(cfl * 0.4 * d / max|v|, viscous_dt), dt_min, dt_max) (SPlisHSPlasH's
+    CFL rule and the explicit-viscosity limit), or ``fixed_dt`` when it is positive, times ``dt_scale`` (< 1 when a step is retried
     after an instability); the old dt moves to ``dt_previous``."""
     if dt[0] > 0.0:
         dt_previous[0] = dt[0]
@@ -38,6 +39,7 @@ def compute_time_step(
     h = dt_max
     if speed > 1.0e-9:
         h = cfl_factor * 0.4 * particle_diameter / speed
+    h = wp.min(h, viscous_dt)
     dt[0] = wp.clamp(h, dt_min, dt_max) * dt_scale
 
 
