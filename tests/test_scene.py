@@ -83,14 +83,17 @@ def test_absurd_particle_counts_are_refused_before_sampling(tmp_path):
         Simulation(scene, device="cpu")
 
 
-def test_default_scene_loads_and_scales():
+def test_default_scene_loads_and_scales(tmp_path):
     path = Path(SCENES_DIR) / "dam_break.json"
     full = load_scene(path)
     small = load_scene(path, scale=0.125)
     assert small.particle_radius == pytest.approx(2 * full.particle_radius)
-    assert small.time.dt_max == full.time.dt_max  # coarser: bounds kept
+    assert full.time_step_bounds == pytest.approx((1e-4, 5e-3))  # SPlisHSPlasH's bounds at r = 25 mm
     fine = load_scene(path, scale=8)
-    assert fine.time.dt_max == pytest.approx(full.time.dt_max / 2)  # finer: dt ~ r
+    assert fine.time_step_bounds[1] == pytest.approx(full.time_step_bounds[1] / 2)  # finer: dt ~ r
+    # explicit bounds: kept when coarser, shrunk with r when finer
+    explicit = load_scene(write(tmp_path, tank_scene(radius=0.02, time={"dt_max": 0.004})), scale=8)
+    assert explicit.time.dt_max == pytest.approx(0.002)
     with pytest.raises(SceneError, match="--scale"):
         load_scene(path, scale=0)
 

@@ -76,7 +76,8 @@ DT_MAX_PER_RADIUS = 0.2  # [s/m]: the default dt_max is proportional to the part
 @dataclass(frozen=True)
 class TimeStepping:
     cfl: float = field(default=0.5, metadata=_check("a number in (0, 1]", lambda v: 0 < v <= 1))
-    dt_min: float = field(default=1.0e-4, metadata=_positive())  # [s]
+    # [s]; null: dt_max / 50 (SPlisHSPlasH's 0.1 ms at r = 25 mm)
+    dt_min: typing.Optional[float] = field(default=None, metadata=_check("null or a number > 0", lambda v: v is None or v > 0))
     # [s]; null: 0.2 s/m x particle radius (SPlisHSPlasH's 5 ms at r = 25 mm). A fixed 5 ms let
     # finer dam breaks crush their bottom layers before the pressure could build (r = 6.3 mm and
     # r = 2.9 mm exploded within 5 steps).
@@ -84,7 +85,7 @@ class TimeStepping:
     fixed_dt: typing.Optional[float] = field(default=None, metadata=_check("null or a number > 0", lambda v: v is None or v > 0))
 
     def validate(self, file, key):
-        if self.dt_max is not None and self.dt_min > self.dt_max:
+        if self.dt_max is not None and self.dt_min is not None and self.dt_min > self.dt_max:
             raise SceneError(file, f"{key}.dt_min", f"{self.dt_min} must not exceed dt_max {self.dt_max}")
 
 
@@ -174,9 +175,10 @@ class Scene:
 
     @property
     def time_step_bounds(self):
-        """(dt_min, dt_max) in seconds, dt_max resolved from the radius when the file leaves it null."""
+        """(dt_min, dt_max) in seconds, resolved from the radius where the file leaves them null."""
         dt_max = self.time.dt_max if self.time.dt_max is not None else DT_MAX_PER_RADIUS * self.particle_radius
-        return min(self.time.dt_min, dt_max), dt_max
+        dt_min = self.time.dt_min if self.time.dt_min is not None else dt_max / 50.0
+        return min(dt_min, dt_max), dt_max
 
     def validate(self, file, key):
         if not self.fluid_blocks:
@@ -345,6 +347,7 @@ def rescale(scene: Scene, scale: float) -> Scene:
     factor = scale ** (-1.0 / 3.0)
     t = scene.time
     shrink = min(1.0, factor)
-    time = dataclasses.replace(t, dt_min=t.dt_min * shrink, dt_max=None if t.dt_max is None else t.dt_max * shrink,
+    time = dataclasses.replace(t, dt_min=None if t.dt_min is None else t.dt_min * shrink,
+                               dt_max=None if t.dt_max is None else t.dt_max * shrink,
                                fixed_dt=None if t.fixed_dt is None else t.fixed_dt * shrink)
     return dataclasses.replace(scene, particle_radius=scene.particle_radius * factor, time=time)
