@@ -271,7 +271,7 @@ def build_parser():
     run.add_argument("--checkpoint-every", type=int, default=0, metavar="N",
                      help="write OUT.checkpoint.h5 every N frames (atomically; the latest one is kept)")
     run.add_argument("--on-instability", choices=["stop", "reduce-dt"], default="stop",
-                     help="stop with a diagnostic (default), or retry an unstable step with dt halved (up to 4 times)")
+                     help="stop with a diagnostic (default), or redo an unstable frame from its start with dt halved (up to 4 times)")
     run.add_argument("--clips", action="store_true",
                      help="large runs: one USD layer per frame in OUT.clips/, stitched into OUT with value clips")
     run.add_argument("--particles-h5", action="store_true",

@@ -74,9 +74,9 @@ WALL_OFFSET = 1.2
 # rho / rho0 above which the solver has lost control: a 2000-particle dam break peaks at 1.22 for one
 # step as its front corner shoots out (then recovers); the 1M run that exploded reached 2.2
 DENSITY_HARD_LIMIT = 1.5
-ESCAPE_MARGIN = WALL_OFFSET  # particle radii beyond the domain box: past its wall layer = tunnelled through
+ESCAPE_MARGIN = WALL_OFFSET + 1.0  # radii past the box: a radius beyond its wall layer = tunnelled through
 MAX_ITERATION_STREAK = 50  # consecutive solves that stop at max_iterations
-RETRIES = 4  # reduce-dt policy: halvings of dt tried for one step
+RETRIES = 4  # reduce-dt policy: halvings of dt tried for one frame
 CHECK_NAMES = {int(NOT_FINITE): "NaN or inf in position, velocity or density",
                int(OUTSIDE_DOMAIN): "particle left the domain",
                int(DENSITY_LIMIT): f"density above {DENSITY_HARD_LIMIT:g} rho0"}
@@ -392,25 +392,25 @@ class Simulation:
             wp.copy(a, arrays[k])
         self.restore_flags(flags)
 
-    def _checked_step(self):
-        """One step and its health check; with ``on_instability == "reduce-dt"`` a failed step
-        is undone and retried with dt halved, up to RETRIES times."""
+    def _advance_to(self, target):
+        """Steps until ``time >= target``, checking health after every step. With
+        ``on_instability == "reduce-dt"`` a frame that fails is undone (to the state at its start,
+        where the damage had not begun) and redone with dt halved, up to RETRIES times."""
         snapshot = self._snapshot() if self.on_instability == "reduce-dt" else None
-        self.step()
-        problem = self.check_health()
-        if problem is None:
-            return
-        if snapshot is None:
-            raise problem
         try:
-            for _ in range(RETRIES):
-                self._restore(snapshot)
-                self._dt_scale *= 0.5
-                self.step()
-                problem = self.check_health()
-                if problem is None:
+            for attempt in range(RETRIES + 1):
+                try:
+                    while self.time < target - 1e-9:
+                        self.step()
+                        problem = self.check_health()
+                        if problem is not None:
+                            raise problem
                     return
-            raise problem
+                except InstabilityError:
+                    if snapshot is None or attempt == RETRIES:
+                        raise
+                    self._restore(snapshot)
+                    self._dt_scale *= 0.5
         finally:
             self._dt_scale = 1.0
 
@@ -426,8 +426,7 @@ class Simulation:
             on_frame(self, 0)
         for frame in range(self.frame + 1, frames + 1):
             target = frame / fps
-            while self.time < target - 1e-9:
-                self._checked_step()
+            self._advance_to(target)
             self.frame = frame
             if on_frame is not None:
                 on_frame(self, frame)
