@@ -3,7 +3,7 @@
     python tools/validate_dam_front.py --resolution 10 --device cpu --out tools/results/dam_front_cpu.json
 
 A column of width a and height 2a (a = 2.25 in = 0.05715 m) collapses along a long, quasi-2D tank
-(depth 4 particles). The front Z (the 99.5th percentile of x among the particles within a of the floor,
+(``--depth`` particles deep, 4 by default). The front Z (the 99.5th percentile of x among the particles within a of the floor,
 so a lone splash does not lead it) is recorded against T = t sqrt(2 g / a).
 
 Start-time offset: the experiment's clock starts at the gate release, which takes time; its first
@@ -27,7 +27,7 @@ A = 0.05715  # m
 G = 9.81
 
 
-def dam_front(resolution=10, device="cpu", T_end=6.0, samples_per_T=8, models=()):
+def dam_front(resolution=10, device="cpu", T_end=6.0, samples_per_T=8, models=(), depth=4):
     """Runs the dam break; returns arrays T and Z/a."""
     from warpsph.scene import scene_from_dict
     from warpsph.simulation import Simulation
@@ -38,8 +38,8 @@ def dam_front(resolution=10, device="cpu", T_end=6.0, samples_per_T=8, models=()
     fps = samples_per_T * scale_T
     data = {
         "name": "martin_moyce", "particle_radius": r,
-        "domain": {"min": [0, 0, 0], "max": [12 * A, 2.5 * A, 4 * d]},
-        "fluid_blocks": [{"start": [0, 0, 0], "end": [A, 2 * A, 4 * d]}],
+        "domain": {"min": [0, 0, 0], "max": [12 * A, 2.5 * A, depth * d]},
+        "fluid_blocks": [{"start": [0, 0, 0], "end": [A, 2 * A, depth * d]}],
         "fluid": {"viscosity": 1.0e-6},  # water: the experiment's fluid
         "output": {"fps": fps}, "models": list(models),
     }
@@ -81,13 +81,14 @@ def main():
     parser.add_argument("--resolution", type=int, default=10, help="particles across the column width a")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--T-end", type=float, default=6.0)
+    parser.add_argument("--depth", type=int, default=4, help="tank depth in particles (quasi-2D)")
     parser.add_argument("--out", help="JSON file (a PNG is written beside it when matplotlib is present)")
     args = parser.parse_args()
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING
-    T, Z, sim = dam_front(args.resolution, args.device, args.T_end)
-    result = {"case": "Martin & Moyce 1952, a = 2.25 in, n^2 = 2", "resolution": args.resolution,
+    T, Z, sim = dam_front(args.resolution, args.device, args.T_end, depth=args.depth)
+    result = {"case": "Martin & Moyce 1952, a = 2.25 in, n^2 = 2", "resolution": args.resolution, "depth": args.depth,
               "particles": sim.num_fluid, "device": str(sim.device), "warp": wp.__version__,
               "T": T.tolist(), "Z_over_a": Z.tolist(), **compare(T, Z)}
     print(f"{sim.num_fluid} particles: RMS error of Z/a {result['raw_rms']:.3f} raw, {result['shifted_rms']:.3f} "
