@@ -2,8 +2,6 @@
 
 import os
 
-import numpy as np
-import pytest
 import warp as wp
 
 wp.config.log_level = wp.LOG_WARNING

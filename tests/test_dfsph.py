@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-import warp as wp
 
 from warpsph.solver import DENSITY
 from conftest import make_sim, tank_scene

@@ -14,7 +14,6 @@ Writes JSON and, with matplotlib, a PNG of Z/a against T.
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np

@@ -14,7 +14,6 @@ import os
 from pathlib import Path
 
 import h5py
-import numpy as np
 import warp as wp
 
 from warpsph.errors import SceneError
