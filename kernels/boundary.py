@@ -2,6 +2,7 @@
 
 import warp as wp
 
+from .neighbours import image_shift
 from .sph_kernel import cubic_kernel, cubic_kernel_zero
 
 wp.set_module_options({"enable_backward": False})
@@ -12,18 +13,25 @@ def compute_boundary_volume(
     grid: wp.uint64,
     boundary_x: wp.array(dtype=wp.vec3),
     support_radius: float,
+    lower: wp.vec3,
+    period: wp.vec3,
     boundary_volume: wp.array(dtype=float),
 ):
     """Boundary volume V_b = 1 / (W(0) + sum_k W(x_b - x_k)) over boundary neighbours k (Akinci 2012).
 
-    Computed once per static body, never per step.
+    Computed once per static body, never per step; across periodic faces the samples' images count.
     """
     b = wp.tid()
     x = boundary_x[b]
     s = cubic_kernel_zero(support_radius)
-    query = wp.hash_grid_query(grid, x, support_radius)
-    k = int(0)
-    while wp.hash_grid_query_next(query, k):
-        if k != b:
-            s += cubic_kernel(wp.length(x - boundary_x[k]), support_radius)
+    for image in range(27):
+        shift = image_shift(x, lower, period, support_radius, image)
+        if wp.isnan(shift[0]):
+            continue
+        xs = x + shift
+        query = wp.hash_grid_query(grid, xs, support_radius)
+        k = int(0)
+        while wp.hash_grid_query_next(query, k):
+            if k != b or image != 13:
+                s += cubic_kernel(wp.length(xs - boundary_x[k]), support_radius)
     boundary_volume[b] = 1.0 / s

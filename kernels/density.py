@@ -2,7 +2,7 @@
 
 import warp as wp
 
-from .particles import Boundary, Neighbours
+from .particles import Boundary, Neighbours, separation
 from .sph_kernel import cubic_kernel, cubic_kernel_gradient, cubic_kernel_zero
 
 wp.set_module_options({"enable_backward": False})
@@ -28,14 +28,14 @@ def compute_density_and_factor(
     grad_sum = wp.vec3(0.0)
     grad_sq = float(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
-        x_ij = xi - x[nb.fluid[k]]
+        x_ij = separation(nb, xi, x[nb.fluid[k]])
         rho += fluid_volume * cubic_kernel(wp.length(x_ij), support_radius)
         g = fluid_volume * cubic_kernel_gradient(x_ij, support_radius)
         grad_sum += g
         grad_sq += wp.dot(g, g)
     for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
         b = nb.boundary[k]
-        x_ib = xi - boundary.x[b]
+        x_ib = separation(nb, xi, boundary.x[b])
         rho += boundary.volume[b] * cubic_kernel(wp.length(x_ib), support_radius)
         grad_sum += boundary.volume[b] * cubic_kernel_gradient(x_ib, support_radius)
     density[i] = rest_density * rho

@@ -56,10 +56,20 @@ def predict_velocity(
 
 
 @wp.kernel
-def advect_positions(v: wp.array(dtype=wp.vec3), dt: wp.array(dtype=float), x: wp.array(dtype=wp.vec3)):
-    """x^{n+1} = x^n + dt v (after the density solve)."""
+def advect_positions(
+    v: wp.array(dtype=wp.vec3),
+    dt: wp.array(dtype=float),
+    lower: wp.vec3,
+    period: wp.vec3,
+    x: wp.array(dtype=wp.vec3),
+):
+    """x^{n+1} = x^n + dt v (after the density solve), wrapped into the domain along periodic axes."""
     i = wp.tid()
-    x[i] = x[i] + dt[0] * v[i]
+    p = x[i] + dt[0] * v[i]
+    for k in range(3):
+        if period[k] > 0.0:
+            p[k] = lower[k] + (p[k] - lower[k]) - period[k] * wp.floor((p[k] - lower[k]) / period[k])
+    x[i] = p
 
 
 @wp.kernel

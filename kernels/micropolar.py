@@ -3,7 +3,7 @@ to the linear velocity through the transfer coefficient nu_t."""
 
 import warp as wp
 
-from .particles import Neighbours
+from .particles import Neighbours, separation
 from .sph_kernel import cubic_kernel, cubic_kernel_gradient
 from .vorticity import curl_term
 
@@ -36,7 +36,7 @@ def micropolar_step(
     smooth = wp.vec3(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         j = nb.fluid[k]
-        x_ij = xi - x[j]
+        x_ij = separation(nb, xi, x[j])
         w_ij = wi - omega[j]
         curl_omega += curl_term(w_ij, cubic_kernel_gradient(x_ij, support_radius), particle_mass)
         smooth += (particle_mass / density[j]) * cubic_kernel(wp.length(x_ij), support_radius) * w_ij

@@ -11,6 +11,28 @@ import warp as wp
 wp.set_module_options({"enable_backward": False})
 
 
+@wp.func
+def image_shift(x: wp.vec3, lower: wp.vec3, period: wp.vec3, support_radius: float, image: int):
+    """Shift of periodic image ``image`` (0..26; 13 is the particle itself) of a query point, or a
+    vector with a NaN when that image cannot reach neighbours (non-periodic axis, or x farther
+    than the support radius from the face the image crosses)."""
+    shift = wp.vec3(0.0)
+    code = image
+    for k in range(3):
+        s = code % 3 - 1
+        code = code // 3
+        if s != 0:
+            p = period[k]
+            if p <= 0.0:
+                return wp.vec3(wp.nan)
+            if s > 0 and x[k] - lower[k] >= support_radius:
+                return wp.vec3(wp.nan)
+            if s < 0 and lower[k] + p - x[k] >= support_radius:
+                return wp.vec3(wp.nan)
+            shift[k] = float(s) * p
+    return shift
+
+
 @wp.kernel
 def count_neighbours(
     grid: wp.uint64,
@@ -18,19 +40,27 @@ def count_neighbours(
     grid_points: wp.array(dtype=wp.vec3),
     support_radius: float,
     exclude_self: int,
+    lower: wp.vec3,
+    period: wp.vec3,
     counts: wp.array(dtype=wp.int32),
 ):
-    """Number of grid points strictly inside the support radius of each query point."""
+    """Number of grid points strictly inside the support radius of each query point, through the
+    periodic boundaries (the images of the query point) where the domain has them."""
     i = wp.tid()
     x = query_points[i]
     n = int(0)
-    query = wp.hash_grid_query(grid, x, support_radius)
-    j = int(0)
-    while wp.hash_grid_query_next(query, j):
-        if exclude_self != 0 and j == i:
+    for image in range(27):
+        shift = image_shift(x, lower, period, support_radius, image)
+        if wp.isnan(shift[0]):
             continue
-        if wp.length(x - grid_points[j]) < support_radius:
-            n += 1
+        xs = x + shift
+        query = wp.hash_grid_query(grid, xs, support_radius)
+        j = int(0)
+        while wp.hash_grid_query_next(query, j):
+            if exclude_self != 0 and j == i and image == 13:
+                continue
+            if wp.length(xs - grid_points[j]) < support_radius:
+                n += 1
     counts[i] = n
 
 
@@ -41,6 +71,8 @@ def fill_neighbours(
     grid_points: wp.array(dtype=wp.vec3),
     support_radius: float,
     exclude_self: int,
+    lower: wp.vec3,
+    period: wp.vec3,
     offsets: wp.array(dtype=wp.int32),
     neighbours: wp.array(dtype=wp.int32),
 ):
@@ -49,14 +81,19 @@ def fill_neighbours(
     x = query_points[i]
     k = offsets[i]
     end = offsets[i + 1]
-    query = wp.hash_grid_query(grid, x, support_radius)
-    j = int(0)
-    while wp.hash_grid_query_next(query, j):
-        if exclude_self != 0 and j == i:
+    for image in range(27):
+        shift = image_shift(x, lower, period, support_radius, image)
+        if wp.isnan(shift[0]):
             continue
-        if wp.length(x - grid_points[j]) < support_radius and k < end:
-            neighbours[k] = j
-            k += 1
+        xs = x + shift
+        query = wp.hash_grid_query(grid, xs, support_radius)
+        j = int(0)
+        while wp.hash_grid_query_next(query, j):
+            if exclude_self != 0 and j == i and image == 13:
+                continue
+            if wp.length(xs - grid_points[j]) < support_radius and k < end:
+                neighbours[k] = j
+                k += 1
 
 
 @wp.func

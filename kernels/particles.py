@@ -6,12 +6,31 @@ import warp as wp
 @wp.struct
 class Neighbours:
     """CSR neighbour lists of the fluid particles: the fluid neighbours of particle i are
-    ``fluid[fluid_offsets[i] : fluid_offsets[i + 1]]``, its boundary neighbours likewise."""
+    ``fluid[fluid_offsets[i] : fluid_offsets[i + 1]]``, its boundary neighbours likewise.
+    ``period`` is the domain's extent along its periodic axes (0 along the others)."""
 
     fluid_offsets: wp.array(dtype=wp.int32)
     fluid: wp.array(dtype=wp.int32)
     boundary_offsets: wp.array(dtype=wp.int32)
     boundary: wp.array(dtype=wp.int32)
+    period: wp.vec3
+
+
+@wp.func
+def periodic_offset(d: wp.vec3, period: wp.vec3):
+    """The minimum image of the offset d along the periodic axes (period > 0)."""
+    out = d
+    for k in range(3):
+        p = period[k]
+        if p > 0.0:
+            out[k] = d[k] - p * wp.floor(d[k] / p + 0.5)
+    return out
+
+
+@wp.func
+def separation(nb: Neighbours, a: wp.vec3, b: wp.vec3):
+    """x_ab = a - b, through the periodic boundaries where the domain has them."""
+    return periodic_offset(a - b, nb.period)
 
 
 @wp.struct

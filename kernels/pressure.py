@@ -8,7 +8,7 @@ value accumulated over a step is a physical pressure that warm-starts the next s
 
 import warp as wp
 
-from .particles import Boundary, Neighbours
+from .particles import Boundary, Neighbours, separation
 from .sph_kernel import cubic_kernel_gradient
 
 wp.set_module_options({"enable_backward": False})
@@ -30,10 +30,10 @@ def density_rate(
     rate = float(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         j = nb.fluid[k]
-        rate += fluid_volume * wp.dot(vi - v[j], cubic_kernel_gradient(xi - x[j], support_radius))
+        rate += fluid_volume * wp.dot(vi - v[j], cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius))
     for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
         b = nb.boundary[k]
-        rate += boundary.volume[b] * wp.dot(vi - boundary.v[b], cubic_kernel_gradient(xi - boundary.x[b], support_radius))
+        rate += boundary.volume[b] * wp.dot(vi - boundary.v[b], cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius))
     return rate
 
 
@@ -60,10 +60,10 @@ def apply_pressure_acceleration(
     dv = wp.vec3(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         j = nb.fluid[k]
-        dv += fluid_volume * (ki + stiffness[j]) * cubic_kernel_gradient(xi - x[j], support_radius)
+        dv += fluid_volume * (ki + stiffness[j]) * cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius)
     for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
         b = nb.boundary[k]
-        dv += boundary.volume[b] * ki * cubic_kernel_gradient(xi - boundary.x[b], support_radius)
+        dv += boundary.volume[b] * ki * cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius)
     v[i] = v[i] - dt[0] * dv
     if accumulate != 0:
         stiffness_sum[i] = stiffness_sum[i] + ki

@@ -2,7 +2,7 @@
 
 import warp as wp
 
-from .particles import Neighbours
+from .particles import Neighbours, separation
 
 wp.set_module_options({"enable_backward": False})
 
@@ -64,5 +64,5 @@ def apply_rankine_feedback(
     dv = wp.vec3(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         j = nb.fluid[k]
-        dv += rankine_velocity(change[j], xi - x[j], core)
+        dv += rankine_velocity(change[j], separation(nb, xi, x[j]), core)
     v[i] = v[i] + dv

@@ -2,7 +2,7 @@
 
 import warp as wp
 
-from .particles import Neighbours
+from .particles import Neighbours, separation
 from .sph_kernel import cubic_kernel_gradient
 from .vorticity import curl_term
 
@@ -46,7 +46,7 @@ def add_viscosity_acceleration(
     grad = wp.mat33(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         j = nb.fluid[k]
-        x_ij = xi - x[j]
+        x_ij = separation(nb, xi, x[j])
         volume = particle_mass / density[j]
         v_ij = vi - v[j]
         lap += artificial_laplacian(v_ij, x_ij, volume, support_radius)

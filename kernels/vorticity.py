@@ -8,7 +8,7 @@ kernel serves inviscid scenes and the diagnostics.
 
 import warp as wp
 
-from .particles import Neighbours
+from .particles import Neighbours, separation
 from .sph_kernel import cubic_kernel_gradient
 
 wp.set_module_options({"enable_backward": False})
@@ -43,7 +43,7 @@ def compute_vorticity(
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         j = nb.fluid[k]
         volume = particle_mass / density[j]
-        gw = cubic_kernel_gradient(xi - x[j], support_radius)
+        gw = cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius)
         v_ij = vi - v[j]
         curl += curl_term(v_ij, gw, volume)
         if with_gradient != 0:

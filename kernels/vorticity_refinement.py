@@ -3,7 +3,7 @@ dissipation is turned back into velocity through a stream function."""
 
 import warp as wp
 
-from .particles import Neighbours
+from .particles import Neighbours, separation
 from .sph_kernel import PI, cubic_kernel_gradient
 from .viscosity import artificial_laplacian
 from .vorticity import curl_term
@@ -56,7 +56,7 @@ def compute_stream_function_and_target(
     lap = wp.vec3(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         j = nb.fluid[k]
-        x_ij = xi - x[j]
+        x_ij = separation(nb, xi, x[j])
         volume = particle_mass / density[j]
         psi += (volume / (wp.length(x_ij) + STREAM_FUNCTION_GUARD * support_radius)) * loss[j]
         lap += artificial_laplacian(base_i - (vorticity[j] + alpha * loss[j]), x_ij, volume, support_radius)
@@ -82,6 +82,6 @@ def apply_vorticity_refinement(
     dv = wp.vec3(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         j = nb.fluid[k]
-        dv += curl_term(psi_i - stream_function[j], cubic_kernel_gradient(xi - x[j], support_radius),
+        dv += curl_term(psi_i - stream_function[j], cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius),
                         particle_mass / density[j])
     v[i] = v[i] + alpha * dv

@@ -38,6 +38,8 @@ class NeighbourSearch:
         self.fluid_neighbours = sim.zeros("neighbours", max(32 * n, 1), dtype=wp.int32)
         self.boundary_neighbours = sim.zeros("neighbours", max(8 * n, 1), dtype=wp.int32)
         self.generation = 0  # bumped when a list array is reallocated
+        self.lower = wp.vec3(*np.asarray(sim.scene.domain.min, dtype=np.float32))
+        self.period = wp.vec3(*sim.scene.domain.period)
 
     def update(self, x: wp.array):
         """Rebuilds the fluid grid and both neighbour lists for positions ``x``."""
@@ -45,21 +47,22 @@ class NeighbourSearch:
         n = sim.num_fluid
         H = self.support_radius
         self.fluid_grid.build(x, H)
-        sim.launch(nk.count_neighbours, n, [self.fluid_grid.id, x, x, H, 1, self.fluid_counts])
+        box = [self.lower, self.period]
+        sim.launch(nk.count_neighbours, n, [self.fluid_grid.id, x, x, H, 1, *box, self.fluid_counts])
         wp.utils.array_scan(self.fluid_counts, self.fluid_offsets, inclusive=False)
         if self.boundary_grid is not None:
             sim.launch(nk.count_neighbours, n,
-                       [self.boundary_grid.id, x, self.boundary_x, H, 0, self.boundary_counts])
+                       [self.boundary_grid.id, x, self.boundary_x, H, 0, *box, self.boundary_counts])
             wp.utils.array_scan(self.boundary_counts, self.boundary_offsets, inclusive=False)
         fluid_total = int(self.fluid_offsets[n:].numpy()[0])
         self.fluid_neighbours = self._ensure_capacity(self.fluid_neighbours, fluid_total)
         sim.launch(nk.fill_neighbours, n,
-                   [self.fluid_grid.id, x, x, H, 1, self.fluid_offsets, self.fluid_neighbours])
+                   [self.fluid_grid.id, x, x, H, 1, *box, self.fluid_offsets, self.fluid_neighbours])
         if self.boundary_grid is not None:
             boundary_total = int(self.boundary_offsets[n:].numpy()[0])
             self.boundary_neighbours = self._ensure_capacity(self.boundary_neighbours, boundary_total)
             sim.launch(nk.fill_neighbours, n,
-                       [self.boundary_grid.id, x, self.boundary_x, H, 0, self.boundary_offsets,
+                       [self.boundary_grid.id, x, self.boundary_x, H, 0, *box, self.boundary_offsets,
                         self.boundary_neighbours])
 
     @property
@@ -70,6 +73,7 @@ class NeighbourSearch:
         s.fluid = self.fluid_neighbours
         s.boundary_offsets = self.boundary_offsets
         s.boundary = self.boundary_neighbours
+        s.period = self.period
         return s
 
     def _ensure_capacity(self, array, needed):

@@ -52,10 +52,19 @@ def sample_triangles(vertices, faces, spacing):
     return points[np.sort(unique)].astype(np.float32)
 
 
-def sample_box_walls(lo, hi, spacing):
-    """Boundary particles on the six inner faces of the domain box."""
+def sample_box_walls(lo, hi, spacing, periodic=()):
+    """Boundary particles on the faces of the domain box, except the faces across periodic axes."""
     box = trimesh.creation.box(bounds=np.array([lo, hi], dtype=np.float64))
-    return sample_triangles(box.vertices, box.faces, spacing)
+    keep = np.ones(len(box.faces), dtype=bool)
+    for axis in periodic:
+        keep &= np.abs(box.face_normals[:, "xyz".index(axis)]) < 0.5
+    if not keep.any():
+        return np.zeros((0, 3), dtype=np.float32)
+    points = sample_triangles(box.vertices, box.faces[keep], spacing)
+    for axis in periodic:  # the samples on the far face are the images of those on the near one
+        k = "xyz".index(axis)
+        points = points[points[:, k] < hi[k] - 1e-6 * spacing]
+    return points
 
 
 def load_mesh(path):

@@ -32,12 +32,24 @@ def _positive():
 
 @dataclass(frozen=True)
 class Box:
+    """The domain: walls of boundary particles on its faces, except across ``periodic`` axes,
+    where particles leaving one face enter at the opposite one."""
+
     min: Vec3
     max: Vec3
+    periodic: typing.Tuple[str, ...] = ()  # e.g. ["x", "z"]
 
     def validate(self, file, key):
         if any(lo >= hi for lo, hi in zip(self.min, self.max)):
             raise SceneError(file, key, f"min {list(self.min)} must be below max {list(self.max)} on every axis")
+        for n, axis in enumerate(self.periodic):
+            if axis not in ("x", "y", "z") or axis in self.periodic[:n]:
+                raise SceneError(file, f"{key}.periodic[{n}]", f'expected distinct axes "x", "y" or "z", got {json.dumps(axis)}')
+
+    @property
+    def period(self):
+        """Extent along each periodic axis, 0 along the others."""
+        return tuple(hi - lo if "xyz"[k] in self.periodic else 0.0 for k, (lo, hi) in enumerate(zip(self.min, self.max)))
 
 
 @dataclass(frozen=True)
@@ -188,6 +200,10 @@ class Scene:
             if any(s < a - 1e-9 or e > b + 1e-9 for s, e, a, b in zip(block.start, block.end, lo, hi)):
                 raise SceneError(file, f"fluid_blocks[{n}]",
                                  f"block {list(block.start)}..{list(block.end)} lies outside the domain {list(lo)}..{list(hi)}")
+        for k, p in enumerate(self.domain.period):
+            if 0 < p < 3 * self.support_radius:
+                raise SceneError(file, "domain.periodic", f"the domain is {p:g} m along {'xyz'[k]}: a periodic axis "
+                                                          f"needs at least 3 support radii ({3 * self.support_radius:g} m)")
         kinds = [type(m) for m in self.models]
         for n, kind in enumerate(kinds):
             if kinds.index(kind) != n:

@@ -138,11 +138,13 @@ def sample_scene(scene: Scene):
     fluid_x = np.concatenate(blocks)
     fluid_v = np.concatenate([np.tile(np.asarray(b.velocity, np.float32), (len(p), 1))
                               for b, p in zip(scene.fluid_blocks, blocks)])
-    offset = WALL_OFFSET * scene.particle_radius
-    bodies = [sampling.sample_box_walls(np.asarray(scene.domain.min) - offset, np.asarray(scene.domain.max) + offset, d)]
+    # walls stand off 1.2 r from the faces; along periodic axes they span the domain exactly
+    offset = np.where(np.asarray(scene.domain.period) > 0, 0.0, WALL_OFFSET * scene.particle_radius)
+    bodies = [sampling.sample_box_walls(np.asarray(scene.domain.min) - offset, np.asarray(scene.domain.max) + offset, d,
+                                        scene.domain.periodic)]
     size = float(np.linalg.norm(np.subtract(scene.domain.max, scene.domain.min)))
     bodies += [sampling.sample_obstacle(o, scene.mesh_path(o), d, size) for o in scene.obstacles]
-    boundary_x = np.concatenate(bodies)
+    boundary_x = np.concatenate(bodies).reshape(-1, 3)
     body = np.concatenate([np.full(len(p), n, dtype=np.int32) for n, p in enumerate(bodies)])
     order = sampling.morton_order(boundary_x, np.asarray(scene.domain.min), scene.support_radius)
     return fluid_x, fluid_v, boundary_x[order], body[order]
@@ -189,7 +191,8 @@ class Simulation:
             self.neighbours = NeighbourSearch(self, self.boundary.x)
             if self.num_boundary:
                 self.launch(compute_boundary_volume, self.num_boundary,
-                            [self.neighbours.boundary_grid.id, self.boundary.x, self.support_radius, self.boundary.volume])
+                            [self.neighbours.boundary_grid.id, self.boundary.x, self.support_radius, self.neighbours.lower,
+                             self.neighbours.period, self.boundary.volume])
             self.pressure_solver = DFSPHSolver(self)
             self.models = []
             if scene.fluid.viscosity > 0.0:
@@ -316,7 +319,7 @@ class Simulation:
         with t("density_solve"):  # projection: rho*(x + dt v_adv) -> rho0
             self.pressure_solver.correct_density()
         with t("integration"):  # x^{n+1} = x^n + dt v
-            self.launch(advect_positions, n, [f.v, self.dt, f.x])
+            self.launch(advect_positions, n, [f.v, self.dt, self.neighbours.lower, self.neighbours.period, f.x])
             self.launch(advance_clock, 1, [self.dt, self.time_device, self.steps_device])
         with t("health"):  # NaN/inf, escaped particles, runaway density: counted on the device
             self.health_counts.zero_()
