@@ -72,8 +72,15 @@ def main():
     wp.config.log_level = wp.LOG_WARNING
     report = {"case": "Taylor-Green, periodic, L = 1, U = 1", "resolution": args.resolution, "nu": args.nu,
               "T": args.T, "warp": wp.__version__, "methods": {}}
+    from warpsph.simulation import InstabilityError
+
     for name in args.methods:
-        rows, sim = taylor_green(METHODS[name], args.resolution, args.nu, args.T, args.device)
+        try:
+            rows, sim = taylor_green(METHODS[name], args.resolution, args.nu, args.T, args.device)
+        except InstabilityError as exc:
+            report["methods"][name] = {"unstable": str(exc)}
+            print(f"{name:11s} {exc}")
+            continue
         last = rows[-1]
         report["device"] = str(sim.device)
         report["particles"] = sim.num_fluid
@@ -92,6 +99,8 @@ def main():
 
             fig, ax = plt.subplots(figsize=(6, 4))
             for name, result in report["methods"].items():
+                if "frames" not in result:
+                    continue
                 t = [r["time"] for r in result["frames"]]
                 ax.plot(t, [r["ke_ratio"] for r in result["frames"]], label=name)
             t = np.linspace(0, args.T, 50)
