@@ -13,8 +13,6 @@ Writes JSON and, with matplotlib, a PNG of Z/a against T.
 """
 
 import argparse
-import json
-from pathlib import Path
 
 import numpy as np
 
@@ -93,25 +91,12 @@ def main():
     print(f"{sim.num_fluid} particles: RMS error of Z/a {result['raw_rms']:.3f} raw, {result['shifted_rms']:.3f} "
           f"with time shift {result['time_shift_T']:+.3f}")
     if args.out:
-        Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
-        try:
-            import matplotlib
+        from warpsph.plots import write_report
 
-            matplotlib.use("Agg")
-            import matplotlib.pyplot as plt
-
-            fig, ax = plt.subplots(figsize=(6, 4))
-            ax.plot(T, Z, label=f"warpsph ({sim.num_fluid} particles)")
-            ax.plot(T - result["time_shift_T"], Z, "--", label=f"shifted by {result['time_shift_T']:+.2f}")
-            ax.plot(MARTIN_MOYCE[:, 0], MARTIN_MOYCE[:, 1], "ko", label="Martin & Moyce 1952")
-            ax.set_xlabel("T = t sqrt(2g/a)")
-            ax.set_ylabel("Z / a")
-            ax.legend()
-            fig.tight_layout()
-            fig.savefig(Path(args.out).with_suffix(".png"), dpi=120)
-        except ImportError:
-            pass
-
+        write_report(result, args.out, [(T, Z, "-", f"warpsph ({sim.num_fluid} particles)"),
+                                        (T - result["time_shift_T"], Z, "--", f"shifted by {result['time_shift_T']:+.2f}"),
+                                        (MARTIN_MOYCE[:, 0], MARTIN_MOYCE[:, 1], "ko", "Martin & Moyce 1952")],
+                     "T = t sqrt(2g/a)", "Z / a")
 
 if __name__ == "__main__":
     main()

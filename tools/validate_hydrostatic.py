@@ -10,8 +10,6 @@ p = rho0 g (H - y), with H the water height from the fluid volume. JSON, and a P
 """
 
 import argparse
-import json
-from pathlib import Path
 
 import numpy as np
 
@@ -74,24 +72,11 @@ def main():
           f"max {100 * result['density_error_max']:.3f} %; mid-depth p / rho g h = {result['mid_depth_pressure_ratio']:.3f}; "
           f"probe RMS error {100 * result['probe_pressure_rms_error_relative']:.1f} % of rho g H; max |v| {result['max_speed']:.4f} m/s")
     if args.out:
-        Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
-        try:
-            import matplotlib
+        from warpsph.plots import write_report
 
-            matplotlib.use("Agg")
-            import matplotlib.pyplot as plt
-
-            fig, ax = plt.subplots(figsize=(4, 5))
-            ax.plot(result["probe_pressure"], result["probe_y"], "o", ms=3, label="warpsph")
-            ax.plot(result["probe_pressure_exact"], result["probe_y"], "k-", label="rho g (H - y)")
-            ax.set_xlabel("pressure [Pa]")
-            ax.set_ylabel("y [m]")
-            ax.legend()
-            fig.tight_layout()
-            fig.savefig(Path(args.out).with_suffix(".png"), dpi=120)
-        except ImportError:
-            pass
-
+        write_report(result, args.out, [(result["probe_pressure"], result["probe_y"], "o", "warpsph"),
+                                        (result["probe_pressure_exact"], result["probe_y"], "k-", "rho g (H - y)")],
+                     "pressure [Pa]", "y [m]", figsize=(4, 5))
 
 if __name__ == "__main__":
     main()

@@ -11,8 +11,6 @@ the papers' claim that refinement recovers numerical dissipation.
 """
 
 import argparse
-import json
-from pathlib import Path
 
 import numpy as np
 
@@ -90,29 +88,13 @@ def main():
         print(f"{name:11s} KE(T)/KE0 {last['ke_ratio']:.4f} (exact {last['ke_ratio_exact']:.4f}, "
               f"error {100 * (last['ke_ratio'] / last['ke_ratio_exact'] - 1):+.1f} %), L1 |u| error {last['l1_speed_error']:.4f}")
     if args.out:
-        Path(args.out).write_text(json.dumps(report, indent=2) + "\n")
-        try:
-            import matplotlib
+        from warpsph.plots import write_report
 
-            matplotlib.use("Agg")
-            import matplotlib.pyplot as plt
-
-            fig, ax = plt.subplots(figsize=(6, 4))
-            for name, result in report["methods"].items():
-                if "frames" not in result:
-                    continue
-                t = [r["time"] for r in result["frames"]]
-                ax.plot(t, [r["ke_ratio"] for r in result["frames"]], label=name)
-            t = np.linspace(0, args.T, 50)
-            ax.plot(t, np.exp(-16 * np.pi**2 * args.nu * t), "k--", label="analytic")
-            ax.set_xlabel("t [s]")
-            ax.set_ylabel("KE / KE(0)")
-            ax.legend()
-            fig.tight_layout()
-            fig.savefig(Path(args.out).with_suffix(".png"), dpi=120)
-        except ImportError:
-            pass
-
+        curves = [([r["time"] for r in res["frames"]], [r["ke_ratio"] for r in res["frames"]], "-", name)
+                  for name, res in report["methods"].items() if "frames" in res]
+        t = np.linspace(0, args.T, 50)
+        curves.append((t, np.exp(-16 * np.pi**2 * args.nu * t), "k--", "analytic"))
+        write_report(report, args.out, curves, "t [s]", "KE / KE(0)")
 
 if __name__ == "__main__":
     main()

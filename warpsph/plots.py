@@ -59,6 +59,32 @@ def plot_energy(runs, out, labels=None):
     return Path(out)
 
 
+def xy_plot(out, curves, xlabel, ylabel, figsize=(6, 4)):
+    """Curves ``(x, y, style, label)`` in one PNG (the validation tools' figures)."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=figsize)
+    for x, y, style, label in curves:
+        ax.plot(x, y, style, label=label, ms=3)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return Path(out)
+
+
+def write_report(report, out, curves, xlabel, ylabel, figsize=(6, 4)):
+    """A validation report as JSON at ``out`` and, when matplotlib is present, its figure beside it."""
+    import json
+
+    Path(out).write_text(json.dumps(report, indent=2) + "\n")
+    try:
+        xy_plot(Path(out).with_suffix(".png"), curves, xlabel, ylabel, figsize)
+    except SceneError:  # no matplotlib: the JSON is the result
+        pass
+
+
 AXES = {"x": 0, "y": 1, "z": 2}
 
 
