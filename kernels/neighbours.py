@@ -34,7 +34,7 @@ def image_shift(x: wp.vec3, lower: wp.vec3, period: wp.vec3, support_radius: flo
 
 
 @wp.kernel
-def count_neighbours(
+def find_neighbours(
     grid: wp.uint64,
     query_points: wp.array(dtype=wp.vec3),
     grid_points: wp.array(dtype=wp.vec3),
@@ -42,12 +42,22 @@ def count_neighbours(
     exclude_self: int,
     lower: wp.vec3,
     period: wp.vec3,
-    counts: wp.array(dtype=wp.int32),
+    fill: int,
+    rows: wp.array(dtype=wp.int32),
+    neighbours: wp.array(dtype=wp.int32),
 ):
-    """Number of grid points strictly inside the support radius of each query point, through the
-    periodic boundaries (the images of the query point) where the domain has them."""
+    """The grid points strictly inside the support radius of each query point, through the periodic
+    boundaries (the images of the query point) where the domain has them.
+
+    Two launches build a CSR list: with ``fill == 0`` ``rows[i]`` receives the count (scan it into
+    offsets), with ``fill != 0`` ``rows`` holds the offsets and the indices go into ``neighbours``."""
     i = wp.tid()
     x = query_points[i]
+    k = int(0)
+    end = int(0)
+    if fill != 0:
+        k = rows[i]
+        end = rows[i + 1]
     n = int(0)
     for image in range(27):
         shift = image_shift(x, lower, period, support_radius, image)
@@ -61,39 +71,11 @@ def count_neighbours(
                 continue
             if wp.length(xs - grid_points[j]) < support_radius:
                 n += 1
-    counts[i] = n
-
-
-@wp.kernel
-def fill_neighbours(
-    grid: wp.uint64,
-    query_points: wp.array(dtype=wp.vec3),
-    grid_points: wp.array(dtype=wp.vec3),
-    support_radius: float,
-    exclude_self: int,
-    lower: wp.vec3,
-    period: wp.vec3,
-    offsets: wp.array(dtype=wp.int32),
-    neighbours: wp.array(dtype=wp.int32),
-):
-    """Writes the neighbour indices counted by :func:`count_neighbours` into their rows."""
-    i = wp.tid()
-    x = query_points[i]
-    k = offsets[i]
-    end = offsets[i + 1]
-    for image in range(27):
-        shift = image_shift(x, lower, period, support_radius, image)
-        if wp.isnan(shift[0]):
-            continue
-        xs = x + shift
-        query = wp.hash_grid_query(grid, xs, support_radius)
-        j = int(0)
-        while wp.hash_grid_query_next(query, j):
-            if exclude_self != 0 and j == i and image == 13:
-                continue
-            if wp.length(xs - grid_points[j]) < support_radius and k < end:
-                neighbours[k] = j
-                k += 1
+                if fill != 0 and k < end:
+                    neighbours[k] = j
+                    k += 1
+    if fill == 0:
+        rows[i] = n
 
 
 @wp.func

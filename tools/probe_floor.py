@@ -80,9 +80,11 @@ def probe(n, device, seed=0):
             result["grid_build_ms"] = timed(lambda: grid.build(x, H), device)
             counts = wp.zeros(n + 1, dtype=wp.int32, device=device)
             offsets = wp.zeros(n + 1, dtype=wp.int32, device=device)
+            box = [wp.vec3(0.0), wp.vec3(0.0)]  # not periodic
+            no_list = wp.empty(0, dtype=wp.int32, device=device)
 
             def build_list():
-                wp.launch(nk.count_neighbours, n, [grid.id, x, x, H, 0, counts], device=device)
+                wp.launch(nk.find_neighbours, n, [grid.id, x, x, H, 0, *box, 0, counts, no_list], device=device)
                 wp.utils.array_scan(counts, offsets, inclusive=False)
                 return offsets
 
@@ -92,7 +94,7 @@ def probe(n, device, seed=0):
 
             def fill():
                 build_list()
-                wp.launch(nk.fill_neighbours, n, [grid.id, x, x, H, 0, offsets, index], device=device)
+                wp.launch(nk.find_neighbours, n, [grid.id, x, x, H, 0, *box, 1, offsets, index], device=device)
 
             result["list_build_ms"] = timed(fill, device)
             result["mean_neighbours"] = total / n

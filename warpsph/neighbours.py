@@ -38,6 +38,7 @@ class NeighbourSearch:
         self.fluid_neighbours = sim.zeros("neighbours", max(32 * n, 1), dtype=wp.int32)
         self.boundary_neighbours = sim.zeros("neighbours", max(8 * n, 1), dtype=wp.int32)
         self.generation = 0  # bumped when a list array is reallocated
+        self._no_list = wp.empty(0, dtype=wp.int32, device=sim.device)
         self.lower = wp.vec3(*np.asarray(sim.scene.domain.min, dtype=np.float32))
         self.period = wp.vec3(*sim.scene.domain.period)
 
@@ -48,21 +49,21 @@ class NeighbourSearch:
         H = self.support_radius
         self.fluid_grid.build(x, H)
         box = [self.lower, self.period]
-        sim.launch(nk.count_neighbours, n, [self.fluid_grid.id, x, x, H, 1, *box, self.fluid_counts])
+        sim.launch(nk.find_neighbours, n, [self.fluid_grid.id, x, x, H, 1, *box, 0, self.fluid_counts, self._no_list])
         wp.utils.array_scan(self.fluid_counts, self.fluid_offsets, inclusive=False)
         if self.boundary_grid is not None:
-            sim.launch(nk.count_neighbours, n,
-                       [self.boundary_grid.id, x, self.boundary_x, H, 0, *box, self.boundary_counts])
+            sim.launch(nk.find_neighbours, n,
+                       [self.boundary_grid.id, x, self.boundary_x, H, 0, *box, 0, self.boundary_counts, self._no_list])
             wp.utils.array_scan(self.boundary_counts, self.boundary_offsets, inclusive=False)
         fluid_total = int(self.fluid_offsets[n:].numpy()[0])
         self.fluid_neighbours = self._ensure_capacity(self.fluid_neighbours, fluid_total)
-        sim.launch(nk.fill_neighbours, n,
-                   [self.fluid_grid.id, x, x, H, 1, *box, self.fluid_offsets, self.fluid_neighbours])
+        sim.launch(nk.find_neighbours, n,
+                   [self.fluid_grid.id, x, x, H, 1, *box, 1, self.fluid_offsets, self.fluid_neighbours])
         if self.boundary_grid is not None:
             boundary_total = int(self.boundary_offsets[n:].numpy()[0])
             self.boundary_neighbours = self._ensure_capacity(self.boundary_neighbours, boundary_total)
-            sim.launch(nk.fill_neighbours, n,
-                       [self.boundary_grid.id, x, self.boundary_x, H, 0, *box, self.boundary_offsets,
+            sim.launch(nk.find_neighbours, n,
+                       [self.boundary_grid.id, x, self.boundary_x, H, 0, *box, 1, self.boundary_offsets,
                         self.boundary_neighbours])
 
     @property
@@ -86,12 +87,6 @@ class NeighbourSearch:
         """Per-particle (fluid, boundary) neighbour counts as numpy arrays (for tests and stats)."""
         n = self.sim.num_fluid
         return self.fluid_counts.numpy()[:n], self.boundary_counts.numpy()[:n]
-
-    @property
-    def nbytes(self):
-        arrays = [self.fluid_counts, self.fluid_offsets, self.boundary_counts, self.boundary_offsets,
-                  self.fluid_neighbours, self.boundary_neighbours]
-        return int(sum(a.capacity for a in arrays))
 
 
 def sort_order(sim, x: wp.array, keys: wp.array, order: wp.array):

@@ -177,7 +177,7 @@ class Simulation:
         fluid_x, fluid_v, boundary_x, body = sample_scene(scene)
         self.num_fluid = len(fluid_x)
         self.num_boundary = len(boundary_x)
-        self.estimated_bytes = check_fits(scene, self.num_fluid, self.num_boundary, self.device)
+        check_fits(scene, self.num_fluid, self.num_boundary, self.device)  # refuse before allocating
         with wp.ScopedDevice(self.device):
             z = self.zeros
             self.fluid = FluidParticles(
