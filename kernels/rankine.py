@@ -51,18 +51,24 @@ def apply_rankine_feedback(
     dt: wp.array(dtype=float),
     v: wp.array(dtype=wp.vec3),
 ):
-    """v_i += sum_j r_c^2 / (2 r) d omega_j x e_theta with r_c = beta sqrt(4 1.25643 nu dt) (lines 4-6),
+    """v_i += sum_j r_c^2 / (2 r) (-d omega_j) x e_theta with r_c = beta sqrt(4 1.25643 nu dt) (lines 4-6),
     r_c at most the particle radius: the paper requires the viscous core to stay inside a particle
     (at r = 6.3 mm, dt = 1.3 ms and nu = 0.05 the formula gives 18 mm and a 1M dam break ran away).
 
     Each pair's refinement goes to the receiver i from the vortex at its neighbour j (eq 13:
     d v_{j->i}, e_theta from x_j to x_i): a vortex moves the fluid around it, not its own core.
-    Gathered per receiver, so no atomics."""
+
+    The vortex fed back is -d omega_j: section 4.1 says the angular velocity that refines the linear
+    velocity "should be negative wrt. the dissipated angular velocity" (a negative factor towards the
+    vortex centre), so the feedback restores the vorticity lost since step n-1 (Fig 8: "refine the
+    dissipated vorticity"). Fed back with the plain sign it would reinforce the change, i.e. hasten the
+    decay of a freely decaying vortex (measured: 0.173 of the initial kinetic energy against 0.191 for
+    plain DFSPH). Gathered per receiver, so no atomics."""
     i = wp.tid()
     core = wp.min(beta * wp.sqrt(4.0 * OSEEN * viscosity * dt[0]), particle_radius)
     xi = x[i]
     dv = wp.vec3(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         j = nb.fluid[k]
-        dv += rankine_velocity(change[j], separation(nb, xi, x[j]), core)
+        dv -= rankine_velocity(change[j], separation(nb, xi, x[j]), core)
     v[i] = v[i] + dv

@@ -191,10 +191,12 @@ def test_refinement_adds_no_net_momentum(spec):
     assert np.isfinite(before).all()
 
 
-def test_vorticity_refinement_keeps_a_decaying_vortex_alive():
+def test_refinement_keeps_a_decaying_vortex_alive():
+    """Both refinements keep more kinetic energy than plain DFSPH at time T; VR never exceeds the start."""
     T = 0.3
     energies = {}
-    for name, models in [("dfsph", []), ("vr", [{"type": "vorticity_refinement", "alpha": 1.0}])]:
+    for name, models in [("dfsph", []), ("vr", [{"type": "vorticity_refinement", "alpha": 1.0}]),
+                         ("rankine", [{"type": "rankine", "beta": 1.0}])]:
         sim = _vortex_box(models)
         e0 = _kinetic(sim)
         history = []
@@ -204,11 +206,12 @@ def test_vorticity_refinement_keeps_a_decaying_vortex_alive():
             assert max(history) <= e0 * 1.0001  # never above the initial energy
     assert energies["dfsph"] < 0.5  # the vortex does decay
     assert energies["vr"] > 1.5 * energies["dfsph"]
+    assert energies["rankine"] > 1.03 * energies["dfsph"]  # measured 0.203 against 0.191
 
 
-def test_rankine_feedback_reinforces_the_vorticity_change():
-    """Algorithm 1 feeds back d omega = omega^n - omega^{n-1} as Rankine vortices: the velocity
-    it adds has a curl along d omega (so in a freely decaying vortex it hastens the decay)."""
+def test_rankine_feedback_restores_the_vorticity_change():
+    """Algorithm 1 feeds back d omega = omega^n - omega^{n-1} as Rankine vortices with the negative
+    factor of section 4.1: the velocity it adds has a curl against d omega, restoring what was lost."""
     from warpsph.kernels.vorticity import compute_vorticity
 
     sim = _vortex_box([{"type": "rankine", "beta": 1.0}])
@@ -226,4 +229,4 @@ def test_rankine_feedback_reinforces_the_vorticity_change():
                 wp.empty(0, dtype=wp.mat33)])
     change = model.change.numpy()
     alignment = (curl.numpy() * change).sum() / (np.linalg.norm(curl.numpy()) * np.linalg.norm(change))
-    assert alignment > 0.5
+    assert alignment < -0.5
