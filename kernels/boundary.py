@@ -12,6 +12,8 @@ wp.set_module_options({"enable_backward": False})
 def compute_boundary_volume(
     grid: wp.uint64,
     boundary_x: wp.array(dtype=wp.vec3),
+    sample_body: wp.array(dtype=wp.int32),
+    first_moving_body: int,
     support_radius: float,
     lower: wp.vec3,
     period: wp.vec3,
@@ -19,10 +21,13 @@ def compute_boundary_volume(
 ):
     """Boundary volume V_b = 1 / (W(0) + sum_k W(x_b - x_k)) over boundary neighbours k (Akinci 2012).
 
-    Computed once per static body, never per step; across periodic faces the samples' images count.
+    Computed once, never per step: the static samples weigh each other (walls and fixed obstacles
+    meet in corners); a moving body's samples weigh only their own body's, so V_b is a body-space
+    quantity that holds wherever the body goes. Across periodic faces the samples' images count.
     """
     b = wp.tid()
     x = boundary_x[b]
+    body = sample_body[b]
     s = cubic_kernel_zero(support_radius)
     for image in range(27):
         shift = image_shift(x, lower, period, support_radius, image)
@@ -32,6 +37,8 @@ def compute_boundary_volume(
         query = wp.hash_grid_query(grid, xs, support_radius)
         k = int(0)
         while wp.hash_grid_query_next(query, k):
-            if k != b or image != 13:
+            other = sample_body[k]
+            same_group = other == body or (other < first_moving_body and body < first_moving_body)
+            if (k != b or image != 13) and same_group:
                 s += cubic_kernel(wp.length(xs - boundary_x[k]), support_radius)
     boundary_volume[b] = 1.0 / s

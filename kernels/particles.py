@@ -35,8 +35,12 @@ def separation(nb: Neighbours, a: wp.vec3, b: wp.vec3):
 
 @wp.struct
 class Boundary:
-    """Akinci boundary samples: position, velocity (of their body) and volume V_b."""
+    """Akinci boundary samples: position, velocity (of their body) and volume V_b. Samples from
+    ``first_dynamic`` on belong to dynamic bodies: the pressure solvers add the reaction of each
+    fluid-sample pair to ``impulse`` (per unit fluid particle mass) for two-way coupling."""
 
     x: wp.array(dtype=wp.vec3)
     v: wp.array(dtype=wp.vec3)
     volume: wp.array(dtype=float)
+    impulse: wp.array(dtype=wp.vec3)
+    first_dynamic: int

@@ -52,8 +52,9 @@ def apply_pressure_acceleration(
 ):
     """v_i -= dt (sum_f V_j (k_i + k_j) grad W_ij + sum_b V_b k_i grad W_ib).
 
-    A boundary neighbour uses k_i only (Akinci 2012 mirroring); with ``accumulate`` set,
-    k_i is added to ``stiffness_sum`` (the pressure used in this step, for warm start)."""
+    A boundary neighbour uses k_i only (Akinci 2012 mirroring); a sample of a dynamic body gets
+    the equal and opposite impulse dt V_b k_i grad W_ib (per unit mass of i). With ``accumulate``
+    set, k_i is added to ``stiffness_sum`` (the pressure used in this step, for warm start)."""
     i = wp.tid()
     ki = stiffness[i]
     xi = x[i]
@@ -63,7 +64,10 @@ def apply_pressure_acceleration(
         dv += fluid_volume * (ki + stiffness[j]) * cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius)
     for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
         b = nb.boundary[k]
-        dv += boundary.volume[b] * ki * cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius)
+        dvb = boundary.volume[b] * ki * cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius)
+        if b >= boundary.first_dynamic:
+            wp.atomic_add(boundary.impulse, b, dt[0] * dvb)
+        dv += dvb
     v[i] = v[i] - dt[0] * dv
     if accumulate != 0:
         stiffness_sum[i] = stiffness_sum[i] + ki

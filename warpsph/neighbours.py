@@ -15,7 +15,8 @@ GROWTH = 1.25  # spare capacity when a neighbour list must grow
 class NeighbourSearch:
     """Hash grids and CSR neighbour lists.
 
-    The boundary grid is built once (static boundary particles); the fluid grid and both
+    The boundary grid is built once, or each step when bodies move (:meth:`rebuild_boundary_grid`,
+    about a tenth of a grid pass); the fluid grid and both
     lists are rebuilt by :meth:`update`, which costs two neighbour-grid passes and one
     host read of the list sizes per step. The lists keep spare capacity so that their
     arrays (and any CUDA graph that captured them) rarely change.
@@ -41,6 +42,10 @@ class NeighbourSearch:
         self._no_list = wp.empty(0, dtype=wp.int32, device=sim.device)
         self.lower = wp.vec3(*np.asarray(sim.scene.domain.min, dtype=np.float32))
         self.period = wp.vec3(*sim.scene.domain.period)
+
+    def rebuild_boundary_grid(self):
+        """After boundary samples moved: the boundary hash grid at their new positions."""
+        self.boundary_grid.build(self.boundary_x, self.support_radius)
 
     def update(self, x: wp.array):
         """Rebuilds the fluid grid and both neighbour lists for positions ``x``."""

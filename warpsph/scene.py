@@ -72,14 +72,68 @@ class FluidBlock:
 
 
 @dataclass(frozen=True)
+class Keyframe:
+    """A body's offset from its placement at one time; linear in between, held outside."""
+
+    time: float  # [s]
+    translation: Vec3  # [m]
+
+
+@dataclass(frozen=True)
+class Motion:
+    """Prescribed motion of a kinematic body: the sum of a keyframed path, a constant-acceleration
+    drift (from ``start``: falling blocks) and a spin about ``axis`` through ``center``."""
+
+    keyframes: typing.Tuple[Keyframe, ...] = ()
+    velocity: Vec3 = (0.0, 0.0, 0.0)  # [m/s] from ``start`` on
+    acceleration: Vec3 = (0.0, 0.0, 0.0)  # [m/s^2] from ``start`` on
+    start: float = field(default=0.0, metadata=_check("a number >= 0", lambda v: v >= 0))  # [s]
+    angular_velocity: float = 0.0  # [rad/s] about ``axis`` (right-handed)
+    axis: Vec3 = (0.0, 1.0, 0.0)
+    center: typing.Optional[Vec3] = None  # [m] a point on the axis at the placement; null: the mesh's centre
+    spin_start: float = field(default=0.0, metadata=_check("a number >= 0", lambda v: v >= 0))  # [s]
+    spin_up: float = field(default=0.0, metadata=_check("a number >= 0", lambda v: v >= 0))  # [s] ramp to full speed
+
+    def validate(self, file, key):
+        times = [k.time for k in self.keyframes]
+        if any(b <= a for a, b in zip(times, times[1:])):
+            raise SceneError(file, f"{key}.keyframes", f"times must increase, got {times}")
+        if self.angular_velocity != 0.0 and not any(self.axis):
+            raise SceneError(file, f"{key}.axis", "the spin axis is zero")
+
+
+@dataclass(frozen=True)
+class Dynamics:
+    """A rigid body moved by the fluid (two-way coupling, Akinci et al. 2012) and gravity."""
+
+    density: float = field(metadata=_positive())  # [kg/m^3]; mass and inertia come from the closed mesh
+    velocity: Vec3 = (0.0, 0.0, 0.0)  # initial [m/s]
+    angular_velocity: Vec3 = (0.0, 0.0, 0.0)  # initial [rad/s]
+
+
+@dataclass(frozen=True)
 class Obstacle:
-    """A static body from a mesh file (OBJ/STL/PLY), surface-sampled once at the particle spacing."""
+    """A body from a mesh file (OBJ/STL/PLY), surface-sampled once at the particle spacing: static,
+    kinematic (``motion``) or dynamic (``dynamics``)."""
 
     mesh: str  # path, relative to the scene file
     translation: Vec3 = (0.0, 0.0, 0.0)  # [m]
     scale: Vec3 = (1.0, 1.0, 1.0)
     rotation_axis: Vec3 = (0.0, 1.0, 0.0)
     rotation_angle: float = 0.0  # [rad]
+    name: typing.Optional[str] = None  # the USD prim name; default from the mesh file
+    motion: typing.Optional[Motion] = None
+    dynamics: typing.Optional[Dynamics] = None
+
+    def validate(self, file, key):
+        if self.motion is not None and self.dynamics is not None:
+            raise SceneError(file, key, 'a body is either kinematic ("motion") or dynamic ("dynamics"), not both')
+        if self.name is not None and not (self.name[:1].isalpha() and self.name.replace("_", "").isalnum()):
+            raise SceneError(file, f"{key}.name", f"expected letters, digits and _ (a USD prim name), got {json.dumps(self.name)}")
+
+    @property
+    def moving(self):
+        return self.motion is not None or self.dynamics is not None
 
 
 DT_MAX_PER_RADIUS = 0.2  # [s/m]: the default dt_max is proportional to the particle radius

@@ -10,7 +10,10 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from pathlib import Path
+
 from warpsph import sampling
+from warpsph.bodies import BODY_INSET, MovingBodies, load_body
 from warpsph.kernels.boundary import compute_boundary_volume
 from warpsph.kernels.density import compute_density_and_factor
 from warpsph.kernels.integration import (
@@ -48,18 +51,22 @@ class FluidParticles:
 
 @dataclass
 class BoundaryParticles:
-    """Akinci boundary samples of every static body, sampled and weighed once."""
+    """Akinci boundary samples of every body, sampled and weighed once: the static ones (domain
+    box and fixed obstacles) first, then kinematic bodies, then dynamic ones (from ``first_dynamic``)."""
 
     x: wp.array
     v: wp.array
     volume: wp.array
-    body: np.ndarray  # host: which body each sample belongs to (0 = domain box)
+    body: np.ndarray  # host: which body each sample belongs to (0 = domain box, k = obstacles[k - 1])
+    impulse: wp.array  # reaction impulses on dynamic samples (empty without dynamic bodies)
+    first_dynamic: int
 
     @property
     def samples(self) -> Boundary:
         """The arrays as the struct the kernels take."""
         s = Boundary()
         s.x, s.v, s.volume = self.x, self.v, self.volume
+        s.impulse, s.first_dynamic = self.impulse, self.first_dynamic
         return s
 
 
@@ -125,7 +132,8 @@ def count_particles(scene: Scene):
 
 
 def sample_scene(scene: Scene):
-    """Host-side initial particles: fluid (x, v) and boundary (x, body index)."""
+    """Host-side initial particles: fluid (x, v), the static boundary (x, body index, Z-ordered)
+    and every obstacle as a :class:`RigidBody` (static ones included, for the USD meshes)."""
     fluid, walls = count_particles(scene)
     if fluid > MAX_PARTICLES or walls > MAX_PARTICLES:
         raise SceneError(scene.source, "particle_radius",
@@ -143,11 +151,17 @@ def sample_scene(scene: Scene):
     bodies = [sampling.sample_box_walls(np.asarray(scene.domain.min) - offset, np.asarray(scene.domain.max) + offset, d,
                                         scene.domain.periodic)]
     size = float(np.linalg.norm(np.subtract(scene.domain.max, scene.domain.min)))
-    bodies += [sampling.sample_obstacle(o, scene.mesh_path(o), d, size) for o in scene.obstacles]
+    rigid = [load_body(o, scene.mesh_path(o), d, size, f"{Path(o.mesh).stem}_{n}", scene.fluid.density)
+             for n, o in enumerate(scene.obstacles)]
+    names = [b.name for b in rigid]
+    for n, name in enumerate(names):
+        if names.index(name) != n:
+            raise SceneError(scene.source, f"obstacles[{n}].name", f"another body is named {name!r}")
+    bodies += [b.world_samples() if b.kind == "static" else np.zeros((0, 3), np.float32) for b in rigid]
     boundary_x = np.concatenate(bodies).reshape(-1, 3)
     body = np.concatenate([np.full(len(p), n, dtype=np.int32) for n, p in enumerate(bodies)])
     order = sampling.morton_order(boundary_x, np.asarray(scene.domain.min), scene.support_radius)
-    return fluid_x, fluid_v, boundary_x[order], body[order]
+    return fluid_x, fluid_v, boundary_x[order], body[order], rigid
 
 
 class Simulation:
@@ -174,7 +188,14 @@ class Simulation:
         nu = scene.fluid.viscosity
         self.viscous_dt = 0.125 * (0.5 * self.support_radius) ** 2 / nu if nu > 0 else 1.0e30
 
-        fluid_x, fluid_v, boundary_x, body = sample_scene(scene)
+        fluid_x, fluid_v, boundary_x, body, self.bodies = sample_scene(scene)
+        # moving bodies' samples follow the static ones: kinematic, then dynamic
+        moving = sorted((b for b in self.bodies if b.kind != "static"), key=lambda b: b.kind == "dynamic")
+        first_moving = len(boundary_x)
+        if moving:
+            boundary_x = np.concatenate([boundary_x] + [b.world_samples() for b in moving])
+            index = {id(b): n + 1 for n, b in enumerate(self.bodies)}
+            body = np.concatenate([body] + [np.full(len(b.samples), index[id(b)], np.int32) for b in moving])
         self.num_fluid = len(fluid_x)
         self.num_boundary = len(boundary_x)
         check_fits(scene, self.num_fluid, self.num_boundary, self.device)  # refuse before allocating
@@ -185,14 +206,21 @@ class Simulation:
                 ids=self.array("fluid", np.arange(self.num_fluid, dtype=np.int64), wp.int64),
                 density=z("fluid", self.num_fluid), factor=z("fluid", self.num_fluid),
                 acceleration=z("fluid", self.num_fluid, dtype=wp.vec3))
+            has_dynamic = any(b.kind == "dynamic" for b in moving)
+            first_dynamic = first_moving + sum(len(b.samples) for b in moving if b.kind == "kinematic")
             self.boundary = BoundaryParticles(
                 x=self.array("boundary", boundary_x, wp.vec3), v=z("boundary", self.num_boundary, dtype=wp.vec3),
-                volume=z("boundary", self.num_boundary), body=body)
+                volume=z("boundary", self.num_boundary), body=body,
+                impulse=z("bodies", self.num_boundary if has_dynamic else 0, dtype=wp.vec3),
+                first_dynamic=first_dynamic if has_dynamic else self.num_boundary)
+            self.moving_bodies = MovingBodies(self, moving, first_moving) if moving else None
             self.neighbours = NeighbourSearch(self, self.boundary.x)
-            if self.num_boundary:
+            if self.num_boundary:  # V_b once: static samples together, each moving body on its own
+                sample_body = wp.array(body, dtype=wp.int32, device=self.device)
+                first_moving_body = int(body[first_moving]) if moving else len(self.bodies) + 1
                 self.launch(compute_boundary_volume, self.num_boundary,
-                            [self.neighbours.boundary_grid.id, self.boundary.x, self.support_radius, self.neighbours.lower,
-                             self.neighbours.period, self.boundary.volume])
+                            [self.neighbours.boundary_grid.id, self.boundary.x, sample_body, first_moving_body,
+                             self.support_radius, self.neighbours.lower, self.neighbours.period, self.boundary.volume])
             self.pressure_solver = DFSPHSolver(self)
             self.models = []
             if scene.fluid.viscosity > 0.0:
@@ -275,12 +303,21 @@ class Simulation:
             if interval and self.step_count % interval == 0:
                 with self.timer("sort"):
                     self.sort_particles()
+            if self.moving_bodies is not None:
+                with self.timer("bodies"):  # boundary samples at the bodies' poses at t^n
+                    self.moving_bodies.place(self.time)
+                    self.neighbours.rebuild_boundary_grid()
             with self.timer("neighbours"):
                 self.neighbours.update(self.fluid.x)
             if self.use_graph and not self.timer.enabled and self._dt_scale == 1.0:
                 self._step_with_graph()
             else:
                 self._solve_step()
+            if self.moving_bodies is not None and self.moving_bodies.dynamic:
+                with self.timer("bodies"):  # two-way coupling: the fluid's impulses of this step move them
+                    d = self.scene.domain
+                    self.moving_bodies.integrate(float(self.dt.numpy()[0]), self.scene.gravity, d.min, d.max, d.periodic,
+                                                 margin=BODY_INSET * self.scene.particle_radius)
         self.step_count += 1
 
     def _step_with_graph(self):
@@ -370,6 +407,8 @@ class Simulation:
         for m in self.turbulence_models:
             for name, a in m.state().items():
                 out[f"models/{m.name}/{name}"] = a
+        if self.moving_bodies is not None and self.moving_bodies.dynamic:
+            out["bodies/state"] = self.moving_bodies.state
         return out
 
     def state_flags(self):
@@ -381,6 +420,8 @@ class Simulation:
 
     def restore_flags(self, flags):
         self.step_count, self.frame = int(flags["step"]), int(flags["frame"])
+        if self.moving_bodies is not None:
+            self.moving_bodies.load_state()
         for m in self.turbulence_models:
             for k in vars(m):
                 if k.startswith("has_"):

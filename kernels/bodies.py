@@ -1,0 +1,48 @@
+"""Moving boundaries: kinematic and dynamic rigid bodies carrying Akinci boundary samples."""
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.kernel
+def place_body_samples(
+    local: wp.array(dtype=wp.vec3),
+    sample_body: wp.array(dtype=wp.int32),
+    rotation: wp.array(dtype=wp.mat33),
+    position: wp.array(dtype=wp.vec3),
+    velocity: wp.array(dtype=wp.vec3),
+    angular_velocity: wp.array(dtype=wp.vec3),
+    first: int,
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+):
+    """Sample s of a moving body at its pose: x = c + R p (p in body space, about the body's
+    reference point c) and the rigid velocity v = v_c + omega x (x - c) that the divergence and
+    density solvers see at the boundary."""
+    s = wp.tid()
+    b = sample_body[s]
+    r = rotation[b] * local[s]
+    x[first + s] = position[b] + r
+    v[first + s] = velocity[b] + wp.cross(angular_velocity[b], r)
+
+
+@wp.kernel
+def sum_body_impulses(
+    impulse: wp.array(dtype=wp.vec3),
+    x: wp.array(dtype=wp.vec3),
+    sample_body: wp.array(dtype=wp.int32),
+    position: wp.array(dtype=wp.vec3),
+    first: int,
+    body_count: int,
+    totals: wp.array(dtype=wp.vec3),
+):
+    """Per dynamic body: the linear impulse the fluid gave its samples this step (totals[b]) and
+    its angular impulse about the centre of mass (totals[body_count + b]); the samples' impulses
+    are cleared for the next step."""
+    s = wp.tid()
+    j = impulse[first + s]
+    b = sample_body[s]
+    wp.atomic_add(totals, b, j)
+    wp.atomic_add(totals, body_count + b, wp.cross(x[first + s] - position[b], j))
+    impulse[first + s] = wp.vec3(0.0)

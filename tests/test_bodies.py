@@ -1,0 +1,131 @@
+"""Moving boundaries: kinematic bodies follow their prescribed motion; dynamic bodies float or sink."""
+
+import numpy as np
+import pytest
+
+from conftest import SCENES_DIR, make_sim, tank_scene
+from warpsph.errors import SceneError
+
+
+def _moving_samples(sim):
+    mb = sim.moving_bodies
+    return slice(mb.first_sample, mb.first_sample + mb.num_samples)
+
+
+def _rod_scene(motion, radius=0.02):
+    rod = {"mesh": "meshes/rod.obj", "scale": [1.0, 0.5, 1.0], "translation": [0.2, 0.3, 0.2], "name": "rod",
+           "motion": motion}
+    return tank_scene(radius=radius, domain=(0.4, 0.6, 0.4), block=(0.4, 0.2, 0.4), obstacles=[rod])
+
+
+def test_spinning_body_samples_move_with_omega_cross_r(device):
+    center = np.array([0.25, 0.3, 0.2])  # off the rod's axis: the rod sweeps a circle
+    sim = make_sim(_rod_scene({"angular_velocity": 3.0, "axis": [0, 1, 0], "center": center.tolist()}),
+                   device=device, base_dir=SCENES_DIR)
+    s = _moving_samples(sim)
+    x0 = sim.boundary.x.numpy()[s].copy()
+    for _ in range(5):
+        sim.step()
+    t_last = sim.time - float(sim.dt.numpy()[0])  # samples were placed at the start of the last step
+    x, v = sim.boundary.x.numpy()[s], sim.boundary.v.numpy()[s]
+    omega = np.array([0.0, 3.0, 0.0])
+    np.testing.assert_allclose(v, np.cross(omega, x - center), atol=1e-5)
+    angle = 3.0 * t_last  # x = R(angle) x0 about the centre
+    c, sn = np.cos(angle), np.sin(angle)
+    rotation = np.array([[c, 0, sn], [0, 1, 0], [-sn, 0, c]])
+    np.testing.assert_allclose(x, (x0 - center) @ rotation.T + center, atol=1e-5)
+    assert angle > 0.0 and np.isfinite(sim.fluid.v.numpy()).all()
+    # the static domain walls never move
+    assert np.abs(sim.boundary.v.numpy()[: s.start]).max() == 0.0
+
+
+def test_keyframed_and_accelerating_motion():
+    from warpsph.bodies import kinematic_pose
+    from warpsph.scene import parse_dataclass, Motion
+
+    m = parse_dataclass(Motion, {"keyframes": [{"time": 1.0, "translation": [0, 0, 0]},
+                                               {"time": 3.0, "translation": [0.4, -0.2, 0]}],
+                                 "acceleration": [0, -9.81, 0], "start": 4.0,
+                                 "angular_velocity": 2.0, "spin_start": 1.0, "spin_up": 0.5})
+    ref = np.array([1.0, 2.0, 3.0])
+    p, R, v, w = kinematic_pose(m, ref, 2.0)  # half way along the path, spinning at full speed
+    np.testing.assert_allclose(p, ref + [0.2, -0.1, 0])
+    np.testing.assert_allclose(v, [0.2, -0.1, 0])
+    np.testing.assert_allclose(w, [0, 2.0, 0])
+    np.testing.assert_allclose(R[0, 0], np.cos(2.0 * (1.0 - 0.25)), atol=1e-12)  # ramp: 0.25 s lost
+    p, _, v, _ = kinematic_pose(m, ref, 5.0)  # held at the last keyframe, then falling for 1 s
+    np.testing.assert_allclose(p, ref + [0.4, -0.2 - 0.5 * 9.81, 0])
+    np.testing.assert_allclose(v, [0, -9.81, 0])
+
+
+def _floating_box(density, radius=0.02):
+    box = {"mesh": "meshes/unit_box.obj", "scale": [0.2, 0.2, 0.2], "translation": [0.3, 0.42, 0.2], "name": "box",
+           "dynamics": {"density": density}}
+    return tank_scene(radius=radius, domain=(0.6, 0.6, 0.4), block=(0.6, 0.3, 0.4), obstacles=[box],
+                      output={"fps": 10})
+
+
+def _water_level(sim, radius):
+    x = sim.fluid.x.numpy()
+    far = np.abs(x[:, 0] - 0.3) > 0.2  # away from the box
+    return np.sort(x[far, 1])[-30:].mean() + radius
+
+
+def test_box_of_half_the_water_density_floats_half_submerged():
+    sim = make_sim(_floating_box(500.0), base_dir=SCENES_DIR)
+    body = sim.moving_bodies.dynamic[0]
+    assert body.mass == pytest.approx(500.0 * 0.2**3)
+    submerged = []
+
+    def on_frame(s, frame):
+        if s.time > 0.95:
+            submerged.append((_water_level(s, 0.02) - (body.position[1] - 0.1)) / 0.2)
+
+    sim.run(until_time=1.5, on_frame=on_frame)
+    assert abs(np.mean(submerged) - 0.5) < 0.05  # measured 0.49 (0.46-0.51 over 1.0-1.5 s)
+    assert abs(body.velocity[1]) < 0.05
+
+
+def test_heavy_box_sinks_to_the_floor():
+    sim = make_sim(_floating_box(2000.0), base_dir=SCENES_DIR)
+    body = sim.moving_bodies.dynamic[0]
+    sim.run(until_time=0.8)
+    assert body.position[1] < 0.15  # from 0.42; resting on the floor at about 0.11 (a fluid layer under it)
+    assert abs(body.velocity[1]) < 0.05
+    assert np.isfinite(sim.fluid.x.numpy()).all()
+
+
+def test_dynamic_body_state_survives_a_snapshot():
+    sim = make_sim(_floating_box(500.0), base_dir=SCENES_DIR)
+    for _ in range(3):
+        sim.step()
+    snapshot = sim._snapshot()
+    body = sim.moving_bodies.dynamic[0]
+    position = body.position.copy()
+    for _ in range(3):
+        sim.step()
+    assert not np.allclose(body.position, position)
+    sim._restore(snapshot)
+    np.testing.assert_allclose(body.position, position, atol=1e-6)
+
+
+@pytest.mark.parametrize("obstacle, key, words", [
+    ({"mesh": "meshes/rod.obj", "motion": {"angular_velocity": 1.0}, "dynamics": {"density": 500}}, "obstacles[0]",
+     "not both"),
+    ({"mesh": "meshes/rod.obj", "motion": {"keyframes": [{"time": 1, "translation": [0, 0, 0]},
+                                                         {"time": 0.5, "translation": [0, 0, 0]}]}},
+     "obstacles[0].motion.keyframes", "increase"),
+    ({"mesh": "meshes/rod.obj", "name": "my rod"}, "obstacles[0].name", "prim name"),
+])
+def test_bad_body_input_names_the_key(obstacle, key, words):
+    with pytest.raises(SceneError) as err:
+        make_sim(tank_scene(obstacles=[obstacle]), base_dir=SCENES_DIR)
+    assert key in str(err.value) and words in str(err.value)
+
+
+def test_open_mesh_cannot_be_dynamic():
+    with pytest.raises(SceneError) as err:
+        make_sim(tank_scene(obstacles=[{"mesh": "meshes/hemisphere.obj", "translation": [0.2, 0.0, 0.2],
+                                        "scale": [0.3, 0.3, 0.3], "dynamics": {"density": 500}}]),
+                 base_dir=SCENES_DIR)
+    assert "hemisphere.obj" in str(err.value) and "closed mesh" in str(err.value)
