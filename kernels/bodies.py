@@ -46,3 +46,20 @@ def sum_body_impulses(
     wp.atomic_add(totals, b, j)
     wp.atomic_add(totals, body_count + b, wp.cross(x[first + s] - position[b], j))
     impulse[first + s] = wp.vec3(0.0)
+
+
+@wp.kernel
+def mark_fluid_clear_of_mesh(
+    mesh: wp.uint64,
+    x: wp.array(dtype=wp.vec3),
+    clearance: float,
+    keep: wp.array(dtype=wp.int32),
+):
+    """keep[i] = 0 where fluid particle i lies inside a closed mesh or within ``clearance`` of it
+    (the initial fill must not put fluid inside a body)."""
+    i = wp.tid()
+    query = wp.mesh_query_point_sign_winding_number(mesh, x[i], 1.0e6)
+    if query.result:
+        closest = wp.mesh_eval_position(mesh, query.face, query.u, query.v)
+        if query.sign < 0.0 or wp.length(x[i] - closest) < clearance:
+            keep[i] = 0

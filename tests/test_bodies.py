@@ -129,3 +129,13 @@ def test_open_mesh_cannot_be_dynamic():
                                         "scale": [0.3, 0.3, 0.3], "dynamics": {"density": 500}}]),
                  base_dir=SCENES_DIR)
     assert "hemisphere.obj" in str(err.value) and "closed mesh" in str(err.value)
+
+
+def test_fluid_blocks_are_not_filled_inside_closed_bodies():
+    box = {"mesh": "meshes/unit_box.obj", "scale": [0.2, 0.2, 0.2], "translation": [0.2, 0.2, 0.2]}
+    plain = make_sim(tank_scene(radius=0.02), base_dir=SCENES_DIR)
+    with_box = make_sim(tank_scene(radius=0.02, obstacles=[box]), base_dir=SCENES_DIR)
+    removed = plain.num_fluid - with_box.num_fluid
+    assert removed == 6**3  # 4 lattice points a side inside the box, plus those lying on its faces
+    x = with_box.fluid.x.numpy()
+    assert not (np.abs(x - 0.2) < 0.1).all(axis=1).any()

@@ -61,6 +61,8 @@ class RigidBody:
     velocity: np.ndarray = None
     angular_velocity: np.ndarray = None
 
+    closed: bool = False  # a watertight mesh: it has an inside (no fluid there, samples inset)
+
     @property
     def kind(self):
         o = self.obstacle
@@ -93,7 +95,7 @@ def load_body(obstacle: Obstacle, path, spacing, domain_size, default_name, flui
     samples = sampling.sample_triangles(inset, mesh.faces, spacing).astype(np.float64) - reference
     body = RigidBody(name=obstacle.name or default_name, obstacle=obstacle,
                      vertices=np.asarray(mesh.vertices, np.float64) - reference, faces=np.asarray(mesh.faces, np.int32),
-                     samples=samples, reference=reference, mass=mass, added_mass=added_mass, inertia=inertia,
+                     samples=samples, reference=reference, closed=bool(mesh.is_watertight), mass=mass, added_mass=added_mass, inertia=inertia,
                      position=reference.copy(), rotation=np.eye(3), velocity=np.zeros(3), angular_velocity=np.zeros(3))
     if kind == "dynamic":
         body.velocity = np.asarray(obstacle.dynamics.velocity, np.float64)

@@ -95,18 +95,20 @@ class StopRequest(Exception):
 def _simulate(sim, outputs, frames, args, options, append):
     from .diagnostics import DiagnosticsWriter
     from .io.checkpoint import save_checkpoint
-    from .io.usd import UsdClipCache, UsdPointCache, frame_writer
+    from .io.usd import UsdClipCache, UsdPointCache, body_meshes, frame_writer
 
     scene = sim.scene
-    boundary = None if append else sim.boundary.x.numpy()
+    static = sim.num_boundary if sim.moving_bodies is None else sim.moving_bodies.first_sample
+    boundary = None if append else sim.boundary.x.numpy()[:static]
+    meshes = None if append else body_meshes(sim)
     if options.get("clips"):
         cache = UsdClipCache(outputs.out, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
-                             boundary_radius=scene.particle_radius, append=append)
+                             boundary_radius=scene.particle_radius, append=append, bodies=meshes)
     else:
         if append and outputs.out.exists():
             os.replace(outputs.out, outputs.partial)
         cache = UsdPointCache(outputs.partial, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
-                              boundary_radius=scene.particle_radius, append=append)
+                              boundary_radius=scene.particle_radius, append=append, bodies=meshes)
     write = frame_writer(cache)
     diagnostics = DiagnosticsWriter(outputs.stats, append=append)
     particles = None

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from warpsph import sampling
 from warpsph.bodies import BODY_INSET, MovingBodies, load_body
+from warpsph.kernels.bodies import mark_fluid_clear_of_mesh
 from warpsph.kernels.boundary import compute_boundary_volume
 from warpsph.kernels.density import compute_density_and_factor
 from warpsph.kernels.integration import (
@@ -189,6 +190,7 @@ class Simulation:
         self.viscous_dt = 0.125 * (0.5 * self.support_radius) ** 2 / nu if nu > 0 else 1.0e30
 
         fluid_x, fluid_v, boundary_x, body, self.bodies = sample_scene(scene)
+        fluid_x, fluid_v = self._remove_fluid_inside_bodies(fluid_x, fluid_v)
         # moving bodies' samples follow the static ones: kinematic, then dynamic
         moving = sorted((b for b in self.bodies if b.kind != "static"), key=lambda b: b.kind == "dynamic")
         first_moving = len(boundary_x)
@@ -253,6 +255,25 @@ class Simulation:
         self.use_graph = self.device.is_cuda and wp.is_conditional_graph_supported() if use_graph is None else use_graph
         self._graph = None
         self._graph_generation = None
+
+    def _remove_fluid_inside_bodies(self, fluid_x, fluid_v):
+        """Drops the fluid particles that the blocks put inside a closed body or within one
+        particle radius of its surface (at the body's initial pose); open meshes keep them."""
+        closed = [b for b in self.bodies if b.closed]
+        if not closed or not len(fluid_x):
+            return fluid_x, fluid_v
+        x = wp.array(fluid_x, dtype=wp.vec3, device=self.device)
+        keep = wp.ones(len(fluid_x), dtype=wp.int32, device=self.device)
+        for b in closed:
+            world = b.vertices @ b.rotation.T + b.position
+            mesh = wp.Mesh(points=wp.array(world, dtype=wp.vec3, device=self.device),
+                           indices=wp.array(b.faces.ravel(), dtype=wp.int32, device=self.device))
+            wp.launch(mark_fluid_clear_of_mesh, len(fluid_x), [mesh.id, x, self.scene.particle_radius, keep],
+                      device=self.device)
+        kept = keep.numpy().astype(bool)
+        if not kept.any():
+            raise SceneError(self.scene.source, "obstacles", "the bodies cover every fluid particle: no fluid left")
+        return fluid_x[kept], fluid_v[kept]
 
     # -- allocation and launch bookkeeping ---------------------------------------------------
     def zeros(self, owner, shape, dtype=float):

@@ -8,7 +8,10 @@ Layout of the stage (``metersPerUnit`` = 1, ``upAxis`` from the scene,
   per published field (``density``; with a turbulence model ``vorticity`` (float3) and
   ``vorticity_magnitude``; micropolar ``angular_velocity``), float/float3 only;
 - ``/World/Boundary`` (Points, purpose ``guide``): the static boundary samples, written
-  once without time samples.
+  once without time samples;
+- ``/World/Bodies/NAME`` (Mesh), one per obstacle, in metres: a static body in world space; a
+  moving one in body space with time-sampled ``xformOp:translate`` and ``xformOp:orient``, so
+  a renderer shows the rod, propeller, blocks or boat moving with the fluid.
 
 Two writers with one interface (``write_frame``, ``finish``):
 
@@ -46,6 +49,35 @@ def _define_boundary(stage, boundary_points, boundary_radius):
     boundary.CreateExtentAttr(_extent(boundary_points))
 
 
+def _define_bodies(stage, bodies):
+    """Mesh prims for the bodies: ``bodies`` is a list of (name, vertices, faces, moving)."""
+    for name, vertices, faces, moving in bodies or ():
+        mesh = UsdGeom.Mesh.Define(stage, f"/World/Bodies/{name}")
+        mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(vertices, np.float32)))
+        mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(faces), 3, np.int32)))
+        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(faces, np.int32).ravel()))
+        mesh.CreateExtentAttr(_extent(vertices))
+        mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        if moving and not mesh.GetPrim().GetAttribute("xformOp:translate"):  # clips declare their own
+            mesh.AddTranslateOp(UsdGeom.XformOp.PrecisionDouble)
+            mesh.AddOrientOp(UsdGeom.XformOp.PrecisionFloat)
+
+
+def _write_body_poses(stage, frame, poses):
+    """Time samples of each moving body's transform: {name: (position, rotation matrix)}."""
+    for name, (position, rotation) in (poses or {}).items():
+        prim = stage.OverridePrim(f"/World/Bodies/{name}")
+        xform = UsdGeom.Xformable(prim)
+        translate = prim.GetAttribute("xformOp:translate")
+        orient = prim.GetAttribute("xformOp:orient")
+        if not translate:  # a clip layer: declare the ops it animates
+            translate = xform.AddTranslateOp(UsdGeom.XformOp.PrecisionDouble).GetAttr()
+            orient = xform.AddOrientOp(UsdGeom.XformOp.PrecisionFloat).GetAttr()
+        translate.Set(Gf.Vec3d(*map(float, position)), Usd.TimeCode(frame))
+        q = Gf.Matrix3d(*np.asarray(rotation, np.float64).T.ravel()).ExtractRotation().GetQuat()
+        orient.Set(Gf.Quatf(q), Usd.TimeCode(frame))
+
+
 def _write_points(points_prim, frame, points, velocities, ids, radius, fields):
     """One frame's time samples on a Points prim."""
     p, t = points_prim, Usd.TimeCode(frame)
@@ -69,7 +101,7 @@ class UsdPointCache:
     """A single file, saved after every frame (a stopped run leaves the frames done).
     ``append=True`` reopens an existing cache to continue it."""
 
-    def __init__(self, path, fps, up_axis="Y", boundary_points=None, boundary_radius=None, append=False):
+    def __init__(self, path, fps, up_axis="Y", boundary_points=None, boundary_radius=None, append=False, bodies=None):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.frames = 0
@@ -86,10 +118,12 @@ class UsdPointCache:
         self.stage.SetDefaultPrim(UsdGeom.Xform.Define(self.stage, "/World").GetPrim())
         self.points = UsdGeom.Points.Define(self.stage, "/World/Fluid")
         _define_boundary(self.stage, boundary_points, boundary_radius)
+        _define_bodies(self.stage, bodies)
 
-    def write_frame(self, frame, points, velocities, ids, radius, fields=None):
+    def write_frame(self, frame, points, velocities, ids, radius, fields=None, body_poses=None):
         """Writes one frame at time code ``frame`` and saves the layer."""
         _write_points(self.points, frame, points, velocities, ids, radius, fields)
+        _write_body_poses(self.stage, frame, body_poses)
         self.stage.SetEndTimeCode(max(frame, self.stage.GetEndTimeCode()))
         self.stage.GetRootLayer().Save()
         self.frames += 1
@@ -107,7 +141,8 @@ class UsdClipCache:
     released. The top-level file is made when the run ends or stops; the frame layers of a
     crashed run stay readable on their own."""
 
-    def __init__(self, final_path, fps, up_axis="Y", boundary_points=None, boundary_radius=None, append=False):
+    def __init__(self, final_path, fps, up_axis="Y", boundary_points=None, boundary_radius=None, append=False,
+                 bodies=None):
         self.final = Path(final_path)
         self.dir = self.final.with_name(self.final.stem + ".clips")
         self.dir.mkdir(parents=True, exist_ok=True)
@@ -116,17 +151,25 @@ class UsdClipCache:
         self.boundary_file = self.dir / "boundary.npz"
         if boundary_points is not None:
             np.savez(self.boundary_file, points=np.asarray(boundary_points), radius=boundary_radius)
+        self.bodies_file = self.dir / "bodies.npz"
+        if bodies:
+            arrays = {}
+            for n, (name, vertices, faces, moving) in enumerate(bodies):
+                arrays.update({f"name_{n}": np.array(name), f"vertices_{n}": vertices, f"faces_{n}": faces,
+                               f"moving_{n}": np.array(moving)})
+            np.savez(self.bodies_file, count=len(bodies), **arrays)
         self.frames = 0
 
     def frame_path(self, frame):
         return self.dir / f"frame.{frame:06d}.usdc"
 
-    def write_frame(self, frame, points, velocities, ids, radius, fields=None):
+    def write_frame(self, frame, points, velocities, ids, radius, fields=None, body_poses=None):
         stage = Usd.Stage.CreateNew(str(self.frame_path(frame)))
         stage.SetStartTimeCode(frame)  # StitchClips activates each clip at its layer's start
         stage.SetEndTimeCode(frame)
         UsdGeom.Xform.Define(stage, "/World")
         _write_points(UsdGeom.Points.Define(stage, "/World/Fluid"), frame, points, velocities, ids, radius, fields)
+        _write_body_poses(stage, frame, body_poses)
         stage.GetRootLayer().Save()
         del stage
         self.frames += 1
@@ -149,6 +192,10 @@ class UsdClipCache:
         if self.boundary_file.exists():
             data = np.load(self.boundary_file)
             _define_boundary(stage, data["points"], float(data["radius"]))
+        if self.bodies_file.exists():
+            data = np.load(self.bodies_file)
+            _define_bodies(stage, [(str(data[f"name_{n}"]), data[f"vertices_{n}"], data[f"faces_{n}"],
+                                    bool(data[f"moving_{n}"])) for n in range(int(data["count"]))])
         layer.Save()
 
 
@@ -168,6 +215,14 @@ def frame_writer(cache):
         fields = {name: a.numpy() for name, a in sim.fields().items()}
         if "vorticity" in fields:
             fields["vorticity_magnitude"] = np.linalg.norm(fields["vorticity"], axis=1)
-        cache.write_frame(frame, f.x.numpy(), f.v.numpy(), f.ids.numpy(), sim.scene.particle_radius, fields)
+        poses = sim.moving_bodies.poses() if sim.moving_bodies is not None else None
+        cache.write_frame(frame, f.x.numpy(), f.v.numpy(), f.ids.numpy(), sim.scene.particle_radius, fields, poses)
 
     return on_frame
+
+
+def body_meshes(sim):
+    """(name, vertices, faces, moving) of every body, for the writers: a static body in world
+    space, a moving one in body space (its pose goes into each frame)."""
+    return [(b.name, b.vertices + (b.reference if b.kind == "static" else 0.0), b.faces, b.kind != "static")
+            for b in sim.bodies]
