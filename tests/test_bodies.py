@@ -56,6 +56,10 @@ def test_keyframed_and_accelerating_motion():
     p, _, v, _ = kinematic_pose(m, ref, 5.0)  # held at the last keyframe, then falling for 1 s
     np.testing.assert_allclose(p, ref + [0.4, -0.2 - 0.5 * 9.81, 0])
     np.testing.assert_allclose(v, [0, -9.81, 0])
+    m = parse_dataclass(Motion, {"acceleration": [0, -9.81, 0], "start": 1.0, "end": 1.5})
+    p, _, v, _ = kinematic_pose(m, ref, 9.0)  # stopped after 0.5 s of fall
+    np.testing.assert_allclose(p, ref + [0, -0.5 * 9.81 * 0.25, 0])
+    np.testing.assert_allclose(v, 0.0)
 
 
 def _floating_box(density, radius=0.02):

@@ -133,10 +133,12 @@ def _keyframed(m: Motion, t):
 def kinematic_pose(m: Motion, reference, t):
     """(position, rotation, velocity, angular velocity) of a kinematic body at time t."""
     offset, velocity = _keyframed(m, t)
-    tau = max(t - m.start, 0.0)
-    if t > m.start:
+    stop = np.inf if m.end is None else m.end
+    tau = min(t, stop) - m.start
+    if tau > 0.0:
         offset = offset + np.asarray(m.velocity) * tau + 0.5 * np.asarray(m.acceleration) * tau**2
-        velocity = velocity + np.asarray(m.velocity) + np.asarray(m.acceleration) * tau
+        if t < stop:
+            velocity = velocity + np.asarray(m.velocity) + np.asarray(m.acceleration) * tau
     angle, rate = _spin(m, t)
     axis = np.asarray(m.axis, np.float64)
     axis = axis / np.linalg.norm(axis) if rate or angle else axis

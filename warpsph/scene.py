@@ -88,6 +88,7 @@ class Motion:
     velocity: Vec3 = (0.0, 0.0, 0.0)  # [m/s] from ``start`` on
     acceleration: Vec3 = (0.0, 0.0, 0.0)  # [m/s^2] from ``start`` on
     start: float = field(default=0.0, metadata=_check("a number >= 0", lambda v: v >= 0))  # [s]
+    end: typing.Optional[float] = None  # [s] the drift stops here (a dropped block reaching the floor); null: never
     angular_velocity: float = 0.0  # [rad/s] about ``axis`` (right-handed)
     axis: Vec3 = (0.0, 1.0, 0.0)
     center: typing.Optional[Vec3] = None  # [m] a point on the axis at the placement; null: the mesh's centre
@@ -98,6 +99,8 @@ class Motion:
         times = [k.time for k in self.keyframes]
         if any(b <= a for a, b in zip(times, times[1:])):
             raise SceneError(file, f"{key}.keyframes", f"times must increase, got {times}")
+        if self.end is not None and self.end <= self.start:
+            raise SceneError(file, f"{key}.end", f"must be after start ({self.start:g} s), got {self.end:g}")
         if self.angular_velocity != 0.0 and not any(self.axis):
             raise SceneError(file, f"{key}.axis", "the spin axis is zero")
 
