@@ -1,6 +1,11 @@
-"""Benchmark: the dam break at ~1M fluid particles, ms per step in total and per stage.
+"""Benchmark: a scene (default the dam break) at ~N fluid particles, ms per step in total and per stage.
 
     python tools/bench_dam_break.py --device cuda --particles 1e6 --out tools/results/bench_dam_break_h100.json
+    python tools/bench_dam_break.py --device cuda --particles 125e3 1e6 4e6 --out tools/results/scaling_h100.json
+    python tools/bench_dam_break.py --scene scenes/propeller.json --particles 1.29e6 --warmup 200 ...
+
+With several ``--particles`` the JSON holds one result per size and a markdown table (step time,
+stages in %, iterations, neighbour passes k, bytes per particle, steps/s) is written beside it.
 
 Runs ``--warmup`` steps, then ``--steps`` steps with a synchronised per-stage timer
 (stage times), then ``--steps`` steps as the production stepper runs them (CUDA graph
@@ -33,7 +38,7 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--scene", default=str(ROOT / "scenes" / "dam_break.json"))
     parser.add_argument("--device", default="cuda")
-    parser.add_argument("--particles", type=float, default=1e6, help="target fluid particle count")
+    parser.add_argument("--particles", type=float, nargs="+", default=[1e6], help="target fluid particle count(s)")
     parser.add_argument("--warmup", type=int, default=100)
     parser.add_argument("--steps", type=int, default=50)
     parser.add_argument("--density-error", type=float, help="override solver.density_max_error [%]")
@@ -45,6 +50,38 @@ def main():
 
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
+    results = []
+    for particles in args.particles:
+        results.append(run(args, particles))
+        print(json.dumps(results[-1], indent=2), flush=True)
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(json.dumps(results[0] if len(results) == 1 else results, indent=2) + "\n")
+        if len(results) > 1:
+            Path(args.out).with_suffix(".md").write_text(markdown_table(results))
+
+
+def neighbour_passes(result, model):
+    """k: neighbour passes a step (density+factor 1; each solver: warm start 1 + source 1 + 2 per
+    iteration; viscosity 1; the model's own passes)."""
+    extra = {"none": 0, "vorticity_refinement": 2, "rankine": 1, "micropolar": 1}[model]
+    return 1 + 4 + 2 * result["mean_divergence_iterations"] + 2 * result["mean_density_iterations"] + 1 + extra
+
+
+def markdown_table(results):
+    stages = sorted({k for r in results for k in r["ms_per_step_by_stage_synchronised"]})
+    head = "| fluid particles | ms/step | steps/s | k | ms per pass | " + " | ".join(f"{s} %" for s in stages) + " | B/particle |"
+    rows = [head, "|" + "---|" * (6 + len(stages))]
+    for r in results:
+        st = r["ms_per_step_by_stage_synchronised"]
+        total = sum(st.values())
+        rows.append(f"| {r['fluid_particles']:,} | {r['ms_per_step']:.2f} | {1e3 / r['ms_per_step']:.0f} | {r['k_passes']:.1f} | "
+                    f"{r['ms_per_step'] / r['k_passes']:.3f} | " + " | ".join(f"{100 * st.get(s, 0) / total:.0f}" for s in stages)
+                    + f" | {r['bytes_per_fluid_particle_arrays']:.0f} |")
+    return f"{results[0]['scene']} on {results[0]['device']}, Warp {results[0]['warp']}, commit {results[0]['commit']}\n\n" + "\n".join(rows) + "\n"
+
+
+def run(args, particles):
     import dataclasses
 
     from warpsph.scene import load_scene
@@ -54,7 +91,7 @@ def main():
     from warpsph.simulation import sample_scene
 
     n_base = len(sample_scene(base)[0])
-    scene = load_scene(args.scene, scale=args.particles / n_base)
+    scene = load_scene(args.scene, scale=particles / n_base)
     if args.density_error:
         scene = dataclasses.replace(scene, solver=dataclasses.replace(scene.solver, density_max_error=args.density_error))
     if args.sort_interval is not None:
@@ -91,7 +128,8 @@ def main():
     it1 = sim.pressure_solver.iteration_totals()
     solves = max(it1[1] - it0[1], 1), max(it1[3] - it0[3], 1)
     result = {
-        "benchmark": "dam_break",
+        "benchmark": "scene",
+        "scene": scene.name,
         "model": args.model,
         "device": device.name if device.is_cuda else "cpu",
         "warp": wp.__version__,
@@ -113,12 +151,14 @@ def main():
         "bytes_per_fluid_particle_arrays": sum(sim.allocations.values()) / sim.num_fluid,
         "allocations_bytes": dict(sim.allocations),
         "dt_last": float(sim.dt.numpy()[0]),
+        "moving_bodies": [] if sim.moving_bodies is None else [b.name for b in sim.moving_bodies.bodies],
     }
-    text = json.dumps(result, indent=2)
-    print(text)
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(text + "\n")
+    from warpsph.simulation import MODEL_NAMES
+
+    result["model"] = MODEL_NAMES[type(scene.models[0])] if scene.models else "none"
+    result["k_passes"] = neighbour_passes(result, result["model"])
+    del sim
+    return result
 
 
 if __name__ == "__main__":
