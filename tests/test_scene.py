@@ -107,10 +107,10 @@ def test_mesh_obstacle_is_sampled_once_on_its_surface(tmp_path, fmt):
     sim = make_sim(data, base_dir=tmp_path)
     body = sim.boundary.body
     samples = sim.boundary.x.numpy()[body == 1]
-    assert len(samples) > 50
+    assert len(samples) == 26  # a 3 x 3 x 3 shell
     local = samples - np.array([0.45, 0.05, 0.2])
-    # every sample lies on the cube's surface
-    assert np.allclose(np.abs(local).max(axis=1), 0.05, atol=1e-5)
+    # every sample lies on the cube's surface moved 1.2 r inwards (a closed mesh, see bodies.BODY_INSET)
+    assert np.allclose(np.abs(local).max(axis=1), 0.05 - 1.2 * 0.02, atol=1e-5)
     # the spacing is the particle spacing: nearest neighbours ~ 2r apart
     d = np.linalg.norm(local[:, None] - local[None], axis=2)
     np.fill_diagonal(d, np.inf)

@@ -58,7 +58,7 @@ def test_mutated_scenes_run_or_raise_scene_error(tmp_path, data):
         return
     try:
         scene = load_scene(path)
-        fluid, _, boundary, _ = sample_scene(scene)
+        fluid, _, boundary, _, _ = sample_scene(scene)
         if estimate_bytes(scene, len(fluid), len(boundary)) > 200 * 2**20 or len(fluid) > 3000:
             return  # valid but too large to step in a unit test
         Simulation(scene, device="cpu").run(frames=1)

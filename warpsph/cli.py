@@ -200,9 +200,10 @@ def run_command(args):
         import warp as wp
 
         device = wp.get_device(_pick_device(args.device))
-        fluid, _, boundary, _ = sample_scene(scene)
-        need, free = estimate_bytes(scene, len(fluid), len(boundary)), free_bytes(device)
-        print(f"{scene.name}: {len(fluid)} fluid + {len(boundary)} boundary particles, r = {scene.particle_radius:.4g} m, "
+        fluid, _, static, _, bodies = sample_scene(scene)
+        boundary = len(static) + sum(len(b.samples) for b in bodies if b.kind != "static")
+        need, free = estimate_bytes(scene, len(fluid), boundary), free_bytes(device)
+        print(f"{scene.name}: {len(fluid)} fluid + {boundary} boundary particles, r = {scene.particle_radius:.4g} m, "
               f"{frames} frames; about {need / 2**20:.1f} MiB on {device}"
               + ("" if free is None else f" ({free / 2**20:.0f} MiB free)") + f"; would write {outputs.out}")
         return 0

@@ -10,7 +10,7 @@ from warpsph.errors import SceneError
 # on the 1M dam break, tools/results/bench_dam_break_1M_model_none_h100.json)
 FLUID_STATE = 12 + 12 + 8 + 4 + 4 + 12  # x, v, ids, density, factor, acceleration
 SOLVER = 4 * 4  # stiffness, error, two warm-start pressures
-SORT = 2 * 8 + 12 + 8  # keys and order (2N each), permutation scratch
+SORT = 2 * 8 + 12 + 8  # keys and order (2N each) and a gather copy: held only while sorting (the peak)
 NEIGHBOUR_ROWS = 4 * 4  # counts and offsets of both lists
 NEIGHBOUR_LISTS = 4 * (32 + 8)  # initial capacity: 32 fluid, 8 boundary neighbours a particle
 BOUNDARY = 12 + 12 + 4  # x, v, volume per boundary sample

@@ -241,10 +241,6 @@ class Simulation:
             self.max_speed_sq = z("clock", 1)
             self.health_counts = z("health", 4, dtype=wp.int32)
             self.health_first = z("health", 4, dtype=wp.int32)
-            # scratch for re-sorting
-            self._sort_keys = z("sort", 2 * self.num_fluid, dtype=wp.int32)
-            self._sort_order = z("sort", 2 * self.num_fluid, dtype=wp.int32)
-            self._scratch = {}
             # densities of the initial state, so that frame 0 has them
             self.neighbours.update(self.fluid.x)
             self._compute_density()
@@ -294,18 +290,18 @@ class Simulation:
     _GATHER = {wp.vec3: gather_vec3, wp.float32: gather_float, wp.int64: gather_int64}
 
     def permute(self, array, order):
-        """array[:] = array[order] for one per-particle array (through a scratch copy)."""
-        key = (array.dtype, array.shape)
-        if key not in self._scratch:
-            self._scratch[key] = self.zeros("sort", array.shape, dtype=array.dtype)
-        scratch = self._scratch[key]
+        """array[:] = array[order] for one per-particle array (through a temporary copy)."""
+        scratch = wp.empty_like(array)
         self.launch(self._GATHER[array.dtype], self.num_fluid, [array, order, scratch])
         wp.copy(array, scratch)
 
     def sort_particles(self):
-        """Re-sorts every fluid particle array (and each model's state) into Z-order of cells."""
-        sort_order(self, self.fluid.x, self._sort_keys, self._sort_order)
-        order = self._sort_order
+        """Re-sorts every fluid particle array (and each model's state) into Z-order of cells. The
+        keys, the permutation and the gather copies live only while sorting (every sort_interval
+        steps, outside the captured graph): 40 B a particle that the step itself never holds."""
+        keys = wp.empty(2 * self.num_fluid, dtype=wp.int32, device=self.device)  # radix sort needs 2n
+        order = wp.empty(2 * self.num_fluid, dtype=wp.int32, device=self.device)
+        sort_order(self, self.fluid.x, keys, order)
         for a in (self.fluid.x, self.fluid.v, self.fluid.ids):
             self.permute(a, order)
         self.pressure_solver.reorder(self, order)
