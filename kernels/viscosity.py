@@ -28,22 +28,18 @@ def add_viscosity_acceleration(
     viscosity: float,
     support_radius: float,
     with_vorticity: int,
-    with_gradient: int,
     acceleration: wp.array(dtype=wp.vec3),
     vorticity: wp.array(dtype=wp.vec3),
-    velocity_gradient: wp.array(dtype=wp.mat33),
 ):
     """a_i += nu * laplacian(v)_i with m_j / rho_j as the neighbour volume (eq 4).
 
-    When a turbulence model needs them, the same neighbour loop also yields the vorticity
-    zeta_i = sum_j (m_j/rho_j)(v_i - v_j) x grad W_ij (eq 6) and, with ``with_gradient``, the
-    velocity gradient G_i = sum_j (m_j/rho_j)(v_j - v_i) (x) grad W_ij (eq 8): one pass instead of two."""
+    When a turbulence model needs it, the same neighbour loop also yields the vorticity
+    zeta_i = sum_j (m_j/rho_j)(v_i - v_j) x grad W_ij (eq 6): one pass instead of two."""
     i = wp.tid()
     xi = x[i]
     vi = v[i]
     lap = wp.vec3(0.0)
     curl = wp.vec3(0.0)
-    grad = wp.mat33(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         j = nb.fluid[k]
         x_ij = separation(nb, xi, x[j])
@@ -53,10 +49,6 @@ def add_viscosity_acceleration(
         if with_vorticity != 0:
             gw = cubic_kernel_gradient(x_ij, support_radius)
             curl += curl_term(v_ij, gw, volume)
-            if with_gradient != 0:
-                grad -= volume * wp.outer(v_ij, gw)
     acceleration[i] = acceleration[i] + viscosity * lap
     if with_vorticity != 0:
         vorticity[i] = curl
-        if with_gradient != 0:
-            velocity_gradient[i] = grad

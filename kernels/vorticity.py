@@ -1,4 +1,4 @@
-"""Vorticity zeta = curl v (VR paper eq 6) and the velocity gradient (eq 8), difference form.
+"""Vorticity zeta = curl v (VR paper eq 6), difference form.
 
 Computed once per step over fluid neighbours only (boundary particles carry no
 vorticity, as in the Rankine paper) and shared by every model that needs it. When the
@@ -28,26 +28,17 @@ def compute_vorticity(
     nb: Neighbours,
     particle_mass: float,
     support_radius: float,
-    with_gradient: int,
     vorticity: wp.array(dtype=wp.vec3),
-    velocity_gradient: wp.array(dtype=wp.mat33),
 ):
-    """zeta_i = sum_j (m_j / rho_j) (v_i - v_j) x grad W_ij (eq 6) and, with ``with_gradient``,
-    G_i = sum_j (m_j / rho_j) (v_j - v_i) (x) grad W_ij, whose row a is grad v^a (eq 8), so that
-    the stretching term zeta . grad v (eq 9) is G_i zeta_i."""
+    """zeta_i = sum_j (m_j / rho_j) (v_i - v_j) x grad W_ij (eq 6)."""
     i = wp.tid()
     xi = x[i]
     vi = v[i]
     curl = wp.vec3(0.0)
-    grad = wp.mat33(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         j = nb.fluid[k]
         volume = particle_mass / density[j]
         gw = cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius)
         v_ij = vi - v[j]
         curl += curl_term(v_ij, gw, volume)
-        if with_gradient != 0:
-            grad -= volume * wp.outer(v_ij, gw)
     vorticity[i] = curl
-    if with_gradient != 0:
-        velocity_gradient[i] = grad

@@ -33,10 +33,10 @@ def compute_vorticity_loss(
 @wp.kernel
 def compute_stream_function_and_target(
     x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
     density: wp.array(dtype=float),
     nb: Neighbours,
     vorticity: wp.array(dtype=wp.vec3),
-    velocity_gradient: wp.array(dtype=wp.mat33),
     loss: wp.array(dtype=wp.vec3),
     particle_mass: float,
     alpha: float,
@@ -48,9 +48,14 @@ def compute_stream_function_and_target(
 ):
     """psi_i = 1/(4 pi) sum_j d zeta_j V_j / (|x_ij| + 0.1 H) over kernel neighbours (eq 15), and
     the next step's ideal vorticity zeta^{n+1} = zeta^n + dt (zeta^n . grad v + nu lap zeta^n)
-    (eqs 9-11), with zeta^n = curl v~ + alpha d zeta, the vorticity after this step's refinement."""
+    (eqs 9-11), with zeta^n = curl v~ + alpha d zeta, the vorticity after this step's refinement.
+    The velocity gradient G_i = sum_j (m_j/rho_j)(v_j - v_i) (x) grad W_ij of v~ (row a: grad v^a,
+    eq 8), so that the stretching zeta . grad v (eq 9) is G_i zeta_i, comes from the same loop
+    rather than a stored 3x3 per particle."""
     i = wp.tid()
     xi = x[i]
+    vi = v[i]
+    grad = wp.mat33(0.0)
     base_i = vorticity[i] + alpha * loss[i]
     psi = wp.vec3(0.0)
     lap = wp.vec3(0.0)
@@ -60,8 +65,9 @@ def compute_stream_function_and_target(
         volume = particle_mass / density[j]
         psi += (volume / (wp.length(x_ij) + STREAM_FUNCTION_GUARD * support_radius)) * loss[j]
         lap += artificial_laplacian(base_i - (vorticity[j] + alpha * loss[j]), x_ij, volume, support_radius)
+        grad -= volume * wp.outer(vi - v[j], cubic_kernel_gradient(x_ij, support_radius))
     stream_function[i] = psi / (4.0 * PI)
-    target[i] = base_i + dt[0] * (velocity_gradient[i] * base_i + viscosity * lap)
+    target[i] = base_i + dt[0] * (grad * base_i + viscosity * lap)
 
 
 @wp.kernel

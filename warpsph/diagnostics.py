@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import warp as wp
 
-from warpsph.kernels.vorticity import compute_vorticity
+from warpsph.models.vorticity import curl_of
 
 COLUMNS = ["frame", "time", "steps", "dt", "kinetic_energy", "potential_energy", "rotational_energy", "enstrophy",
            "density_error_mean", "density_error_max", "divergence_iterations", "density_iterations"]
@@ -32,10 +32,7 @@ class Diagnostics:
             self._vorticity = sim.zeros("diagnostics", sim.num_fluid, dtype=wp.vec3)
         f = sim.fluid
         sim.neighbours.update(f.x)  # the lists of the current positions
-        sim.launch(compute_vorticity, sim.num_fluid,
-                   [f.x, f.v, f.density, sim.neighbours.lists, sim.particle_mass, sim.support_radius, 0,
-                    self._vorticity, wp.empty(0, dtype=wp.mat33, device=sim.device)])
-        return self._vorticity.numpy()
+        return curl_of(sim, f.v, self._vorticity).numpy()
 
     def measure(self, sim, frame):
         m = sim.particle_mass

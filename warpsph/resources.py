@@ -15,7 +15,7 @@ NEIGHBOUR_ROWS = 4 * 4  # counts and offsets of both lists
 NEIGHBOUR_LISTS = 4 * (32 + 8)  # initial capacity: 32 fluid, 8 boundary neighbours a particle
 BOUNDARY = 12 + 12 + 4  # x, v, volume per boundary sample
 HASH_GRIDS = 2 * 2 * 4 * 128**3  # two grids of 128^3 cells with start and end indices
-MODEL = {"vorticity_refinement": 36 + 48, "rankine": 24 + 12, "micropolar": 24 + 12}
+MODEL = {"vorticity_refinement": 48, "rankine": 24 + 12, "micropolar": 24 + 12}
 
 
 def estimate_bytes(scene, num_fluid, num_boundary):

@@ -232,7 +232,7 @@ class Simulation:
             # the vorticity of v~, shared by the models, exists only when one reads it
             self.vorticity_field = None
             if any(m.needs_vorticity for m in self.models):
-                self.vorticity_field = VorticityField(self, any(m.needs_gradient for m in self.models))
+                self.vorticity_field = VorticityField(self)
             # clock on the device: dt, previous dt, time, steps, max speed^2
             self.dt = z("clock", 1)
             self.dt_previous = self.array("clock", np.array([scene.time_step_bounds[1]], np.float32), float)

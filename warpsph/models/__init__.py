@@ -10,8 +10,8 @@ Every model has the same small interface (after SPlisHSPlasH's ``NonPressureForc
   re-sorted by cell;
 - ``fields()`` returns the per-particle arrays it publishes for output, by name;
   ``state()`` the arrays a checkpoint must keep;
-- ``needs_vorticity`` / ``needs_gradient`` ask the stepper for the shared vorticity
-  field (and velocity gradient), computed once per step after the divergence solve.
+- ``needs_vorticity`` asks the stepper for the shared vorticity field, computed once per
+  step after the divergence solve.
 
 A scene names its models; a scene without one launches none of their kernels and
 allocates none of their arrays.
@@ -38,7 +38,6 @@ class Model:
 
     name = "model"
     needs_vorticity = False
-    needs_gradient = False
 
     def __init__(self, sim, params=None):
         self.params = params

@@ -12,7 +12,6 @@ class MicropolarModel(Model):
     """Angular velocity omega per particle, coupled to v through nu_t. One launch and a copy."""
 
     needs_vorticity = True
-    needs_gradient = False
 
     def __init__(self, sim, params):
         super().__init__(sim, params)

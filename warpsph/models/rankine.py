@@ -13,7 +13,6 @@ class RankineModel(Model):
     v += sum_j r_c^2/(2r) d omega_j x e_theta, before advection. Two launches."""
 
     needs_vorticity = True
-    needs_gradient = False
 
     def __init__(self, sim, params):
         super().__init__(sim, params)

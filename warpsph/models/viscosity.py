@@ -16,13 +16,10 @@ class Viscosity(Model):
     def __init__(self, sim, params=None):
         super().__init__(sim, params)
         self._empty_vec3 = wp.empty(0, dtype=wp.vec3, device=sim.device)
-        self._empty_mat33 = wp.empty(0, dtype=wp.mat33, device=sim.device)
 
     def step(self, sim):
         f, field = sim.fluid, sim.vorticity_field
         vorticity = field.vorticity if field is not None else self._empty_vec3
-        gradient = field.gradient if field is not None and field.gradient is not None else self._empty_mat33
         sim.launch(add_viscosity_acceleration, sim.num_fluid,
                    [f.x, f.v, f.density, sim.neighbours.lists, sim.particle_mass, sim.scene.fluid.viscosity,
-                    sim.support_radius, int(field is not None), int(field is not None and field.gradient is not None),
-                    f.acceleration, vorticity, gradient])
+                    sim.support_radius, int(field is not None), f.acceleration, vorticity])

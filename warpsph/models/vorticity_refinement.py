@@ -18,7 +18,6 @@ class VorticityRefinementModel(Model):
     next ideal zeta^{n+1} from the vorticity equation (eqs 9-11). Three launches."""
 
     needs_vorticity = True
-    needs_gradient = True
 
     def __init__(self, sim, params):
         super().__init__(sim, params)
@@ -34,7 +33,7 @@ class VorticityRefinementModel(Model):
         alpha = self.params.alpha
         sim.launch(compute_vorticity_loss, n, [self.target, field.vorticity, self.has_target, self.loss])
         sim.launch(compute_stream_function_and_target, n,
-                   [f.x, f.density, sim.neighbours.lists, field.vorticity, field.gradient, self.loss,
+                   [f.x, f.v, f.density, sim.neighbours.lists, field.vorticity, self.loss,
                     sim.particle_mass, alpha, self.viscosity, sim.support_radius, sim.dt,
                     self.stream_function, self.target])
         sim.launch(apply_vorticity_refinement, n,
