@@ -42,8 +42,8 @@ def main():
     parser.add_argument("--warmup", type=int, default=100)
     parser.add_argument("--steps", type=int, default=50)
     parser.add_argument("--density-error", type=float, help="override solver.density_max_error [%]")
-    parser.add_argument("--model", choices=["none", "vorticity_refinement", "rankine", "micropolar"], default="none",
-                        help="turbulence model to enable with its default parameters")
+    parser.add_argument("--model", choices=["none", "vorticity_refinement", "rankine", "micropolar", "all"], default="none",
+                        help="turbulence model to enable with its default parameters (all: the three at once)")
     parser.add_argument("--sort-interval", type=int, help="override solver.sort_interval (0: never re-sort)")
     parser.add_argument("--out", help="JSON file to write")
     args = parser.parse_args()
@@ -61,10 +61,10 @@ def main():
             Path(args.out).with_suffix(".md").write_text(markdown_table(results))
 
 
-def neighbour_passes(result, model):
+def neighbour_passes(result, models):
     """k: neighbour passes a step (density+factor 1; each solver: warm start 1 + source 1 + 2 per
-    iteration; viscosity 1; the model's own passes)."""
-    extra = {"none": 0, "vorticity_refinement": 2, "rankine": 1, "micropolar": 1}[model]
+    iteration; viscosity 1; the models' own passes)."""
+    extra = sum({"none": 0, "vorticity_refinement": 2, "rankine": 1, "micropolar": 1}[m] for m in models)
     return 1 + 4 + 2 * result["mean_divergence_iterations"] + 2 * result["mean_density_iterations"] + 1 + extra
 
 
@@ -99,7 +99,8 @@ def run(args, particles):
     if args.model != "none":
         from warpsph.scene import MODEL_TYPES
 
-        scene = dataclasses.replace(scene, models=(MODEL_TYPES[args.model](),))
+        names = list(MODEL_TYPES) if args.model == "all" else [args.model]
+        scene = dataclasses.replace(scene, models=tuple(MODEL_TYPES[name]() for name in names))
     device = wp.get_device(args.device)
     wp.synchronize_device(device)
     free_before = device.free_memory if device.is_cuda else None
@@ -155,8 +156,9 @@ def run(args, particles):
     }
     from warpsph.simulation import MODEL_NAMES
 
-    result["model"] = MODEL_NAMES[type(scene.models[0])] if scene.models else "none"
-    result["k_passes"] = neighbour_passes(result, result["model"])
+    names = [MODEL_NAMES[type(m)] for m in scene.models] or ["none"]
+    result["model"] = "+".join(names)
+    result["k_passes"] = neighbour_passes(result, names)
     del sim
     return result
 
