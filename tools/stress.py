@@ -1,0 +1,284 @@
+"""Numerical-stability stress matrix: one scene, one parameter changed per cell, does it blow up?
+
+    python tools/stress.py --scale 0.05 --seconds 4 --out tools/results/stress_cpu_dam_break
+    python tools/stress.py --axes alpha cfl --scale 0.05 --seconds 1.0 --out /tmp/stress   # a tiny run
+
+Every cell is the scene as plain DFSPH (the scene's own models removed) with one change:
+
+- ``alpha``: vorticity refinement with that alpha (VR paper; 1.0 is the paper's default),
+- ``beta``: Rankine feedback with that beta,
+- ``nu_t``: micropolar with that transfer coefficient,
+- ``cfl``: the scene's ``time.cfl``,
+- ``fixed_dt``: ``time.fixed_dt`` = that multiple of the CFL time step, the smallest dt the plain run took
+  (the CFL rule at the fastest moment of the flow), i.e. a fixed step that many times above CFL.
+
+The plain cell always runs first: it is the reference of the energy ratio and of the CFL dt. Per cell we
+record whether it blew up (the simulator's health checks raise ``InstabilityError``: NaN, a particle
+through a wall, density above 1.5 rho0, a solver at max_iterations for 50 steps; we record its step,
+time, check, particle id and position and go on), the largest density error over the output frames
+(max_i rho_i / rho0 - 1 of the per-frame density field) and the solver's last average error
+(``sim.statistics()``), the mean density and divergence iterations per solve, and the kinetic energy at
+the end relative to the plain cell's: the VR paper's Fig 7 criterion (a dam break settles; a model must
+not keep, or add, energy the plain solver lets go). Also the mean kinetic energy over the last quarter
+of the run (less sensitive to the phase of a slosh).
+
+Writes OUT.json, OUT.md (a table) and OUT.png (heat map; needs matplotlib).
+"""
+
+import argparse
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+AXES = {  # name -> (default values, label)
+    "alpha": ([0.0, 1.0, 1.2, 1.3, 2.0], "VR alpha"),
+    "beta": ([0.0, 0.6, 1.0], "Rankine beta"),
+    "nu_t": ([0.05, 0.2, 0.4], "micropolar nu_t"),
+    "cfl": ([0.2, 0.4, 0.6, 0.8, 1.0], "CFL factor"),
+    "fixed_dt": ([2.0, 4.0, 8.0], "fixed dt / CFL dt"),
+}
+MODEL_AXES = {"alpha": ("vorticity_refinement", "alpha"), "beta": ("rankine", "beta"),
+              "nu_t": ("micropolar", "transfer_coefficient")}
+REPO = Path(__file__).resolve().parent.parent
+
+
+def cell_scene(base, axis=None, value=None, dt_ref=None):
+    """The plain scene with one change (``axis`` None: the plain cell)."""
+    from warpsph.scene import MODEL_TYPES, parse_dataclass
+
+    scene = dataclasses.replace(base, models=())
+    if axis in MODEL_AXES:
+        kind, key = MODEL_AXES[axis]
+        scene = dataclasses.replace(scene, models=(parse_dataclass(MODEL_TYPES[kind], {key: value}),))
+    elif axis == "cfl":
+        scene = dataclasses.replace(scene, time=dataclasses.replace(scene.time, cfl=value, fixed_dt=None))
+    elif axis == "fixed_dt":
+        scene = dataclasses.replace(scene, time=dataclasses.replace(scene.time, fixed_dt=value * dt_ref))
+    return scene
+
+
+def run_cell(scene, seconds, device, track_dt=False):
+    """Runs one cell; returns its record (never raises for an instability or a failed cell)."""
+    from warpsph.diagnostics import Diagnostics
+    from warpsph.simulation import InstabilityError, Simulation
+
+    start = time.perf_counter()
+    out = {"blew_up": False}
+    frames, dts = [], []
+    try:
+        sim = Simulation(scene, device=device)
+    except Exception as exc:  # noqa: BLE001 - a cell that cannot even start is a result too
+        return {**out, "error": f"{type(exc).__name__}: {exc}", "wall_s": time.perf_counter() - start}
+    out["particles"] = sim.num_fluid
+    diagnostics = Diagnostics()
+    if track_dt:  # every step's dt, for the CFL reference of the fixed-dt cells
+        step = sim.step
+
+        def tracked():
+            step()
+            dts.append(float(sim.dt.numpy()[0]))
+        sim.step = tracked
+    try:
+        sim.run(until_time=seconds, on_frame=lambda s, f: frames.append(diagnostics.measure(s, f)))
+    except InstabilityError as exc:
+        out["blew_up"] = True
+        out["instability"] = {"step": exc.step, "time": exc.time, "check": exc.check,
+                              "particle_id": exc.particle_id,
+                              "position": None if exc.position is None else [float(c) for c in exc.position]}
+    except Exception as exc:  # noqa: BLE001 - e.g. a solver error: recorded, the matrix goes on
+        out["blew_up"] = True
+        out["error"] = f"{type(exc).__name__}: {exc}"
+    stats = sim.statistics()
+    out.update({
+        "steps": sim.step_count, "time_reached": sim.time, "frames": len(frames),
+        "max_density_error_pct": 100 * max((f["density_error_max"] for f in frames), default=float("nan")),
+        "mean_density_error_pct": 100 * float(np.mean([f["density_error_mean"] for f in frames])) if frames else float("nan"),
+        "solver_density_error_pct": 100 * stats["density_error"],
+        "density_iterations": stats["density_iterations"], "divergence_iterations": stats["divergence_iterations"],
+        "dt_mean": sim.time / max(sim.step_count, 1),
+        "ke_end": frames[-1]["kinetic_energy"] if frames else float("nan"),
+        "ke_tail_mean": float(np.mean([f["kinetic_energy"] for f in frames[-max(1, len(frames) // 4):]])) if frames else float("nan"),
+        "ke_max": max((f["kinetic_energy"] for f in frames), default=float("nan")),
+        # per frame, for plots (rounded: the JSON stays small)
+        "kinetic_energy": [float(f"{f['kinetic_energy']:.5g}") for f in frames],
+        "frame_times": [round(f["time"], 5) for f in frames],
+        "wall_s": time.perf_counter() - start,
+    })
+    if dts:
+        out["dt_min_step"] = min(dts)
+    return out
+
+
+def stress(scene_path, scale=0.05, seconds=2.0, axes=None, values=None, device="cpu", log=print):
+    """Runs the matrix; returns the report (dict). ``values`` overrides an axis's values."""
+    from warpsph.scene import load_scene
+
+    base = load_scene(scene_path, scale=scale)
+    axes = list(AXES) if axes is None else list(axes)
+    values = {a: list((values or {}).get(a) or AXES[a][0]) for a in axes}
+    try:  # relative to the repository when it is in it
+        name = str(Path(scene_path).resolve().relative_to(REPO))
+    except ValueError:
+        name = str(scene_path)
+    report = {"scene": name, "scale": scale, "seconds": seconds, "radius": base.particle_radius,
+              "cfl": base.time.cfl, "dt_bounds": list(base.time_step_bounds), "axes": values, "cells": []}
+    plain = run_cell(cell_scene(base), seconds, device, track_dt=True)
+    plain.update(name="plain DFSPH", axis=None, value=None)
+    report["cells"].append(plain)
+    report["particles"] = plain.get("particles")
+    # the CFL dt: the smallest step the plain run took (the CFL rule at its fastest)
+    dt_ref = plain.get("dt_min_step") or base.time_step_bounds[1]
+    report["dt_cfl"] = dt_ref
+    log(_line(plain))
+    for axis in axes:
+        for value in values[axis]:
+            cell = run_cell(cell_scene(base, axis, value, dt_ref), seconds, device)
+            cell.update(name=f"{axis} = {value:g}", axis=axis, value=value)
+            if axis == "fixed_dt":
+                cell["fixed_dt_s"] = value * dt_ref
+            report["cells"].append(cell)
+            log(_line(cell))
+    ke_plain, tail_plain = plain.get("ke_end"), plain.get("ke_tail_mean")
+    for cell in report["cells"]:
+        ok = not cell["blew_up"] and "error" not in cell and ke_plain
+        cell["ke_end_rel_dfsph"] = cell["ke_end"] / ke_plain if ok else None
+        cell["ke_tail_rel_dfsph"] = cell["ke_tail_mean"] / tail_plain if ok and tail_plain else None
+    return report
+
+
+def _line(cell):
+    head = f"{cell['name']:22s}"
+    if "error" in cell and not cell.get("steps"):
+        return head + " ERROR " + cell["error"]
+    status = "stable"
+    if cell["blew_up"]:
+        i = cell.get("instability")
+        status = (f"BLEW UP step {i['step']} t {i['time']:.3f} s: {i['check']}" if i else "FAILED " + cell.get("error", ""))
+    return (head + f" {status}; max density error {cell['max_density_error_pct']:.2f} %, iterations "
+            f"{cell['density_iterations']:.2f}/{cell['divergence_iterations']:.2f}, KE end {cell['ke_end']:.4g} J, "
+            f"{cell['steps']} steps, {cell['wall_s']:.1f} s")
+
+
+def _fmt(v, spec):
+    return "—" if v is None or (isinstance(v, float) and not np.isfinite(v)) else format(v, spec)
+
+
+def markdown(report):
+    lines = [f"Stress matrix: `{report['scene']}` at scale {report['scale']} ({report['particles']} fluid particles, "
+             f"r = {report['radius'] * 1000:.1f} mm), {report['seconds']} s simulated; CFL dt (smallest step of the "
+             f"plain run) {report['dt_cfl'] * 1000:.2f} ms, dt bounds {report['dt_bounds'][0] * 1000:.2f}.."
+             f"{report['dt_bounds'][1] * 1000:.2f} ms.", "",
+             "| cell | blew up | max density error % | solver avg error % | density it. | divergence it. | "
+             "KE end / DFSPH | KE last quarter / DFSPH | steps | wall s |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for c in report["cells"]:
+        if c["blew_up"]:
+            i = c.get("instability")
+            blew = (f"**yes**: step {i['step']}, t = {i['time']:.3f} s, {i['check']}, particle {i['particle_id']}"
+                    if i else "**failed**: " + c.get("error", ""))
+        else:
+            blew = "error: " + c["error"] if "error" in c else "no"
+        name = c["name"] + (f" ({c['fixed_dt_s'] * 1000:.2f} ms)" if "fixed_dt_s" in c else "")
+        lines.append(f"| {name} | {blew} | {_fmt(c.get('max_density_error_pct'), '.2f')} | "
+                     f"{_fmt(c.get('solver_density_error_pct'), '.3f')} | {_fmt(c.get('density_iterations'), '.2f')} | "
+                     f"{_fmt(c.get('divergence_iterations'), '.2f')} | {_fmt(c.get('ke_end_rel_dfsph'), '.3f')} | "
+                     f"{_fmt(c.get('ke_tail_rel_dfsph'), '.3f')} | {c.get('steps', 0)} | {c['wall_s']:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
+def heat_map(report, out):
+    """Rows: axes, columns: their values; three panels (KE of the last quarter / DFSPH, max density error, density
+    iterations); a blown-up cell is black with the time it failed."""
+    from warpsph.plots import _pyplot
+
+    plt = _pyplot()
+    rows = [("plain", [c for c in report["cells"] if c["axis"] is None])]
+    rows += [(a, [c for c in report["cells"] if c["axis"] == a]) for a in report["axes"]]
+    width = max(len(cells) for _, cells in rows)
+    panels = [("ke_tail_rel_dfsph", "kinetic energy, mean of the last quarter / plain DFSPH", "coolwarm", ".2f"),
+              ("max_density_error_pct", "max density error [%]", "viridis", ".1f"),
+              ("density_iterations", "density iterations / solve", "viridis", ".1f")]
+    fig, axes = plt.subplots(len(panels), 1, figsize=(max(1.6 * width + 2.5, 7.5), 1.0 + 0.55 * len(rows) * len(panels) + 0.6 * len(panels)))
+    for ax, (key, title, cmap, spec) in zip(np.atleast_1d(axes), panels):
+        grid = np.full((len(rows), width), np.nan)
+        for r, (_, cells) in enumerate(rows):
+            for k, c in enumerate(cells):
+                if not c["blew_up"] and c.get(key) is not None:
+                    grid[r, k] = c[key]
+        image = np.ma.masked_invalid(grid)
+        colours = plt.get_cmap(cmap).copy()
+        colours.set_bad("white")
+        kwargs = {}
+        if key == "ke_tail_rel_dfsph" and np.isfinite(grid).any():
+            span = max(abs(np.log10(np.nanmax(grid))), abs(np.log10(np.nanmin(grid))), 0.05)
+            from matplotlib.colors import LogNorm
+
+            kwargs["norm"] = LogNorm(10 ** -span, 10 ** span)
+        shown = ax.imshow(image, cmap=colours, aspect="auto", **kwargs)
+        fig.colorbar(shown, ax=ax)
+        for r, (_, cells) in enumerate(rows):
+            for k, c in enumerate(cells):
+                label = "plain" if c["axis"] is None else f"{c['value']:g}"
+                if c["blew_up"]:
+                    ax.add_patch(plt.Rectangle((k - 0.5, r - 0.5), 1, 1, color="black"))
+                    t = c.get("instability", {}).get("time")
+                    text = f"{label}\nblew up" + (f"\nt={t:.2f}s" if t is not None else "")
+                    ax.text(k, r, text, ha="center", va="center", color="white", fontsize=7)
+                else:
+                    colour = "black"
+                    if c.get(key) is not None and np.isfinite(c[key]):
+                        red, green, blue, _ = shown.cmap(shown.norm(c[key]))
+                        colour = "white" if 0.299 * red + 0.587 * green + 0.114 * blue < 0.45 else "black"
+                    ax.text(k, r, f"{label}\n{_fmt(c.get(key), spec)}", ha="center", va="center", fontsize=7, color=colour)
+        ax.set_yticks(range(len(rows)), [AXES[a][1] if a in AXES else "plain DFSPH" for a, _ in rows])
+        ax.set_xticks([])
+        ax.set_title(title)
+    fig.suptitle(f"{Path(report['scene']).name}, scale {report['scale']}, {report['particles']} particles, "
+                 f"{report['seconds']} s")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
+def write(report, out):
+    """OUT.json, OUT.md and OUT.png for the prefix ``out`` (a .json/.md/.png suffix is dropped)."""
+    out = Path(out)
+    if out.suffix in (".json", ".md", ".png"):
+        out = out.with_suffix("")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    (out.parent / (out.name + ".json")).write_text(json.dumps(report, indent=1) + "\n")
+    (out.parent / (out.name + ".md")).write_text(markdown(report))
+    try:
+        heat_map(report, out.parent / (out.name + ".png"))
+    except Exception as exc:  # noqa: BLE001 - no matplotlib: the JSON and the table are the result
+        print(f"no heat map: {exc}")
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scene", default=str(REPO / "scenes" / "dam_break.json"))
+    parser.add_argument("--scale", type=float, default=0.05, help="particle-count scale (load_scene)")
+    parser.add_argument("--seconds", type=float, default=2.0, help="simulated time per cell [s]")
+    parser.add_argument("--axes", nargs="+", choices=list(AXES), default=list(AXES))
+    for axis, (defaults, label) in AXES.items():
+        parser.add_argument("--" + axis.replace("_", "-"), nargs="+", type=float, dest=axis,
+                            help=f"{label} values (default {' '.join(f'{v:g}' for v in defaults)})")
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--out", help="output prefix: OUT.json, OUT.md, OUT.png")
+    args = parser.parse_args()
+    import warp as wp
+
+    wp.config.log_level = wp.LOG_WARNING
+    values = {a: getattr(args, a) for a in AXES if getattr(args, a)}
+    report = stress(args.scene, args.scale, args.seconds, args.axes, values, args.device)
+    report.update(device=args.device, warp=wp.__version__)
+    print(markdown(report))
+    if args.out:
+        write(report, args.out)
+
+
+if __name__ == "__main__":
+    main()
