@@ -31,43 +31,62 @@ def compute_vorticity_loss(
 
 
 @wp.kernel
-def compute_stream_function_and_target(
+def compute_stream_function(
+    x: wp.array(dtype=wp.vec3),
+    density: wp.array(dtype=float),
+    nb: Neighbours,
+    loss: wp.array(dtype=wp.vec3),
+    particle_mass: float,
+    support_radius: float,
+    stream_function: wp.array(dtype=wp.vec3),
+):
+    """psi_i = 1/(4 pi) sum_j d zeta_j V_j / (|x_ij| + 0.1 H) over kernel neighbours (eq 15)."""
+    i = wp.tid()
+    xi = x[i]
+    psi = wp.vec3(0.0)
+    for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
+        j = nb.fluid[k]
+        x_ij = separation(nb, xi, x[j])
+        psi += (particle_mass / density[j] / (wp.length(x_ij) + STREAM_FUNCTION_GUARD * support_radius)) * loss[j]
+    stream_function[i] = psi / (4.0 * PI)
+
+
+@wp.kernel
+def compute_target_vorticity(
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
     density: wp.array(dtype=float),
     nb: Neighbours,
     vorticity: wp.array(dtype=wp.vec3),
-    loss: wp.array(dtype=wp.vec3),
     particle_mass: float,
-    alpha: float,
     viscosity: float,
     support_radius: float,
     dt: wp.array(dtype=float),
-    stream_function: wp.array(dtype=wp.vec3),
     target: wp.array(dtype=wp.vec3),
 ):
-    """psi_i = 1/(4 pi) sum_j d zeta_j V_j / (|x_ij| + 0.1 H) over kernel neighbours (eq 15), and
-    the next step's ideal vorticity zeta^{n+1} = zeta^n + dt (zeta^n . grad v + nu lap zeta^n)
-    (eqs 9-11), with zeta^n = curl v~ + alpha d zeta, the vorticity after this step's refinement.
-    The velocity gradient G_i = sum_j (m_j/rho_j)(v_j - v_i) (x) grad W_ij of v~ (row a: grad v^a,
-    eq 8), so that the stretching zeta . grad v (eq 9) is G_i zeta_i, comes from the same loop
-    rather than a stored 3x3 per particle."""
+    """The next step's ideal vorticity zeta^{n+1} = zeta^n + dt (zeta^n . grad v + nu lap zeta^n)
+    (eqs 9-11), where zeta^n = curl v^n is the vorticity of the refined velocity (Algorithm 2's first
+    line) and lap its artificial Laplacian (eq 10). The velocity gradient G_i = sum_j (m_j/rho_j)
+    (v_j - v_i) (x) grad W_ij (row a: grad v^a, eq 8), so that the stretching is G_i zeta_i, comes
+    from the same loop rather than a stored 3x3 per particle.
+
+    Taking zeta^n from what the refinement realised, not from what it asked for (curl v~ + alpha
+    d zeta), matters: the stream function summed within h realises only part of d zeta, and the
+    unrealised part would come back in the next d zeta multiplied by alpha; with alpha > 1 that
+    grew 1.2x a step until a dam break blew up (alpha 1.2, 1.3, 2)."""
     i = wp.tid()
     xi = x[i]
     vi = v[i]
-    grad = wp.mat33(0.0)
-    base_i = vorticity[i] + alpha * loss[i]
-    psi = wp.vec3(0.0)
+    zi = vorticity[i]
     lap = wp.vec3(0.0)
+    grad = wp.mat33(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         j = nb.fluid[k]
         x_ij = separation(nb, xi, x[j])
         volume = particle_mass / density[j]
-        psi += (volume / (wp.length(x_ij) + STREAM_FUNCTION_GUARD * support_radius)) * loss[j]
-        lap += artificial_laplacian(base_i - (vorticity[j] + alpha * loss[j]), x_ij, volume, support_radius)
+        lap += artificial_laplacian(zi - vorticity[j], x_ij, volume, support_radius)
         grad -= volume * wp.outer(vi - v[j], cubic_kernel_gradient(x_ij, support_radius))
-    stream_function[i] = psi / (4.0 * PI)
-    target[i] = base_i + dt[0] * (grad * base_i + viscosity * lap)
+    target[i] = zi + dt[0] * (grad * zi + viscosity * lap)
 
 
 @wp.kernel

@@ -124,21 +124,13 @@ def sph_curl_z(sim):
     """z-vorticity of the current state with the simulator's SPH curl (fresh neighbour lists and densities)."""
     import warp as wp
 
+    from warpsph.models.vorticity import curl_of
+
     f = sim.fluid
     with wp.ScopedDevice(sim.device):
         sim.neighbours.update(f.x)
         sim._compute_density()
-        curl = wp.zeros(sim.num_fluid, dtype=wp.vec3)
-        try:
-            from warpsph.models.vorticity import curl_of
-        except ImportError:  # older warpsph: the kernel with its velocity-gradient arguments
-            from warpsph.kernels.vorticity import compute_vorticity
-
-            sim.launch(compute_vorticity, sim.num_fluid,
-                       [f.x, f.v, f.density, sim.neighbours.lists, sim.particle_mass, sim.support_radius, 0, curl,
-                        wp.empty(0, dtype=wp.mat33)])
-        else:
-            curl_of(sim, f.v, curl)
+        curl = curl_of(sim, f.v, wp.zeros(sim.num_fluid, dtype=wp.vec3))
     return curl.numpy()[:, 2].astype(np.float64)
 
 

@@ -4,18 +4,21 @@ import warp as wp
 
 from warpsph.kernels.vorticity_refinement import (
     apply_vorticity_refinement,
-    compute_stream_function_and_target,
+    compute_stream_function,
+    compute_target_vorticity,
     compute_vorticity_loss,
 )
 
 from . import Model, register
+from .vorticity import curl_of
 
 
 @register("vorticity_refinement")
 class VorticityRefinementModel(Model):
     """Per step, after the divergence solve gave v~ and its vorticity zeta~ (shared field):
-    d zeta = zeta^{n+1} - zeta~ (eq 12), psi (eq 15), v += alpha curl psi (eqs 16-17), and the
-    next ideal zeta^{n+1} from the vorticity equation (eqs 9-11). Three launches."""
+    d zeta = zeta^{n+1} - zeta~ (eq 12), psi (eq 15), v += alpha curl psi (eqs 16-17); then
+    zeta^n = curl v of the refined velocity and from it the next ideal zeta^{n+1} (eqs 9-11).
+    Four neighbour passes."""
 
     needs_vorticity = True
 
@@ -23,22 +26,21 @@ class VorticityRefinementModel(Model):
         super().__init__(sim, params)
         n = sim.num_fluid
         self.target = sim.zeros(self.name, n, dtype=wp.vec3)  # zeta^{n+1}, carried to the next step
-        self.loss = sim.zeros(self.name, n, dtype=wp.vec3)  # d zeta
+        self.work = sim.zeros(self.name, n, dtype=wp.vec3)  # d zeta, then the curl of the refined v
         self.stream_function = sim.zeros(self.name, n, dtype=wp.vec3)  # psi
         self.viscosity = sim.scene.fluid.viscosity if params.viscosity is None else params.viscosity
         self.has_target = 0
 
     def step(self, sim):
         f, n, field = sim.fluid, sim.num_fluid, sim.vorticity_field
-        alpha = self.params.alpha
-        sim.launch(compute_vorticity_loss, n, [self.target, field.vorticity, self.has_target, self.loss])
-        sim.launch(compute_stream_function_and_target, n,
-                   [f.x, f.v, f.density, sim.neighbours.lists, field.vorticity, self.loss,
-                    sim.particle_mass, alpha, self.viscosity, sim.support_radius, sim.dt,
-                    self.stream_function, self.target])
+        nb, mass, H = sim.neighbours.lists, sim.particle_mass, sim.support_radius
+        sim.launch(compute_vorticity_loss, n, [self.target, field.vorticity, self.has_target, self.work])
+        sim.launch(compute_stream_function, n, [f.x, f.density, nb, self.work, mass, H, self.stream_function])
         sim.launch(apply_vorticity_refinement, n,
-                   [f.x, f.density, sim.neighbours.lists, self.stream_function, sim.particle_mass, alpha,
-                    sim.support_radius, f.v])
+                   [f.x, f.density, nb, self.stream_function, mass, self.params.alpha, H, f.v])
+        refined = curl_of(sim, f.v, self.work)  # zeta^n of Algorithm 2
+        sim.launch(compute_target_vorticity, n,
+                   [f.x, f.v, f.density, nb, refined, mass, self.viscosity, H, sim.dt, self.target])
         self.has_target = 1
 
     def reorder(self, sim, order):
