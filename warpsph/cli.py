@@ -143,9 +143,9 @@ def _simulate(sim, outputs, frames, args, options, append):
             from .plots import plot_slice
 
             fields = sim.fields()
-            values = (np.linalg.norm(fields["vorticity"].numpy(), axis=1) if "vorticity" in fields
-                      else np.linalg.norm(sim.fluid.v.numpy(), axis=1))
-            plot_slice(sim.fluid.x.numpy(), values, outputs.out.with_name(f"{outputs.out.stem}.preview.{frame:05d}.png"),
+            values = (np.linalg.norm(sim.host(fields["vorticity"]), axis=1) if "vorticity" in fields
+                      else np.linalg.norm(sim.host(sim.fluid.v), axis=1))
+            plot_slice(sim.host(sim.fluid.x), values, outputs.out.with_name(f"{outputs.out.stem}.preview.{frame:05d}.png"),
                        "z", thickness=2.0 * scene.particle_diameter, title=f"{scene.name}, frame {frame}, t = {sim.time:.3f} s")
 
     previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}

@@ -27,18 +27,18 @@ class Diagnostics:
 
     def _vorticity_of(self, sim):
         if sim.vorticity_field is not None:
-            return sim.vorticity_field.vorticity.numpy()
+            return sim.host(sim.vorticity_field.vorticity)
         if self._vorticity is None:  # plain DFSPH: a scratch array owned by the diagnostics
-            self._vorticity = sim.zeros("diagnostics", sim.num_fluid, dtype=wp.vec3)
+            self._vorticity = sim.zeros("diagnostics", sim.capacity, dtype=wp.vec3)
         f = sim.fluid
         sim.neighbours.update(f.x)  # the lists of the current positions
-        return curl_of(sim, f.v, self._vorticity).numpy()
+        return sim.host(curl_of(sim, f.v, self._vorticity))
 
     def measure(self, sim, frame):
         m = sim.particle_mass
-        x = sim.fluid.x.numpy().astype(np.float64)
-        v = sim.fluid.v.numpy().astype(np.float64)
-        rho = sim.fluid.density.numpy().astype(np.float64)
+        x = sim.host(sim.fluid.x).astype(np.float64)
+        v = sim.host(sim.fluid.v).astype(np.float64)
+        rho = sim.host(sim.fluid.density).astype(np.float64)
         g = np.asarray(sim.scene.gravity, np.float64)
         zeta = self._vorticity_of(sim).astype(np.float64)
         volume = m / np.maximum(rho, 1e-9)

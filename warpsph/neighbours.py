@@ -24,7 +24,7 @@ class NeighbourSearch:
 
     def __init__(self, sim, boundary_x: wp.array):
         self.sim = sim
-        n = sim.num_fluid
+        n = sim.capacity
         self.support_radius = sim.support_radius
         self.fluid_grid = wp.HashGrid(GRID_DIM, GRID_DIM, GRID_DIM, device=sim.device)
         self.boundary_x = boundary_x
@@ -52,7 +52,7 @@ class NeighbourSearch:
         sim = self.sim
         n = sim.num_fluid
         H = self.support_radius
-        self.fluid_grid.build(x, H)
+        self.fluid_grid.build(sim.active(x), H)
         box = [self.lower, self.period]
         sim.launch(nk.find_neighbours, n, [self.fluid_grid.id, x, x, H, 1, *box, 0, self.fluid_counts, self._no_list])
         wp.utils.array_scan(self.fluid_counts, self.fluid_offsets, inclusive=False)

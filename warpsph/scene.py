@@ -139,6 +139,44 @@ class Obstacle:
         return self.motion is not None or self.dynamics is not None
 
 
+@dataclass(frozen=True)
+class Emitter:
+    """Inflow: every time the last layer has moved one particle spacing, a new lattice layer of
+    particles moving at ``velocity`` (along one axis) fills the cross-section of the box [min, max]
+    at its upstream face. ``end`` null: until the run ends."""
+
+    min: Vec3
+    max: Vec3
+    velocity: Vec3
+    start: float = field(default=0.0, metadata=_check("a number >= 0", lambda v: v >= 0))  # [s]
+    end: typing.Optional[float] = None  # [s]
+
+    def validate(self, file, key):
+        if any(lo > hi for lo, hi in zip(self.min, self.max)):
+            raise SceneError(file, key, f"min {list(self.min)} must not exceed max {list(self.max)}")
+        moving = [k for k, c in enumerate(self.velocity) if c != 0.0]
+        if len(moving) != 1:
+            raise SceneError(file, f"{key}.velocity", f"expected a velocity along one axis (e.g. [1.5, 0, 0]), got {list(self.velocity)}")
+        if self.end is not None and self.end <= self.start:
+            raise SceneError(file, f"{key}.end", f"must be after start ({self.start:g} s), got {self.end:g}")
+
+    @property
+    def axis(self):
+        return next(k for k, c in enumerate(self.velocity) if c != 0.0)
+
+
+@dataclass(frozen=True)
+class Sink:
+    """Outflow: fluid particles inside the box [min, max] are removed (checked every step)."""
+
+    min: Vec3
+    max: Vec3
+
+    def validate(self, file, key):
+        if any(lo >= hi for lo, hi in zip(self.min, self.max)):
+            raise SceneError(file, key, f"min {list(self.min)} must be below max {list(self.max)} on every axis")
+
+
 DT_MAX_PER_RADIUS = 0.2  # [s/m]: the default dt_max is proportional to the particle radius
 
 
@@ -223,11 +261,13 @@ class ModelConfig:
 class Scene:
     particle_radius: float = field(metadata=_positive())  # [m]; support radius is 4r
     domain: Box
-    fluid_blocks: typing.Tuple[FluidBlock, ...]
+    fluid_blocks: typing.Tuple[FluidBlock, ...] = ()
     name: str = "scene"
     fluid: Fluid = Fluid()
     gravity: Vec3 = (0.0, -9.81, 0.0)  # [m/s^2]
     obstacles: typing.Tuple[Obstacle, ...] = ()
+    emitters: typing.Tuple[Emitter, ...] = ()
+    sinks: typing.Tuple[Sink, ...] = ()
     time: TimeStepping = TimeStepping()
     solver: Solver = Solver()
     output: Output = Output()
@@ -250,8 +290,11 @@ class Scene:
         return min(dt_min, dt_max), dt_max
 
     def validate(self, file, key):
-        if not self.fluid_blocks:
-            raise SceneError(file, "fluid_blocks", "the scene has no fluid: give at least one block")
+        if not self.fluid_blocks and not self.emitters:
+            raise SceneError(file, "fluid_blocks", "the scene has no fluid: give at least one block or emitter")
+        for n, e in enumerate(self.emitters):
+            if any(s < a - 1e-9 or t > b + 1e-9 for s, t, a, b in zip(e.min, e.max, self.domain.min, self.domain.max)):
+                raise SceneError(file, f"emitters[{n}]", f"box {list(e.min)}..{list(e.max)} lies outside the domain")
         lo, hi = self.domain.min, self.domain.max
         for n, block in enumerate(self.fluid_blocks):
             if any(s < a - 1e-9 or e > b + 1e-9 for s, e, a, b in zip(block.start, block.end, lo, hi)):

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from warpsph import sampling
 from warpsph.bodies import BODY_INSET, MovingBodies, load_body
+from warpsph.inflow import Inflow
 from warpsph.kernels.bodies import mark_fluid_clear_of_mesh
 from warpsph.kernels.boundary import compute_boundary_volume
 from warpsph.kernels.density import compute_density_and_factor
@@ -140,13 +141,14 @@ def sample_scene(scene: Scene):
         raise SceneError(scene.source, "particle_radius",
                          f"r = {scene.particle_radius:.3g} m needs about {max(fluid, walls):.3g} particles, over the "
                          f"{MAX_PARTICLES:,} limit: use a larger radius or a smaller --scale")
-    if fluid == 0:
-        raise SceneError(scene.source, "fluid_blocks", "every block is thinner than one particle spacing: no fluid")
+    if fluid == 0 and not any(e.start == 0.0 for e in scene.emitters):
+        raise SceneError(scene.source, "fluid_blocks", "no fluid at t = 0: every block is thinner than one particle "
+                                                       "spacing (or missing) and no emitter starts at 0")
     d = scene.particle_diameter
     blocks = [sampling.fill_block(b.start, b.end, d) for b in scene.fluid_blocks]
-    fluid_x = np.concatenate(blocks)
+    fluid_x = np.concatenate(blocks) if blocks else np.zeros((0, 3), np.float32)
     fluid_v = np.concatenate([np.tile(np.asarray(b.velocity, np.float32), (len(p), 1))
-                              for b, p in zip(scene.fluid_blocks, blocks)])
+                              for b, p in zip(scene.fluid_blocks, blocks)]) if blocks else np.zeros((0, 3), np.float32)
     # walls stand off 1.2 r from the faces; along periodic axes they span the domain exactly
     offset = np.where(np.asarray(scene.domain.period) > 0, 0.0, WALL_OFFSET * scene.particle_radius)
     bodies = [sampling.sample_box_walls(np.asarray(scene.domain.min) - offset, np.asarray(scene.domain.max) + offset, d,
@@ -200,14 +202,17 @@ class Simulation:
             body = np.concatenate([body] + [np.full(len(b.samples), index[id(b)], np.int32) for b in moving])
         self.num_fluid = len(fluid_x)
         self.num_boundary = len(boundary_x)
-        check_fits(scene, self.num_fluid, self.num_boundary, self.device)  # refuse before allocating
+        self.inflow = Inflow(scene, self.num_fluid) if scene.emitters or scene.sinks else None
+        # per-particle arrays hold the fluid at its largest: the initial particles and what emitters add
+        self.capacity = self.num_fluid + (self.inflow.room if self.inflow is not None else 0)
+        self._per_particle = []
+        check_fits(scene, self.capacity, self.num_boundary, self.device)  # refuse before allocating
         with wp.ScopedDevice(self.device):
-            z = self.zeros
+            z, p = self.zeros, self.per_particle
             self.fluid = FluidParticles(
-                x=self.array("fluid", fluid_x, wp.vec3), v=self.array("fluid", fluid_v, wp.vec3),
-                ids=self.array("fluid", np.arange(self.num_fluid, dtype=np.int64), wp.int64),
-                density=z("fluid", self.num_fluid), factor=z("fluid", self.num_fluid),
-                acceleration=z("fluid", self.num_fluid, dtype=wp.vec3))
+                x=p("fluid", wp.vec3, fluid_x), v=p("fluid", wp.vec3, fluid_v),
+                ids=p("fluid", wp.int64, np.arange(self.num_fluid, dtype=np.int64)),
+                density=p("fluid"), factor=p("fluid"), acceleration=p("fluid", wp.vec3))
             has_dynamic = any(b.kind == "dynamic" for b in moving)
             first_dynamic = first_moving + sum(len(b.samples) for b in moving if b.kind == "kinematic")
             self.boundary = BoundaryParticles(
@@ -241,6 +246,8 @@ class Simulation:
             self.max_speed_sq = z("clock", 1)
             self.health_counts = z("health", 4, dtype=wp.int32)
             self.health_first = z("health", 4, dtype=wp.int32)
+            if self.inflow is not None:  # the layers due at t = 0
+                self.inflow.emit(self, 0.0)
             # densities of the initial state, so that frame 0 has them
             self.neighbours.update(self.fluid.x)
             self._compute_density()
@@ -277,6 +284,23 @@ class Simulation:
         self.allocations[owner] += a.capacity
         return a
 
+    def per_particle(self, owner, dtype=float, data=None):
+        """A per-fluid-particle array of ``capacity`` entries (room for emitted particles), with
+        ``data`` in its first rows; registered, so that emitted particles start at zero in it."""
+        a = self.zeros(owner, self.capacity, dtype=dtype)
+        if data is not None and len(data):
+            a[: len(data)].assign(np.ascontiguousarray(data))
+        self._per_particle.append(a)
+        return a
+
+    def active(self, array):
+        """The rows of a per-particle array that hold particles (a view; the array itself when full)."""
+        return array if array.shape[0] == self.num_fluid else array[: self.num_fluid]
+
+    def host(self, array):
+        """The particles' rows of a per-particle array, copied to the host."""
+        return self.active(array).numpy()
+
     def array(self, owner, data, dtype):
         a = wp.array(data, dtype=dtype, device=self.device)
         self.allocations[owner] += a.capacity
@@ -302,6 +326,11 @@ class Simulation:
         keys = wp.empty(2 * self.num_fluid, dtype=wp.int32, device=self.device)  # radix sort needs 2n
         order = wp.empty(2 * self.num_fluid, dtype=wp.int32, device=self.device)
         sort_order(self, self.fluid.x, keys, order)
+        self.reorder_particles(order)
+
+    def reorder_particles(self, order):
+        """Permutes every array that carries a particle's state from step to step (the others are
+        recomputed each step) by ``order``: re-sorting and sink compaction."""
         for a in (self.fluid.x, self.fluid.v, self.fluid.ids):
             self.permute(a, order)
         self.pressure_solver.reorder(self, order)
@@ -316,6 +345,9 @@ class Simulation:
         densities of the new positions: it turns v^n (advected at the end of the last
         step) into the divergence-free v~ that the models refine."""
         with wp.ScopedDevice(self.device):
+            if self.inflow is not None:
+                with self.timer("inflow"):  # sinks remove, emitters add: the count changes here only
+                    self.inflow.update(self)
             interval = self.scene.solver.sort_interval
             if interval and self.step_count % interval == 0:
                 with self.timer("sort"):
@@ -338,14 +370,15 @@ class Simulation:
         self.step_count += 1
 
     def _step_with_graph(self):
-        if self._graph is None or self._graph_generation != self.neighbours.generation:
+        key = (self.neighbours.generation, self.num_fluid)  # the graph holds array pointers and launch sizes
+        if self._graph is None or self._graph_generation != key:
             if self.step_count == 0:  # load the modules outside the capture
                 self._solve_step()
                 return
             with wp.ScopedCapture(device=self.device) as capture:
                 self._solve_step()
             self._graph = capture.graph
-            self._graph_generation = self.neighbours.generation
+            self._graph_generation = key
         wp.capture_launch(self._graph)
 
     def _solve_step(self):
@@ -430,13 +463,18 @@ class Simulation:
 
     def state_flags(self):
         """Host-side state: step and frame counters and the models' flags."""
-        out = {"step": self.step_count, "frame": self.frame}
+        out = {"step": self.step_count, "frame": self.frame, "num_fluid": self.num_fluid}
+        if self.inflow is not None:
+            out.update(self.inflow.state())
         for m in self.turbulence_models:
             out.update({f"{m.name}.{k}": v for k, v in vars(m).items() if k.startswith("has_")})
         return out
 
     def restore_flags(self, flags):
         self.step_count, self.frame = int(flags["step"]), int(flags["frame"])
+        self.num_fluid = int(flags.get("num_fluid", self.num_fluid))
+        if self.inflow is not None:
+            self.inflow.restore(flags)
         if self.moving_bodies is not None:
             self.moving_bodies.load_state()
         for m in self.turbulence_models:

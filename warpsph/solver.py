@@ -38,12 +38,11 @@ WARM_START_FACTOR = {DIVERGENCE: 0.5, DENSITY: 0.5}
 class DFSPHSolver:
     def __init__(self, sim):
         self.sim = sim
-        n = sim.num_fluid
         z = sim.zeros
-        self.stiffness = z("pressure", n)
-        self.error = z("pressure", n)
+        self.stiffness = sim.per_particle("pressure")
+        self.error = sim.per_particle("pressure")
         # accumulated stiffness of the last solve of each kind, for the warm start
-        self.pressure_sum = [z("pressure", n), z("pressure", n)]
+        self.pressure_sum = [sim.per_particle("pressure"), sim.per_particle("pressure")]
         self.error_stats = z("pressure", 2)  # sum, max
         self.average_error = [z("pressure", 1), z("pressure", 1)]
         self.condition = z("pressure", 1, dtype=wp.int32)  # read by wp.capture_while

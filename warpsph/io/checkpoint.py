@@ -80,7 +80,7 @@ def load_checkpoint(path, scene=None, device=None):
         if scene_hash(scene) != f.attrs["scene_hash"]:
             raise SceneError(path, "", "the scene differs from the one this checkpoint was written for")
         sim = Simulation(scene, device=device)
-        if len(f["fluid/x"]) != sim.num_fluid:
+        if len(f["fluid/x"]) != sim.capacity:
             raise SceneError(path, "", "particle count differs from the scene's")
         for name, a in sim.state_arrays().items():
             a.assign(f[name][...])

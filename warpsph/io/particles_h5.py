@@ -27,11 +27,11 @@ class ParticleFrames:
         g = self.frames.create_group(name)
         g.attrs["time"] = sim.time
         g.attrs["step"] = sim.step_count
-        g["x"] = sim.fluid.x.numpy()
-        g["v"] = sim.fluid.v.numpy()
-        g["ids"] = sim.fluid.ids.numpy()
+        g["x"] = sim.host(sim.fluid.x)
+        g["v"] = sim.host(sim.fluid.v)
+        g["ids"] = sim.host(sim.fluid.ids)
         for field, array in sim.fields().items():
-            g[field] = array.numpy()
+            g[field] = sim.host(array)
         self.file.flush()
 
     def close(self):

@@ -212,11 +212,11 @@ def frame_writer(cache):
 
     def on_frame(sim, frame):
         f = sim.fluid
-        fields = {name: a.numpy() for name, a in sim.fields().items()}
+        fields = {name: sim.host(a) for name, a in sim.fields().items()}
         if "vorticity" in fields:
             fields["vorticity_magnitude"] = np.linalg.norm(fields["vorticity"], axis=1)
         poses = sim.moving_bodies.poses() if sim.moving_bodies is not None else None
-        cache.write_frame(frame, f.x.numpy(), f.v.numpy(), f.ids.numpy(), sim.scene.particle_radius, fields, poses)
+        cache.write_frame(frame, sim.host(f.x), sim.host(f.v), sim.host(f.ids), sim.scene.particle_radius, fields, poses)
 
     return on_frame
 

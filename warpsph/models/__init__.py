@@ -3,7 +3,8 @@
 Every model has the same small interface (after SPlisHSPlasH's ``NonPressureForceBase``):
 
 - ``__init__(sim, params)`` allocates the model's own per-particle arrays through
-  ``sim.zeros(owner, ...)`` (so allocations are accounted per model);
+  ``sim.per_particle(owner, dtype)`` (accounted per model, sized for emitted particles too,
+  and zeroed where an emitter adds particles);
 - ``step(sim)`` runs in the non-pressure phase of the step, after the divergence
   solve, adding to ``sim.fluid.acceleration`` or refining ``sim.fluid.v`` directly;
 - ``reorder(sim, order)`` permutes the model's per-particle state when the fluid is

@@ -15,9 +15,8 @@ class MicropolarModel(Model):
 
     def __init__(self, sim, params):
         super().__init__(sim, params)
-        n = sim.num_fluid
-        self.omega = sim.zeros(self.name, n, dtype=wp.vec3)
-        self.omega_next = sim.zeros(self.name, n, dtype=wp.vec3)
+        self.omega = sim.per_particle(self.name, wp.vec3)
+        self.omega_next = sim.per_particle(self.name, wp.vec3)
 
     def step(self, sim):
         p, f = self.params, sim.fluid
@@ -38,5 +37,5 @@ class MicropolarModel(Model):
 
     def rotational_energy(self, sim):
         """sum_i 1/2 m I |omega_i|^2 with micro-inertia I = 1 / Theta^-1 (host read)."""
-        w = self.omega.numpy()
+        w = sim.host(self.omega)
         return 0.5 * sim.particle_mass / self.params.inverse_inertia * float((w.astype("f8") ** 2).sum())

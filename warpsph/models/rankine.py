@@ -16,9 +16,8 @@ class RankineModel(Model):
 
     def __init__(self, sim, params):
         super().__init__(sim, params)
-        n = sim.num_fluid
-        self.previous = sim.zeros(self.name, n, dtype=wp.vec3)  # omega^{n-1}
-        self.change = sim.zeros(self.name, n, dtype=wp.vec3)  # d omega
+        self.previous = sim.per_particle(self.name, wp.vec3)  # omega^{n-1}
+        self.change = sim.per_particle(self.name, wp.vec3)  # d omega
         self.viscosity = sim.scene.fluid.viscosity if params.viscosity is None else params.viscosity
         self.has_previous = 0
 

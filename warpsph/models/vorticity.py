@@ -12,7 +12,7 @@ class VorticityField:
     reads the same field, so it is never computed twice for one state."""
 
     def __init__(self, sim):
-        self.vorticity = sim.zeros("vorticity", sim.num_fluid, dtype=wp.vec3)
+        self.vorticity = sim.per_particle("vorticity", wp.vec3)
 
     def update(self, sim):
         curl_of(sim, sim.fluid.v, self.vorticity)

@@ -24,10 +24,9 @@ class VorticityRefinementModel(Model):
 
     def __init__(self, sim, params):
         super().__init__(sim, params)
-        n = sim.num_fluid
-        self.target = sim.zeros(self.name, n, dtype=wp.vec3)  # zeta^{n+1}, carried to the next step
-        self.work = sim.zeros(self.name, n, dtype=wp.vec3)  # d zeta, then the curl of the refined v
-        self.stream_function = sim.zeros(self.name, n, dtype=wp.vec3)  # psi
+        self.target = sim.per_particle(self.name, wp.vec3)  # zeta^{n+1}, carried to the next step
+        self.work = sim.per_particle(self.name, wp.vec3)  # d zeta, then the curl of the refined v
+        self.stream_function = sim.per_particle(self.name, wp.vec3)  # psi
         self.viscosity = sim.scene.fluid.viscosity if params.viscosity is None else params.viscosity
         self.has_target = 0
 

@@ -1,0 +1,47 @@
+"""Outflow: which fluid particles are inside a sink box."""
+
+import warp as wp
+
+wp.set_module_options({"enable_backward": False})
+
+
+@wp.kernel
+def mark_particles_in_sinks(
+    x: wp.array(dtype=wp.vec3),
+    sink_min: wp.array(dtype=wp.vec3),
+    sink_max: wp.array(dtype=wp.vec3),
+    keys: wp.array(dtype=wp.int32),
+    order: wp.array(dtype=wp.int32),
+    removed: wp.array(dtype=wp.int32),
+):
+    """keys[i] = 1 for a particle inside any sink box, else 0, and order[i] = i: sorting the pairs
+    by key moves the survivors to the front in their current order; ``removed`` counts the rest."""
+    i = wp.tid()
+    p = x[i]
+    inside = int(0)
+    for s in range(sink_min.shape[0]):
+        lo = sink_min[s]
+        hi = sink_max[s]
+        if p[0] >= lo[0] and p[0] <= hi[0] and p[1] >= lo[1] and p[1] <= hi[1] and p[2] >= lo[2] and p[2] <= hi[2]:
+            inside = 1
+    keys[i] = inside
+    order[i] = i
+    if inside != 0:
+        wp.atomic_add(removed, 0, 1)
+
+
+@wp.kernel
+def drive_inflow_particles(
+    x: wp.array(dtype=wp.vec3),
+    lo: wp.vec3,
+    hi: wp.vec3,
+    velocity: wp.vec3,
+    v: wp.array(dtype=wp.vec3),
+):
+    """Particles inside an emitter's driving box move at the emitter's velocity (as SPlisHSPlasH's
+    emitters do): the layers leave at the speed they were spaced for, so a new layer never lands
+    on one that the fluid ahead slowed down."""
+    i = wp.tid()
+    p = x[i]
+    if p[0] >= lo[0] and p[0] <= hi[0] and p[1] >= lo[1] and p[1] <= hi[1] and p[2] >= lo[2] and p[2] <= hi[2]:
+        v[i] = velocity

@@ -1,0 +1,145 @@
+"""Inflow emitters and outflow sinks: a fluid whose particle count changes during the run.
+
+Every per-particle array is allocated for ``Simulation.capacity`` particles (the initial fill
+plus what the emitters can add over the scene's duration); the first ``num_fluid`` rows hold the
+particles. An emitter appends lattice layers at the end of the rows (zeroing every registered
+per-particle array there, so the solvers' warm start and the models' history start from nothing)
+with new, never reused ids; a sink compacts the rows (a stable sort on "inside a sink"), so the
+neighbour structures, the models' state and the USD ``ids`` stay consistent. Both run on the host
+side of the step, before the neighbour search, so the captured solver graph is only rebuilt when
+the count changes.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import warp as wp
+
+from warpsph import sampling
+from warpsph.errors import SceneError
+from warpsph.kernels.inflow import drive_inflow_particles, mark_particles_in_sinks
+
+
+DRIVE_LENGTH = 2.0  # spacings downstream of an emitter's face in which particles keep its velocity
+
+
+def layer_points(emitter, spacing):
+    """One layer of an emitter's lattice at its upstream face (before it travels)."""
+    k = emitter.axis
+    lo, hi = np.array(emitter.min, np.float64), np.array(emitter.max, np.float64)
+    face = hi[k] - 0.5 * spacing if emitter.velocity[k] < 0 else lo[k] + 0.5 * spacing
+    lo[k], hi[k] = face - 0.5 * spacing, face + 0.5 * spacing  # a slab one spacing thick: one layer
+    return sampling.fill_block(lo, hi, spacing)
+
+
+class Inflow:
+    """The scene's emitters and sinks, and how much they have emitted."""
+
+    def __init__(self, scene, initial_count):
+        self.scene = scene
+        d = scene.particle_diameter
+        self.layers = [layer_points(e, d) for e in scene.emitters]
+        for n, points in enumerate(self.layers):
+            if not len(points):
+                raise SceneError(scene.source, f"emitters[{n}]", "the box's cross-section holds no particle: make it "
+                                                                 f"at least one spacing ({d:.3g} m) wide on both axes across the flow")
+        duration = scene.output.frames / scene.output.fps
+        self.room = 0
+        for e, points in zip(scene.emitters, self.layers):
+            end = duration if e.end is None else min(e.end, duration)
+            count = max(0, math.floor((end - e.start) * abs(e.velocity[e.axis]) / d) + 2)
+            self.room += count * len(points)
+        self.emitted_layers = [0] * len(scene.emitters)
+        self.next_id = initial_count
+        self._sinks = None
+        self._warned = False
+
+    # -- inflow -------------------------------------------------------------------------------------------
+    def emit(self, sim, time):
+        """Adds every layer due by ``time``: layer m leaves at start + m d / |v| and has travelled
+        |v| (time - its departure) since, so the layers stay one spacing apart whatever dt is."""
+        d = self.scene.particle_diameter
+        for n, (e, points) in enumerate(zip(self.scene.emitters, self.layers)):
+            if time < e.start:
+                continue
+            speed = abs(e.velocity[e.axis])
+            until = time if e.end is None else min(time, e.end)
+            due = math.floor((until - e.start) * speed / d + 1e-9) + 1
+            for m in range(self.emitted_layers[n], due):
+                travelled = speed * (time - (e.start + m * d / speed))
+                shift = np.zeros(3)
+                shift[e.axis] = math.copysign(travelled, e.velocity[e.axis])
+                if not self._append(sim, points + shift.astype(np.float32), np.asarray(e.velocity, np.float32)):
+                    return
+                self.emitted_layers[n] = m + 1
+
+    def _append(self, sim, x, velocity):
+        n, k = sim.num_fluid, len(x)
+        if n + k > sim.capacity:
+            if not self._warned:
+                warnings.warn(f"emitters: the fluid is at its capacity of {sim.capacity:,} particles (sized for "
+                              f"output.frames / output.fps); emission pauses until sinks free room", stacklevel=3)
+                self._warned = True
+            return False
+        for array in sim._per_particle:
+            array[n: n + k].zero_()
+        sim.fluid.x[n: n + k].assign(x)
+        sim.fluid.v[n: n + k].assign(np.tile(velocity, (k, 1)))
+        sim.fluid.ids[n: n + k].assign(np.arange(self.next_id, self.next_id + k, dtype=np.int64))
+        self.next_id += k
+        sim.num_fluid = n + k
+        return True
+
+    # -- outflow -------------------------------------------------------------------------------------------
+    def drain(self, sim):
+        """Removes the particles inside the sinks (one host read of their count per step)."""
+        if not self.scene.sinks or sim.num_fluid == 0:
+            return
+        if self._sinks is None:
+            self._sinks = (wp.array([s.min for s in self.scene.sinks], dtype=wp.vec3, device=sim.device),
+                           wp.array([s.max for s in self.scene.sinks], dtype=wp.vec3, device=sim.device),
+                           wp.zeros(1, dtype=wp.int32, device=sim.device))
+        lo, hi, removed = self._sinks
+        n = sim.num_fluid
+        keys = wp.empty(2 * n, dtype=wp.int32, device=sim.device)  # radix sort needs 2n
+        order = wp.empty(2 * n, dtype=wp.int32, device=sim.device)
+        removed.zero_()
+        sim.launch(mark_particles_in_sinks, n, [sim.fluid.x, lo, hi, keys, order, removed])
+        count = int(removed.numpy()[0])
+        if count:
+            wp.utils.radix_sort_pairs(keys, order, n)
+            sim.reorder_particles(order)
+            sim.num_fluid = n - count
+
+    def drive(self, sim, time):
+        """Particles in an active emitter's box, extended to DRIVE_LENGTH spacings downstream of its
+        face, take the emitter's velocity."""
+        d = self.scene.particle_diameter
+        for e in self.scene.emitters:
+            if time < e.start or (e.end is not None and time > e.end):
+                continue
+            lo, hi = np.array(e.min, np.float64), np.array(e.max, np.float64)
+            k = e.axis
+            if e.velocity[k] > 0:
+                hi[k] = max(hi[k], lo[k] + DRIVE_LENGTH * d)
+            else:
+                lo[k] = min(lo[k], hi[k] - DRIVE_LENGTH * d)
+            sim.launch(drive_inflow_particles, sim.num_fluid,
+                       [sim.fluid.x, wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*e.velocity), sim.fluid.v])
+
+    def update(self, sim):
+        time = sim.time
+        self.drain(sim)
+        self.emit(sim, time)
+        self.drive(sim, time)
+
+    # -- state ---------------------------------------------------------------------------------------------
+    def state(self):
+        return {"inflow.next_id": self.next_id, "inflow.emitted_layers": np.asarray(self.emitted_layers, np.int64)}
+
+    def restore(self, flags):
+        self.next_id = int(flags["inflow.next_id"])
+        self.emitted_layers = [int(v) for v in np.atleast_1d(flags["inflow.emitted_layers"])]
