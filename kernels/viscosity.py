@@ -2,7 +2,7 @@
 
 import warp as wp
 
-from .particles import Neighbours, separation
+from .particles import Boundary, Neighbours, separation
 from .sph_kernel import cubic_kernel_gradient
 from .vorticity import curl_term
 
@@ -27,11 +27,16 @@ def add_viscosity_acceleration(
     particle_mass: float,
     viscosity: float,
     support_radius: float,
+    boundary: Boundary,
+    boundary_viscosity: float,
+    dt: wp.array(dtype=float),
     with_vorticity: int,
     acceleration: wp.array(dtype=wp.vec3),
     vorticity: wp.array(dtype=wp.vec3),
 ):
-    """a_i += nu * laplacian(v)_i with m_j / rho_j as the neighbour volume (eq 4).
+    """a_i += nu * laplacian(v)_i with m_j / rho_j as the neighbour volume (eq 4), plus, with
+    ``boundary_viscosity``, the same term against the boundary samples' velocities (V_b as volume):
+    walls and moving bodies drag the fluid; a dynamic body's sample gets the opposite impulse.
 
     When a turbulence model needs it, the same neighbour loop also yields the vorticity
     zeta_i = sum_j (m_j/rho_j)(v_i - v_j) x grad W_ij (eq 6): one pass instead of two."""
@@ -49,6 +54,15 @@ def add_viscosity_acceleration(
         if with_vorticity != 0:
             gw = cubic_kernel_gradient(x_ij, support_radius)
             curl += curl_term(v_ij, gw, volume)
-    acceleration[i] = acceleration[i] + viscosity * lap
+    friction = wp.vec3(0.0)
+    if boundary_viscosity > 0.0:
+        for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
+            b = nb.boundary[k]
+            term = boundary_viscosity * artificial_laplacian(vi - boundary.v[b], separation(nb, xi, boundary.x[b]),
+                                                             boundary.volume[b], support_radius)
+            if b >= boundary.first_dynamic:
+                wp.atomic_add(boundary.impulse, b, -dt[0] * term)
+            friction += term
+    acceleration[i] = acceleration[i] + viscosity * lap + friction
     if with_vorticity != 0:
         vorticity[i] = curl

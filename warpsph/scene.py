@@ -56,6 +56,9 @@ class Box:
 class Fluid:
     density: float = field(default=1000.0, metadata=_positive())  # rest density [kg/m^3]
     viscosity: float = field(default=0.05, metadata=_check("a number >= 0", lambda v: v >= 0))  # nu [m^2/s], eq 4
+    # nu between fluid and boundary samples [m^2/s] (friction with walls and bodies; SPlisHSPlasH's
+    # viscosityBoundary, default 0 there too): the fluid drags along moving bodies and they feel it
+    boundary_viscosity: float = field(default=0.0, metadata=_check("a number >= 0", lambda v: v >= 0))
 
 
 @dataclass(frozen=True)

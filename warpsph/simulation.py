@@ -188,7 +188,7 @@ class Simulation:
         self.gravity = wp.vec3(*scene.gravity)
         # explicit viscosity is stable for dt <= 0.125 h^2 / nu with h = H / 2 (Morris et al. 1997): at
         # r = 2.9 mm and nu = 0.05 a 0.57 ms step flung dam-break particles out at 38 m/s
-        nu = scene.fluid.viscosity
+        nu = max(scene.fluid.viscosity, scene.fluid.boundary_viscosity)
         self.viscous_dt = 0.125 * (0.5 * self.support_radius) ** 2 / nu if nu > 0 else 1.0e30
 
         fluid_x, fluid_v, boundary_x, body, self.bodies = sample_scene(scene)
@@ -230,10 +230,11 @@ class Simulation:
                              self.support_radius, self.neighbours.lower, self.neighbours.period, self.boundary.volume])
             self.pressure_solver = DFSPHSolver(self)
             self.models = []
-            if scene.fluid.viscosity > 0.0:
+            viscous = scene.fluid.viscosity > 0.0 or scene.fluid.boundary_viscosity > 0.0
+            if viscous:
                 self.models.append(REGISTRY["viscosity"](self))
             self.models += [REGISTRY[MODEL_NAMES[type(p)]](self, p) for p in scene.models]
-            self.turbulence_models = self.models[1:] if scene.fluid.viscosity > 0.0 else list(self.models)
+            self.turbulence_models = self.models[1:] if viscous else list(self.models)
             # the vorticity of v~, shared by the models, exists only when one reads it
             self.vorticity_field = None
             if any(m.needs_vorticity for m in self.models):
@@ -317,7 +318,7 @@ class Simulation:
         """array[:] = array[order] for one per-particle array (through a temporary copy)."""
         scratch = wp.empty_like(array)
         self.launch(self._GATHER[array.dtype], self.num_fluid, [array, order, scratch])
-        wp.copy(array, scratch)
+        wp.copy(array, scratch, count=self.num_fluid)
 
     def sort_particles(self):
         """Re-sorts every fluid particle array (and each model's state) into Z-order of cells. The

@@ -22,4 +22,5 @@ class Viscosity(Model):
         vorticity = field.vorticity if field is not None else self._empty_vec3
         sim.launch(add_viscosity_acceleration, sim.num_fluid,
                    [f.x, f.v, f.density, sim.neighbours.lists, sim.particle_mass, sim.scene.fluid.viscosity,
-                    sim.support_radius, int(field is not None), f.acceleration, vorticity])
+                    sim.support_radius, sim.boundary.samples, sim.scene.fluid.boundary_viscosity, sim.dt,
+                    int(field is not None), f.acceleration, vorticity])
