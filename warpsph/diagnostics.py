@@ -14,7 +14,7 @@ import warp as wp
 
 from warpsph.models.vorticity import curl_of
 
-COLUMNS = ["frame", "time", "steps", "dt", "kinetic_energy", "potential_energy", "rotational_energy", "enstrophy",
+COLUMNS = ["frame", "time", "steps", "particles", "dt", "kinetic_energy", "potential_energy", "rotational_energy", "enstrophy",
            "density_error_mean", "density_error_max", "divergence_iterations", "density_iterations"]
 
 
@@ -59,6 +59,7 @@ class Diagnostics:
             "frame": frame,
             "time": sim.time,
             "steps": sim.step_count,
+            "particles": sim.num_fluid,
             "dt": float(sim.dt.numpy()[0]),
             "kinetic_energy": 0.5 * m * float((v**2).sum()),
             "potential_energy": -m * float(((x - np.asarray(sim.scene.domain.min)) @ g).sum()),
