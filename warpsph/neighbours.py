@@ -9,7 +9,7 @@ from warpsph.kernels import neighbours as nk
 from warpsph.kernels.particles import Neighbours
 
 GRID_DIM = 128  # hash grid buckets per axis (cells hash into a 128^3 table)
-GROWTH = 1.25  # spare capacity when a neighbour list must grow
+GROWTH = 1.1  # spare capacity when a neighbour list is sized (first update) or must grow
 
 
 class NeighbourSearch:
@@ -18,8 +18,10 @@ class NeighbourSearch:
     The boundary grid is built once, or each step when bodies move (:meth:`rebuild_boundary_grid`,
     about a tenth of a grid pass); the fluid grid and both
     lists are rebuilt by :meth:`update`, which costs two neighbour-grid passes and one
-    host read of the list sizes per step. The lists keep spare capacity so that their
-    arrays (and any CUDA graph that captured them) rarely change.
+    host read of the list sizes per step. The lists are sized by the first update to what it
+    found plus 10 % (a fixed 32 + 8 slots a particle overestimated the boundary list 3x in a dam
+    break), and grow by the same margin when needed, so their arrays (and any CUDA graph that
+    captured them) rarely change.
     """
 
     def __init__(self, sim, boundary_x: wp.array):
@@ -36,8 +38,8 @@ class NeighbourSearch:
         self.fluid_offsets = sim.zeros("neighbours", n + 1, dtype=wp.int32)
         self.boundary_counts = sim.zeros("neighbours", n + 1, dtype=wp.int32)
         self.boundary_offsets = sim.zeros("neighbours", n + 1, dtype=wp.int32)
-        self.fluid_neighbours = sim.zeros("neighbours", max(32 * n, 1), dtype=wp.int32)
-        self.boundary_neighbours = sim.zeros("neighbours", max(8 * n, 1), dtype=wp.int32)
+        self.fluid_neighbours = sim.zeros("neighbours", 1, dtype=wp.int32)  # sized by the first update
+        self.boundary_neighbours = sim.zeros("neighbours", 1, dtype=wp.int32)
         self.generation = 0  # bumped when a list array is reallocated
         self._no_list = wp.empty(0, dtype=wp.int32, device=sim.device)
         self.lower = wp.vec3(*np.asarray(sim.scene.domain.min, dtype=np.float32))
@@ -86,6 +88,7 @@ class NeighbourSearch:
         if needed <= array.shape[0]:
             return array
         self.generation += 1
+        self.sim.allocations["neighbours"] -= array.capacity  # the old array goes
         return self.sim.zeros("neighbours", int(needed * GROWTH) + 1, dtype=wp.int32)
 
     def counts(self):
