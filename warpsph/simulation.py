@@ -206,6 +206,7 @@ class Simulation:
         # per-particle arrays hold the fluid at its largest: the initial particles and what emitters add
         self.capacity = self.num_fluid + (self.inflow.room if self.inflow is not None else 0)
         self._per_particle = []
+        self._scratch = {}
         check_fits(scene, self.capacity, self.num_boundary, self.device)  # refuse before allocating
         with wp.ScopedDevice(self.device):
             z, p = self.zeros, self.per_particle
@@ -293,6 +294,15 @@ class Simulation:
             a[: len(data)].assign(np.ascontiguousarray(data))
         self._per_particle.append(a)
         return a
+
+    def scratch(self, dtype, slot):
+        """Per-particle scratch array number ``slot`` of ``dtype``, shared by the models for values
+        that live within one model's step (stream function, next angular velocity, ...): models run
+        one after the other, so enabling several does not multiply their temporaries."""
+        key = (dtype, slot)
+        if key not in self._scratch:
+            self._scratch[key] = self.zeros("scratch", self.capacity, dtype=dtype)
+        return self._scratch[key]
 
     def active(self, array):
         """The rows of a per-particle array that hold particles (a view; the array itself when full)."""

@@ -16,7 +16,7 @@ class MicropolarModel(Model):
     def __init__(self, sim, params):
         super().__init__(sim, params)
         self.omega = sim.per_particle(self.name, wp.vec3)
-        self.omega_next = sim.per_particle(self.name, wp.vec3)
+        self.omega_next = sim.scratch(wp.vec3, 0)
 
     def step(self, sim):
         p, f = self.params, sim.fluid

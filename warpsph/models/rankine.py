@@ -17,7 +17,7 @@ class RankineModel(Model):
     def __init__(self, sim, params):
         super().__init__(sim, params)
         self.previous = sim.per_particle(self.name, wp.vec3)  # omega^{n-1}
-        self.change = sim.per_particle(self.name, wp.vec3)  # d omega
+        self.change = sim.scratch(wp.vec3, 0)  # d omega (within the step)
         self.viscosity = sim.scene.fluid.viscosity if params.viscosity is None else params.viscosity
         self.has_previous = 0
 

@@ -25,8 +25,8 @@ class VorticityRefinementModel(Model):
     def __init__(self, sim, params):
         super().__init__(sim, params)
         self.target = sim.per_particle(self.name, wp.vec3)  # zeta^{n+1}, carried to the next step
-        self.work = sim.per_particle(self.name, wp.vec3)  # d zeta, then the curl of the refined v
-        self.stream_function = sim.per_particle(self.name, wp.vec3)  # psi
+        self.work = sim.scratch(wp.vec3, 0)  # d zeta, then the curl of the refined v (within the step)
+        self.stream_function = sim.scratch(wp.vec3, 1)  # psi (within the step)
         self.viscosity = sim.scene.fluid.viscosity if params.viscosity is None else params.viscosity
         self.has_target = 0
 
