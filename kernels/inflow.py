@@ -1,8 +1,14 @@
-"""Outflow: which fluid particles are inside a sink box."""
+"""Inflow and outflow: particles driven in an emitter's box, particles inside a sink box."""
 
 import warp as wp
 
 wp.set_module_options({"enable_backward": False})
+
+
+@wp.func
+def inside_box(p: wp.vec3, lo: wp.vec3, hi: wp.vec3):
+    """Whether p lies in the axis-aligned box [lo, hi] (faces included)."""
+    return p[0] >= lo[0] and p[0] <= hi[0] and p[1] >= lo[1] and p[1] <= hi[1] and p[2] >= lo[2] and p[2] <= hi[2]
 
 
 @wp.kernel
@@ -20,9 +26,7 @@ def mark_particles_in_sinks(
     p = x[i]
     inside = int(0)
     for s in range(sink_min.shape[0]):
-        lo = sink_min[s]
-        hi = sink_max[s]
-        if p[0] >= lo[0] and p[0] <= hi[0] and p[1] >= lo[1] and p[1] <= hi[1] and p[2] >= lo[2] and p[2] <= hi[2]:
+        if inside_box(p, sink_min[s], sink_max[s]):
             inside = 1
     keys[i] = inside
     order[i] = i
@@ -42,6 +46,5 @@ def drive_inflow_particles(
     emitters do): the layers leave at the speed they were spaced for, so a new layer never lands
     on one that the fluid ahead slowed down."""
     i = wp.tid()
-    p = x[i]
-    if p[0] >= lo[0] and p[0] <= hi[0] and p[1] >= lo[1] and p[1] <= hi[1] and p[2] >= lo[2] and p[2] <= hi[2]:
+    if inside_box(x[i], lo, hi):
         v[i] = velocity
