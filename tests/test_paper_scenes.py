@@ -9,11 +9,12 @@ from warpsph import load_scene
 from warpsph.simulation import Simulation, count_particles
 
 SCENES = sorted((Path(__file__).resolve().parent.parent / "scenes").glob("*.json"))
-# particle counts at scale 1, as in the papers (VR paper: Figs 1/3, 11, 9, 8, 5, 12, 6; Rankine paper: Figs 10, 5, 2;
+# particle counts at scale 1, as in the papers (VR paper: Figs 1/3, 11, 9, 8, 5, 12, 6; Rankine paper: Figs 10, 5, 2, 3, 13;
 # its inflow scenes, river tunnel (Figs 1, 7) and flow past a pillar (Fig 4), have no initial block)
 PAPER_COUNTS = {"dam_break_board": 1.18e6, "dam_break_pillars": 457e3, "hemisphere": 900e3, "energy_dam_break": 461e3,
                 "stirring_rod": 1.39e6, "propeller": 1.29e6, "boat_pillars": 1.7e6, "falling_blocks": 1.08e6,
-                "falling_blocks_one_by_one": 1.08e6, "funnel": 1.4e6}
+                "falling_blocks_one_by_one": 1.08e6, "funnel": 1.4e6, "stirring_rod_rankine": 1.48e6,
+                "propeller_rankine": 1.29e6}
 
 
 @pytest.mark.parametrize("path", SCENES, ids=[p.stem for p in SCENES])
