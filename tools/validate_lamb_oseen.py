@@ -163,9 +163,11 @@ def measure(sim, p, edges, t):
             "centre_offset": float(np.hypot(*offset)), "kinetic": float((v**2).sum())}
 
 
-def lamb_oseen(models, resolution=24, nu=0.01, T=0.5, core=3.0, u_peak=0.5, depth=6, device="cpu", frames=10,
-               r_max=0.35):
-    """Runs the vortex; returns (rows per frame, the simulation, the set-up with the bins)."""
+def build(models, resolution=24, nu=0.01, T=0.5, core=3.0, u_peak=0.5, depth=6, device="cpu", frames=10,
+          r_max=0.35, solver=None, periodic_z=False):
+    """The simulation at t = 0 with the vortex's velocity; returns (simulation, set-up with the bins, bin
+    edges). ``solver``: scene "solver" keys (e.g. {"density_max_error": 0.05}); None: the defaults.
+    ``periodic_z``: the box is periodic along the vortex axis instead of closed by walls there."""
     from warpsph.scene import scene_from_dict
     from warpsph.simulation import Simulation
 
@@ -175,6 +177,10 @@ def lamb_oseen(models, resolution=24, nu=0.01, T=0.5, core=3.0, u_peak=0.5, dept
             "domain": {"min": [0, 0, 0], "max": [L, L, p["depth"]]},
             "fluid_blocks": [{"start": [0, 0, 0], "end": [L, L, p["depth"]]}],
             "fluid": {"viscosity": nu}, "models": list(models), "output": {"fps": frames / T}}
+    if solver:
+        data["solver"] = dict(solver)
+    if periodic_z:
+        data["domain"]["periodic"] = ["z"]
     sim = Simulation(scene_from_dict(data), device=device)
     x0 = sim.fluid.x.numpy().astype(np.float64)
     dx, dy = x0[:, 0] - p["centre"][0], x0[:, 1] - p["centre"][1]
@@ -184,12 +190,24 @@ def lamb_oseen(models, resolution=24, nu=0.01, T=0.5, core=3.0, u_peak=0.5, dept
     sim.fluid.v.assign(v0.astype(np.float32))
     edges = np.arange(0.0, r_max * L + 1e-9, d)
     p["r_bins"] = (0.5 * (edges[1:] + edges[:-1])).tolist()
-    rows = []
-    sim.run(frames=frames, on_frame=lambda s, f: rows.append(measure(s, p, edges, s.time)))
+    return sim, p, edges
+
+
+def kinetic_ratios(rows):
+    """Replaces each row's kinetic energy by its ratio to frame 0's (``ke_ratio``)."""
     k0 = rows[0]["kinetic"]
     for row in rows:
         row["ke_ratio"] = row.pop("kinetic") / k0
-    return rows, sim, p
+    return rows
+
+
+def lamb_oseen(models, resolution=24, nu=0.01, T=0.5, core=3.0, u_peak=0.5, depth=6, device="cpu", frames=10,
+               r_max=0.35, solver=None):
+    """Runs the vortex; returns (rows per frame, the simulation, the set-up with the bins)."""
+    sim, p, edges = build(models, resolution, nu, T, core, u_peak, depth, device, frames, r_max, solver)
+    rows = []
+    sim.run(frames=frames, on_frame=lambda s, f: rows.append(measure(s, p, edges, s.time)))
+    return kinetic_ratios(rows), sim, p
 
 
 def effective_viscosity(rows, nu):

@@ -1,0 +1,98 @@
+"""The cost/accuracy benchmark (tools/pareto.py): every point recorded, the Pareto flags, and a physical
+check that cannot pass by construction (the finer resolution of the same vortex is more accurate)."""
+
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
+
+from pareto import CORE_RADIUS, ERROR_KEY, TIME_KEY, main, pareto_flags, study  # noqa: E402
+
+RESOLUTIONS = (12, 16)
+DEPTH = 6
+
+
+def brute_force(points, x=TIME_KEY, y=ERROR_KEY):
+    """Optimal: no other point has both a lower x and a lower y; None for a point without both."""
+    def ok(p):
+        return all(isinstance(p.get(k), (int, float)) and math.isfinite(p[k]) for k in (x, y))
+
+    return [None if not ok(p) else not any(ok(q) and q[x] < p[x] and q[y] < p[y] for q in points) for p in points]
+
+
+def test_pareto_flags_against_brute_force():
+    rng = np.random.default_rng(5)
+    for trial in range(200):
+        n = int(rng.integers(1, 14))
+        # coarse values so that ties in time, in error and in both occur
+        points = [{TIME_KEY: float(rng.integers(1, 6)), ERROR_KEY: float(rng.integers(1, 6))} for _ in range(n)]
+        for p in points:
+            if rng.random() < 0.15:
+                p[rng.choice([TIME_KEY, ERROR_KEY])] = rng.choice([None, float("nan")])
+            if rng.random() < 0.1:
+                del p[ERROR_KEY]  # an unstable point has no error
+        assert pareto_flags(points) == brute_force(points), points
+    # a hand-made case: (time, error)
+    points = [{TIME_KEY: t, ERROR_KEY: e} for t, e in [(1, 10), (2, 5), (2, 12), (3, 5), (4, 1), (5, 0.5), (5, 2)]]
+    assert pareto_flags(points) == [True, True, False, True, True, True, False]
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """2 methods x 2 tiny resolutions x 1 tolerance on the CPU (about 5 s)."""
+    out = tmp_path_factory.mktemp("pareto") / "pareto.json"
+    report = study(["dfsph", "vr"], list(RESOLUTIONS), [0.05], device="cpu", out=str(out), depth=DEPTH, png=False,
+                   quiet=True)
+    return report, out
+
+
+def test_every_point_is_written_with_time_error_and_flags(run):
+    report, out = run
+    data = json.loads(out.read_text())  # written after every point; the last write holds them all
+    assert data["complete"] and data["device"] == "cpu" and data["warp"] and data["commit"]
+    points = data["points"]
+    assert sorted((p["method"], p["resolution"], p["tolerance"]) for p in points) == sorted(
+        (m, r, 0.05) for m in ("dfsph", "vr") for r in RESOLUTIONS)
+    for p in points:
+        assert "unstable" not in p
+        for key in (TIME_KEY, ERROR_KEY, "wall_s", "ms_per_step", "omega_ratio"):
+            assert math.isfinite(p[key]) and p[key] > 0, (key, p)
+        assert p["particles"] == p["resolution"] ** 2 * DEPTH
+        assert abs(p["simulated_s"] - 0.5) < 1e-3 and p["steps"] > 0
+        assert p["mean_density_iterations"] >= 2  # solver.min_iterations
+        assert p[TIME_KEY] == pytest.approx(p["wall_s"] / p["simulated_s"])
+        # the same physical vortex at every resolution: the core is fixed in metres, not in spacings
+        assert p["core_radius_m"] == pytest.approx(CORE_RADIUS)
+        assert p["core_spacings"] == pytest.approx(CORE_RADIUS * p["resolution"])
+    assert [p["pareto"] for p in points] == brute_force(points)
+    assert [p["pareto"] for p in report["points"]] == brute_force(report["points"])
+    table = out.with_suffix(".md").read_text()
+    assert table.count("| DFSPH |") == 2 and table.count("| DFSPH+VR α=1 |") == 2
+    assert table.count("**yes**") == sum(p["pareto"] for p in points)
+
+
+def test_finer_resolution_is_more_accurate(run):
+    """At 12 and 16 particles across the box (core radius 1.5 and 2 spacings) plain DFSPH has an L1 error
+    of u_theta of 24 % and 14 % of the peak speed (cpu), peak vorticity 0.49 and 0.89 of the analytic."""
+    report, _ = run
+    dfsph = {p["resolution"]: p for p in report["points"] if p["method"] == "dfsph"}
+    coarse, fine = dfsph[RESOLUTIONS[0]], dfsph[RESOLUTIONS[1]]
+    assert fine[ERROR_KEY] < 0.75 * coarse[ERROR_KEY]
+    assert fine["omega_ratio"] > coarse["omega_ratio"] + 0.2
+    assert fine["particles"] > coarse["particles"] and fine["steps"] > coarse["steps"]
+
+
+def test_plot_only_draws_a_json_made_elsewhere(run, tmp_path):
+    pytest.importorskip("matplotlib")
+    _, out = run
+    copy = tmp_path / "copy.json"
+    assert main(["--plot-only", str(out), "--out", str(copy)]) == 0
+    png = copy.with_suffix(".png").read_bytes()
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    assert json.loads(copy.read_text())["points"] == json.loads(out.read_text())["points"]
+    assert copy.with_suffix(".md").is_file()
