@@ -280,9 +280,10 @@ def markdown(report):
             f"Warp {report['warp']}, commit {report['commit']}"
             + (f" (uncommitted: {', '.join(report['uncommitted'])})" if report.get("uncommitted") else "") + ".\n"
             "error = L1 error of u_theta at T in % of the analytic peak speed; ω ratio = peak vorticity / analytic; "
+            "KE ratio = kinetic energy at T / at 0 (analytic decay keeps it below 1: above 1 the method injected energy); "
             "s/s = wall seconds per simulated second (run only, synchronised). Pareto: no other point has both a "
             "lower error and a lower time.\n\n")
-    cols = ["method", "resolution", "particles", "tolerance %", "error %", "ω ratio", "steps", "density it.",
+    cols = ["method", "resolution", "particles", "tolerance %", "error %", "ω ratio", "KE ratio", "steps", "density it.",
             "ms/step", "s wall / s sim", "Pareto"]
     if dam:
         cols += ["dam res.", "dam RMS Z/a", "dam s/s", "dam Pareto"]
@@ -290,10 +291,11 @@ def markdown(report):
     for p in sorted(points, key=lambda p: (p.get(TIME_KEY) is None, p.get(TIME_KEY) or 0.0)):
         if "unstable" in p:
             cells = [p["label"], p["resolution"], f"{p['particles']:,}", p["tolerance"], f"unstable: {p['unstable']}",
-                     "", fmt(p.get("steps"), "d"), "", "", "", ""]
+                     "", "", fmt(p.get("steps"), "d"), "", "", "", ""]
         else:
             cells = [p["label"], p["resolution"], f"{p['particles']:,}", p["tolerance"], fmt(p[ERROR_KEY], ".2f"),
-                     fmt(p["omega_ratio"], ".3f"), p["steps"], fmt(p["mean_density_iterations"], ".2f"),
+                     fmt(p["omega_ratio"], ".3f"), fmt(p["ke_ratio"], ".3f") + (" (gain!)" if p["ke_ratio"] > 1 else ""),
+                     p["steps"], fmt(p["mean_density_iterations"], ".2f"),
                      fmt(p["ms_per_step"], ".2f"), fmt(p[TIME_KEY], ".3g"), "**yes**" if p.get("pareto") else ""]
         if dam:
             cells += [p.get("dam_resolution", ""), p.get("dam_unstable") or fmt(p.get(DAM_ERROR_KEY), ".3f"),
@@ -314,6 +316,7 @@ def plot(report, out):
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import LogLocator, ScalarFormatter
 
     points = [p for p in report["points"] if p.get(TIME_KEY) is not None]
     dam = [p for p in report["points"] if p.get(DAM_TIME_KEY) is not None]
@@ -322,7 +325,7 @@ def plot(report, out):
     if dam:
         panels.append((DAM_TIME_KEY, DAM_ERROR_KEY, "dam_pareto", "RMS error of front Z/a (shifted)",
                        "Martin & Moyce dam front", dam))
-    fig, axes = plt.subplots(1, len(panels), figsize=(7.5 * len(panels), 5.5), squeeze=False)
+    fig, axes = plt.subplots(1, len(panels), figsize=(7.5 * len(panels), 6.5), squeeze=False)
     methods = list(dict.fromkeys(p["method"] for p in report["points"]))
     tolerances = sorted({p["tolerance"] for p in report["points"]}, reverse=True)
     markers = ["o", "s", "^", "D", "v"]
@@ -330,16 +333,16 @@ def plot(report, out):
     for ax, (xk, yk, flag, ylabel, title, pts) in zip(axes[0], panels):
         for m, method in enumerate(methods):
             for t, tol in enumerate(tolerances):
+                res_key = "dam_resolution" if yk == DAM_ERROR_KEY else "resolution"
                 line = sorted((p for p in pts if p["method"] == method and p["tolerance"] == tol),
-                              key=lambda p: p[xk])
+                              key=lambda p: p[res_key])  # a line through the resolutions, coarsest first
                 if not line:
                     continue
                 ax.plot([p[xk] for p in line], [p[yk] for p in line], marker=markers[t % len(markers)],
                         ls="-" if t == 0 else "--", color=colours[m % len(colours)], ms=6, alpha=0.85,
                         label=f"{line[0]['label']}, tol {tol:g} %")
                 for p in line:
-                    res = p["dam_resolution"] if yk == DAM_ERROR_KEY else p["resolution"]
-                    ax.annotate(str(res), (p[xk], p[yk]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+                    ax.annotate(str(p[res_key]), (p[xk], p[yk]), fontsize=7, xytext=(3, 3), textcoords="offset points")
         front = sorted((p for p in pts if p.get(flag)), key=lambda p: p[xk])
         if front:
             xs = [p[xk] for p in front]
@@ -349,13 +352,20 @@ def plot(report, out):
             ax.plot(xs, ys, "o", mfc="none", mec="k", ms=11, mew=1.2)
         ax.set_xscale("log")
         ax.set_yscale("log")
+        for axis in (ax.xaxis, ax.yaxis):  # plain numbers on the log axes
+            axis.set_major_formatter(ScalarFormatter())
+            axis.set_minor_locator(LogLocator(subs=(2, 3, 5)))
+            axis.set_minor_formatter(ScalarFormatter())
+        ax.tick_params(which="minor", labelsize=7)
         ax.set_xlabel("wall time per simulated second [s]")
         ax.set_ylabel(ylabel)
         ax.set_title(title + " (numbers: resolution)", fontsize=10)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
-    fig.suptitle(f"{report['device']}, Warp {report['warp']}, commit {report['commit']}", fontsize=9)
-    fig.tight_layout()
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=7, frameon=False)
+    fig.suptitle(f"{report['device']}, Warp {report['warp']}, commit {report['commit']}; tolerance = solver "
+                 f"density_max_error; circled: Pareto-optimal", fontsize=9)
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
     fig.savefig(out, dpi=120)
     plt.close(fig)
     return Path(out)
