@@ -164,10 +164,9 @@ def measure(sim, p, edges, t):
 
 
 def build(models, resolution=24, nu=0.01, T=0.5, core=3.0, u_peak=0.5, depth=6, device="cpu", frames=10,
-          r_max=0.35, solver=None, periodic_z=False):
+          r_max=0.35, solver=None):
     """The simulation at t = 0 with the vortex's velocity; returns (simulation, set-up with the bins, bin
-    edges). ``solver``: scene "solver" keys (e.g. {"density_max_error": 0.05}); None: the defaults.
-    ``periodic_z``: the box is periodic along the vortex axis instead of closed by walls there."""
+    edges). ``solver``: scene "solver" keys (e.g. {"density_max_error": 0.05}); None: the defaults."""
     from warpsph.scene import scene_from_dict
     from warpsph.simulation import Simulation
 
@@ -179,8 +178,6 @@ def build(models, resolution=24, nu=0.01, T=0.5, core=3.0, u_peak=0.5, depth=6, 
             "fluid": {"viscosity": nu}, "models": list(models), "output": {"fps": frames / T}}
     if solver:
         data["solver"] = dict(solver)
-    if periodic_z:
-        data["domain"]["periodic"] = ["z"]
     sim = Simulation(scene_from_dict(data), device=device)
     x0 = sim.fluid.x.numpy().astype(np.float64)
     dx, dy = x0[:, 0] - p["centre"][0], x0[:, 1] - p["centre"][1]
