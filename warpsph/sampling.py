@@ -53,18 +53,35 @@ def sample_triangles(vertices, faces, spacing):
 
 
 def sample_box_walls(lo, hi, spacing, periodic=()):
-    """Boundary particles on the faces of the domain box, except the faces across periodic axes."""
-    box = trimesh.creation.box(bounds=np.array([lo, hi], dtype=np.float64))
-    keep = np.ones(len(box.faces), dtype=bool)
-    for axis in periodic:
-        keep &= np.abs(box.face_normals[:, "xyz".index(axis)]) < 0.5
-    if not keep.any():
+    """Boundary particles on the faces of the domain box on a square lattice (spacing ``spacing``
+    or just under, edges and corners shared), except the faces across periodic axes.
+
+    A lattice per face, not the triangle sampler: a box face is two right triangles, whose
+    barycentric lattice (divisions by the longest edge, the diagonal) sampled the walls twice as
+    densely as needed, and a thin side wall up to 48x (1.19M wall samples where 0.31M do)."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    counts = np.maximum(np.ceil((hi - lo) / spacing - 1e-6), 1).astype(int)
+    axes = [np.linspace(lo[k], hi[k], counts[k] + 1) for k in range(3)]
+    points = []
+    for k in range(3):
+        if "xyz"[k] in periodic:
+            continue
+        a, b = (k + 1) % 3, (k + 2) % 3
+        ga, gb = np.meshgrid(axes[a], axes[b], indexing="ij")
+        for plane in (lo[k], hi[k]):
+            face = np.empty((ga.size, 3))
+            face[:, k], face[:, a], face[:, b] = plane, ga.ravel(), gb.ravel()
+            points.append(face)
+    if not points:
         return np.zeros((0, 3), dtype=np.float32)
-    points = sample_triangles(box.vertices, box.faces[keep], spacing)
+    points = np.concatenate(points)
+    key = np.round((points - lo) / (1e-3 * spacing)).astype(np.int64)  # edges and corners once
+    _, unique = np.unique(key, axis=0, return_index=True)
+    points = points[np.sort(unique)]
     for axis in periodic:  # the samples on the far face are the images of those on the near one
         k = "xyz".index(axis)
         points = points[points[:, k] < hi[k] - 1e-6 * spacing]
-    return points
+    return points.astype(np.float32)
 
 
 def load_mesh(path):
