@@ -7,6 +7,11 @@ from .particles import Neighbours, separation
 wp.set_module_options({"enable_backward": False})
 
 OSEEN = wp.constant(1.25643)  # Lamb-Oseen parameter of eq 10
+# The paper keeps the viscous core inside a particle (r_c < r). The feedback's restoring gain grows as
+# r_c^2 (-0.85 of d omega at r_c = r for 8-spacing structures on a lattice), and with r_c above about
+# 0.9 r the loop ran away in a Lamb-Oseen vortex (kinetic energy x3 to x40 at 64-192 particles across,
+# beta 0.6 and 1 alike); 0.7 r keeps the gain near half of that.
+MAX_CORE = wp.constant(0.7)
 
 
 @wp.kernel
@@ -52,8 +57,9 @@ def apply_rankine_feedback(
     v: wp.array(dtype=wp.vec3),
 ):
     """v_i += sum_j r_c^2 / (2 r) (-d omega_j) x e_theta with r_c = beta sqrt(4 1.25643 nu dt) (lines 4-6),
-    r_c at most the particle radius: the paper requires the viscous core to stay inside a particle
-    (at r = 6.3 mm, dt = 1.3 ms and nu = 0.05 the formula gives 18 mm and a 1M dam break ran away).
+    r_c at most 0.7 of the particle radius (MAX_CORE): the paper requires the viscous core to stay inside
+    a particle (at r = 6.3 mm, dt = 1.3 ms and nu = 0.05 the formula gives 18 mm and a 1M dam break ran
+    away), and close to r the feedback loop itself ran away.
 
     Each pair's refinement goes to the receiver i from the vortex at its neighbour j (eq 13:
     d v_{j->i}, e_theta from x_j to x_i): a vortex moves the fluid around it, not its own core.
@@ -65,7 +71,7 @@ def apply_rankine_feedback(
     decay of a freely decaying vortex (measured: 0.173 of the initial kinetic energy against 0.191 for
     plain DFSPH). Gathered per receiver, so no atomics."""
     i = wp.tid()
-    core = wp.min(beta * wp.sqrt(4.0 * OSEEN * viscosity * dt[0]), particle_radius)
+    core = wp.min(beta * wp.sqrt(4.0 * OSEEN * viscosity * dt[0]), MAX_CORE * particle_radius)
     xi = x[i]
     dv = wp.vec3(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):

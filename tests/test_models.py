@@ -209,7 +209,8 @@ def test_rankine_feedback_restores_the_vorticity_change(waves):
     """Algorithm 1 feeds back d omega = omega^n - omega^{n-1} as Rankine vortices with the negative
     factor of section 4.1: on a periodic lattice the curl of the velocity it adds opposes a smooth d omega
     (it restores what was lost), and never by more than d omega itself (no overshoot) at the largest
-    core (r_c = r). Measured gains -0.08, -0.30, -0.85 for 32, 16, 8 spacings a wavelength."""
+    core (r_c = 0.7 r). Gains at r_c = r were -0.08, -0.30, -0.85 for 32, 16, 8 spacings a wavelength
+    (they scale with r_c^2)."""
     from warpsph.kernels.rankine import apply_rankine_feedback
     from warpsph.models.vorticity import curl_of
 
@@ -225,7 +226,7 @@ def test_rankine_feedback_restores_the_vorticity_change(waves):
     change[:, 2] = np.sin(k * x[:, 0]) * np.cos(k * x[:, 1])
     nu, dt = 0.01, 1e-3
     sim.dt.assign(np.array([dt], np.float32))
-    beta = 2.0 * (d / 2) / np.sqrt(4 * 1.25643 * nu * dt)  # r_c = 2r before the cap: capped at r
+    beta = 2.0 * (d / 2) / np.sqrt(4 * 1.25643 * nu * dt)  # r_c = 2r before the cap: capped
     sim.fluid.v.zero_()
     sim.launch(apply_rankine_feedback, sim.num_fluid,
                [sim.fluid.x, sim.neighbours.lists, wp.array(change, dtype=wp.vec3), float(beta), nu, d / 2, sim.dt,
@@ -234,4 +235,4 @@ def test_rankine_feedback_restores_the_vorticity_change(waves):
     assert np.abs(dv[:, 2]).max() < 1e-6  # in the plane of a vortex along z
     curl = curl_of(sim, sim.fluid.v, wp.zeros(sim.num_fluid, dtype=wp.vec3)).numpy()
     gain = (curl[:, 2] * change[:, 2]).sum() / (change[:, 2] ** 2).sum()
-    assert -1.0 < gain < -0.05 * waves
+    assert -1.0 < gain < -0.02 * waves
