@@ -185,7 +185,8 @@ class Simulation:
         self.fluid_volume = (2.0 * r) ** 3  # a lattice of spacing 2r sums to rho0 (see docs)
         self.rest_density = scene.fluid.density
         self.particle_mass = self.rest_density * self.fluid_volume
-        self.gravity = wp.vec3(*scene.gravity)
+        self._graph = None
+        self.gravity = scene.gravity
         # explicit viscosity is stable for dt <= 0.125 h^2 / nu with h = H / 2 (Morris et al. 1997): at
         # r = 2.9 mm and nu = 0.05 a 0.57 ms step flung dam-break particles out at 38 m/s
         nu = max(scene.fluid.viscosity, scene.fluid.boundary_viscosity)
@@ -279,6 +280,17 @@ class Simulation:
         if not kept.any():
             raise SceneError(self.scene.source, "obstacles", "the bodies cover every fluid particle: no fluid left")
         return fluid_x[kept], fluid_v[kept]
+
+    @property
+    def gravity(self) -> wp.vec3:
+        """Gravity [m/s^2]; may be changed between steps (a ramp, a tilting tank): setting it drops
+        the captured CUDA graph, whose launches hold the value they were captured with."""
+        return self._gravity
+
+    @gravity.setter
+    def gravity(self, value):
+        self._gravity = wp.vec3(*[float(c) for c in value])
+        self._graph = None
 
     # -- allocation and launch bookkeeping ---------------------------------------------------
     def zeros(self, owner, shape, dtype=float):
