@@ -20,6 +20,28 @@ def curl_term(a_ij: wp.vec3, grad_w: wp.vec3, volume_j: float):
     return volume_j * wp.cross(a_ij, grad_w)
 
 
+@wp.func
+def sph_curl(
+    i: int,
+    x: wp.array(dtype=wp.vec3),
+    field: wp.array(dtype=wp.vec3),
+    density: wp.array(dtype=float),
+    nb: Neighbours,
+    particle_mass: float,
+    support_radius: float,
+):
+    """Difference-form curl of a per-particle vector field at particle i (eq 6 form, fluid
+    neighbours): sum_j (m_j / rho_j) (a_i - a_j) x grad W_ij."""
+    xi = x[i]
+    ai = field[i]
+    curl = wp.vec3(0.0)
+    for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
+        j = nb.fluid[k]
+        gw = cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius)
+        curl += curl_term(ai - field[j], gw, particle_mass / density[j])
+    return curl
+
+
 @wp.kernel
 def compute_vorticity(
     x: wp.array(dtype=wp.vec3),
@@ -32,13 +54,4 @@ def compute_vorticity(
 ):
     """zeta_i = sum_j (m_j / rho_j) (v_i - v_j) x grad W_ij (eq 6)."""
     i = wp.tid()
-    xi = x[i]
-    vi = v[i]
-    curl = wp.vec3(0.0)
-    for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
-        j = nb.fluid[k]
-        volume = particle_mass / density[j]
-        gw = cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius)
-        v_ij = vi - v[j]
-        curl += curl_term(v_ij, gw, volume)
-    vorticity[i] = curl
+    vorticity[i] = sph_curl(i, x, v, density, nb, particle_mass, support_radius)

@@ -6,7 +6,7 @@ import warp as wp
 from .particles import Neighbours, separation
 from .sph_kernel import PI, cubic_kernel_gradient
 from .viscosity import artificial_laplacian
-from .vorticity import curl_term
+from .vorticity import sph_curl
 
 wp.set_module_options({"enable_backward": False})
 
@@ -100,13 +100,7 @@ def apply_vorticity_refinement(
     support_radius: float,
     v: wp.array(dtype=wp.vec3),
 ):
-    """dv_i = sum_j (m_j / rho_j) (psi_i - psi_j) x grad W_ij (eq 16); v_i <- v~_i + alpha dv_i (eq 17)."""
+    """dv_i = sum_j (m_j / rho_j) (psi_i - psi_j) x grad W_ij (eq 16), the SPH curl of psi;
+    v_i <- v~_i + alpha dv_i (eq 17)."""
     i = wp.tid()
-    xi = x[i]
-    psi_i = stream_function[i]
-    dv = wp.vec3(0.0)
-    for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
-        j = nb.fluid[k]
-        dv += curl_term(psi_i - stream_function[j], cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius),
-                        particle_mass / density[j])
-    v[i] = v[i] + alpha * dv
+    v[i] = v[i] + alpha * sph_curl(i, x, stream_function, density, nb, particle_mass, support_radius)

@@ -88,7 +88,7 @@ def test_finer_resolution_is_more_accurate(run):
 
 
 def test_plot_only_draws_a_json_made_elsewhere(run, tmp_path):
-    pytest.importorskip("matplotlib")
+    pytest.importorskip("matplotlib", reason="the PNG needs matplotlib (the test extra installs it)")
     _, out = run
     copy = tmp_path / "copy.json"
     assert main(["--plot-only", str(out), "--out", str(copy)]) == 0

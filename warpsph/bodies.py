@@ -32,10 +32,6 @@ ADDED_MASS = 1.0
 WALL_FRICTION = 0.5  # fraction of the tangential velocity a dynamic body keeps per step in wall contact
 
 
-def axis_angle_matrix(axis, angle):
-    return sampling.rotation_matrix(axis, angle)
-
-
 def orthonormalize(rotation):
     u, _, vt = np.linalg.svd(rotation)
     return u @ vt
@@ -68,8 +64,12 @@ class RigidBody:
         o = self.obstacle
         return "dynamic" if o.dynamics is not None else "kinematic" if o.motion is not None else "static"
 
+    def to_world(self, points):
+        """Body-space points at the body's current pose."""
+        return points @ self.rotation.T + self.position
+
     def world_samples(self):
-        return (self.samples @ self.rotation.T + self.position).astype(np.float32)
+        return self.to_world(self.samples).astype(np.float32)
 
 
 def load_body(obstacle: Obstacle, path, spacing, domain_size, default_name, fluid_density=1000.0) -> RigidBody:
@@ -142,7 +142,7 @@ def kinematic_pose(m: Motion, reference, t):
     angle, rate = _spin(m, t)
     axis = np.asarray(m.axis, np.float64)
     axis = axis / np.linalg.norm(axis) if rate or angle else axis
-    return reference + offset, axis_angle_matrix(axis, angle), velocity, axis * rate
+    return reference + offset, sampling.rotation_matrix(axis, angle), velocity, axis * rate
 
 
 class MovingBodies:
@@ -219,7 +219,7 @@ class MovingBodies:
             w = body.angular_velocity
             angle = float(np.linalg.norm(w)) * dt
             if angle > 0.0:
-                body.rotation = orthonormalize(axis_angle_matrix(w, angle) @ body.rotation)
+                body.rotation = orthonormalize(sampling.rotation_matrix(w, angle) @ body.rotation)
             self._wall_contact(body, np.add(domain_lo, margin), np.subtract(domain_hi, margin), periodic)
         self._store_state()
 
@@ -227,7 +227,7 @@ class MovingBodies:
         """Keeps the body's samples inside [lo, hi] (the domain less the samples' inset, so the mesh
         surface stops at the walls): pushed back along each closed axis,
         the velocity into the wall removed and the tangential motion damped by friction."""
-        world = body.samples @ body.rotation.T + body.position
+        world = body.to_world(body.samples)
         touched = []
         for k in range(3):
             if "xyz"[k] in periodic:

@@ -130,8 +130,8 @@ class Inflow:
             sim.launch(drive_inflow_particles, sim.num_fluid,
                        [sim.fluid.x, wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*e.velocity), sim.fluid.v])
 
-    def update(self, sim):
-        time = sim.time
+    def update(self, sim, time):
+        """Drains the sinks, then emits and drives the layers due at ``time``."""
         self.drain(sim)
         self.emit(sim, time)
         self.drive(sim, time)

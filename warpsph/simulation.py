@@ -7,10 +7,10 @@ import time as _time
 from collections import Counter, defaultdict
 from dataclasses import dataclass
 
+from pathlib import Path
+
 import numpy as np
 import warp as wp
-
-from pathlib import Path
 
 from warpsph import sampling
 from warpsph.bodies import BODY_INSET, MovingBodies, load_body
@@ -185,8 +185,7 @@ class Simulation:
         self.fluid_volume = (2.0 * r) ** 3  # a lattice of spacing 2r sums to rho0 (see docs)
         self.rest_density = scene.fluid.density
         self.particle_mass = self.rest_density * self.fluid_volume
-        self._graph = None
-        self.gravity = scene.gravity
+        self.gravity = scene.gravity  # (the setter also starts without a captured graph)
         # explicit viscosity is stable for dt <= 0.125 h^2 / nu with h = H / 2 (Morris et al. 1997): at
         # r = 2.9 mm and nu = 0.05 a 0.57 ms step flung dam-break particles out at 38 m/s
         nu = max(scene.fluid.viscosity, scene.fluid.boundary_viscosity)
@@ -271,11 +270,9 @@ class Simulation:
         x = wp.array(fluid_x, dtype=wp.vec3, device=self.device)
         keep = wp.ones(len(fluid_x), dtype=wp.int32, device=self.device)
         for b in closed:
-            world = b.vertices @ b.rotation.T + b.position
-            mesh = wp.Mesh(points=wp.array(world, dtype=wp.vec3, device=self.device),
+            mesh = wp.Mesh(points=wp.array(b.to_world(b.vertices), dtype=wp.vec3, device=self.device),
                            indices=wp.array(b.faces.ravel(), dtype=wp.int32, device=self.device))
-            wp.launch(mark_fluid_clear_of_mesh, len(fluid_x), [mesh.id, x, self.scene.particle_radius, keep],
-                      device=self.device)
+            self.launch(mark_fluid_clear_of_mesh, len(fluid_x), [mesh.id, x, self.scene.particle_radius, keep])
         kept = keep.numpy().astype(bool)
         if not kept.any():
             raise SceneError(self.scene.source, "obstacles", "the bodies cover every fluid particle: no fluid left")
@@ -368,16 +365,18 @@ class Simulation:
         densities of the new positions: it turns v^n (advected at the end of the last
         step) into the divergence-free v~ that the models refine."""
         with wp.ScopedDevice(self.device):
+            # t^n, read from the device once for the emitters and the bodies' poses
+            now = self.time if self.inflow is not None or self.moving_bodies is not None else None
             if self.inflow is not None:
                 with self.timer("inflow"):  # sinks remove, emitters add: the count changes here only
-                    self.inflow.update(self)
+                    self.inflow.update(self, now)
             interval = self.scene.solver.sort_interval
             if interval and self.step_count % interval == 0:
                 with self.timer("sort"):
                     self.sort_particles()
             if self.moving_bodies is not None:
                 with self.timer("bodies"):  # boundary samples at the bodies' poses at t^n
-                    self.moving_bodies.place(self.time)
+                    self.moving_bodies.place(now)
                     self.neighbours.rebuild_boundary_grid()
             with self.timer("neighbours"):
                 self.neighbours.update(self.fluid.x)

@@ -224,5 +224,5 @@ def frame_writer(cache):
 def body_meshes(sim):
     """(name, vertices, faces, moving) of every body, for the writers: a static body in world
     space, a moving one in body space (its pose goes into each frame)."""
-    return [(b.name, b.vertices + (b.reference if b.kind == "static" else 0.0), b.faces, b.kind != "static")
+    return [(b.name, b.to_world(b.vertices) if b.kind == "static" else b.vertices, b.faces, b.kind != "static")
             for b in sim.bodies]
