@@ -6,6 +6,8 @@ grid and then read by every solver iteration, which is cheaper than repeating th
 27-cell grid query in each pass.
 """
 
+from typing import Any
+
 import warp as wp
 
 wp.set_module_options({"enable_backward": False})
@@ -108,21 +110,7 @@ def compute_morton_keys(
 
 
 @wp.kernel
-def gather_vec3(src: wp.array(dtype=wp.vec3), order: wp.array(dtype=wp.int32), dst: wp.array(dtype=wp.vec3)):
-    """dst[i] = src[order[i]]: applies a permutation to a vector field."""
-    i = wp.tid()
-    dst[i] = src[order[i]]
-
-
-@wp.kernel
-def gather_float(src: wp.array(dtype=float), order: wp.array(dtype=wp.int32), dst: wp.array(dtype=float)):
-    """dst[i] = src[order[i]]: applies a permutation to a scalar field."""
-    i = wp.tid()
-    dst[i] = src[order[i]]
-
-
-@wp.kernel
-def gather_int64(src: wp.array(dtype=wp.int64), order: wp.array(dtype=wp.int32), dst: wp.array(dtype=wp.int64)):
-    """dst[i] = src[order[i]]: applies a permutation to an id field."""
+def gather(src: wp.array(dtype=Any), order: wp.array(dtype=wp.int32), dst: wp.array(dtype=Any)):
+    """dst[i] = src[order[i]]: applies a permutation to a per-particle field of any type."""
     i = wp.tid()
     dst[i] = src[order[i]]

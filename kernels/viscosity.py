@@ -10,12 +10,13 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.func
-def artificial_laplacian(a_ij: wp.vec3, x_ij: wp.vec3, volume_j: float, support_radius: float):
+def artificial_laplacian(a_ij: wp.vec3, x_ij: wp.vec3, grad_w: wp.vec3, volume_j: float, support_radius: float):
     """One neighbour's term of eq 4: 2(d+2) V_j (A_ij . x_ij) / (|x_ij|^2 + 0.01 H^2) grad W_ij, d = 3.
 
-    Shared by the viscosity of v (eq 4) and the vorticity Laplacian (eq 10)."""
-    return (10.0 * volume_j * wp.dot(a_ij, x_ij) / (wp.dot(x_ij, x_ij) + 0.01 * support_radius * support_radius)) * \
-        cubic_kernel_gradient(x_ij, support_radius)
+    Shared by the viscosity of v (eq 4) and the vorticity Laplacian (eq 10); ``grad_w`` is grad W_ij,
+    which the callers' loops also use for other sums."""
+    h2 = support_radius * support_radius
+    return (10.0 * volume_j * wp.dot(a_ij, x_ij) / (wp.dot(x_ij, x_ij) + 0.01 * h2)) * grad_w
 
 
 @wp.kernel
@@ -50,16 +51,17 @@ def add_viscosity_acceleration(
         x_ij = separation(nb, xi, x[j])
         volume = particle_mass / density[j]
         v_ij = vi - v[j]
-        lap += artificial_laplacian(v_ij, x_ij, volume, support_radius)
+        gw = cubic_kernel_gradient(x_ij, support_radius)
+        lap += artificial_laplacian(v_ij, x_ij, gw, volume, support_radius)
         if with_vorticity != 0:
-            gw = cubic_kernel_gradient(x_ij, support_radius)
             curl += curl_term(v_ij, gw, volume)
     friction = wp.vec3(0.0)
     if boundary_viscosity > 0.0:
         for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
             b = nb.boundary[k]
-            term = boundary_viscosity * artificial_laplacian(vi - boundary.v[b], separation(nb, xi, boundary.x[b]),
-                                                             boundary.volume[b], support_radius)
+            x_ib = separation(nb, xi, boundary.x[b])
+            gw = cubic_kernel_gradient(x_ib, support_radius)
+            term = boundary_viscosity * artificial_laplacian(vi - boundary.v[b], x_ib, gw, boundary.volume[b], support_radius)
             if b >= boundary.first_dynamic:
                 wp.atomic_add(boundary.impulse, b, -dt[0] * term)
             friction += term

@@ -21,6 +21,13 @@ def curl_term(a_ij: wp.vec3, grad_w: wp.vec3, volume_j: float):
 
 
 @wp.func
+def curl_of_gradient(grad: wp.mat33):
+    """curl v from the velocity gradient G[a][b] = d v^a / d x^b: (G21 - G12, G02 - G20, G10 - G01).
+    With G summed as sum_j V_j (v_j - v_i) (x) grad W_ij this is exactly the eq-6 sum."""
+    return wp.vec3(grad[2, 1] - grad[1, 2], grad[0, 2] - grad[2, 0], grad[1, 0] - grad[0, 1])
+
+
+@wp.func
 def sph_curl(
     i: int,
     x: wp.array(dtype=wp.vec3),

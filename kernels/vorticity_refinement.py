@@ -6,7 +6,7 @@ import warp as wp
 from .particles import Neighbours, separation
 from .sph_kernel import PI, cubic_kernel_gradient
 from .viscosity import artificial_laplacian
-from .vorticity import sph_curl
+from .vorticity import curl_of_gradient, sph_curl
 
 wp.set_module_options({"enable_backward": False})
 
@@ -15,19 +15,10 @@ wp.set_module_options({"enable_backward": False})
 STREAM_FUNCTION_GUARD = wp.constant(0.1)
 
 
-@wp.kernel
-def compute_vorticity_loss(
-    target: wp.array(dtype=wp.vec3),
-    vorticity: wp.array(dtype=wp.vec3),
-    has_target: int,
-    loss: wp.array(dtype=wp.vec3),
-):
-    """Dissipated vorticity d zeta = zeta^{n+1} - curl v~ (eq 12); zero before the first target exists."""
-    i = wp.tid()
-    if has_target != 0:
-        loss[i] = target[i] - vorticity[i]
-    else:
-        loss[i] = wp.vec3(0.0)
+@wp.func
+def vorticity_loss(j: int, target: wp.array(dtype=wp.vec3), vorticity: wp.array(dtype=wp.vec3)):
+    """Dissipated vorticity d zeta_j = zeta^{n+1}_j - curl v~_j (eq 12)."""
+    return target[j] - vorticity[j]
 
 
 @wp.kernel
@@ -35,19 +26,24 @@ def compute_stream_function(
     x: wp.array(dtype=wp.vec3),
     density: wp.array(dtype=float),
     nb: Neighbours,
-    loss: wp.array(dtype=wp.vec3),
+    target: wp.array(dtype=wp.vec3),
+    vorticity: wp.array(dtype=wp.vec3),
+    has_target: int,
     particle_mass: float,
     support_radius: float,
     stream_function: wp.array(dtype=wp.vec3),
 ):
-    """psi_i = 1/(4 pi) sum_j d zeta_j V_j / (|x_ij| + 0.1 H) over kernel neighbours (eq 15)."""
+    """psi_i = 1/(4 pi) sum_j d zeta_j V_j / (|x_ij| + 0.1 H) over kernel neighbours (eq 15), with
+    d zeta_j (eq 12) formed in the loop rather than stored; zero before the first target exists."""
     i = wp.tid()
-    xi = x[i]
     psi = wp.vec3(0.0)
-    for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
-        j = nb.fluid[k]
-        x_ij = separation(nb, xi, x[j])
-        psi += (particle_mass / density[j] / (wp.length(x_ij) + STREAM_FUNCTION_GUARD * support_radius)) * loss[j]
+    if has_target != 0:
+        xi = x[i]
+        for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
+            j = nb.fluid[k]
+            x_ij = separation(nb, xi, x[j])
+            weight = particle_mass / density[j] / (wp.length(x_ij) + STREAM_FUNCTION_GUARD * support_radius)
+            psi += weight * vorticity_loss(j, target, vorticity)
     stream_function[i] = psi / (4.0 * PI)
 
 
@@ -64,16 +60,19 @@ def compute_target_vorticity(
     dt: wp.array(dtype=float),
     target: wp.array(dtype=wp.vec3),
 ):
-    """The next step's ideal vorticity zeta^{n+1} = zeta^n + dt (zeta^n . grad v + nu lap zeta^n)
-    (eqs 9-11), where zeta^n = curl v^n is the vorticity of the refined velocity (Algorithm 2's first
-    line) and lap its artificial Laplacian (eq 10). The velocity gradient G_i = sum_j (m_j/rho_j)
-    (v_j - v_i) (x) grad W_ij (row a: grad v^a, eq 8), so that the stretching is G_i zeta_i, comes
-    from the same loop rather than a stored 3x3 per particle.
+    """The next step's ideal vorticity zeta^{n+1} = zeta^n + dt (zeta^n . grad v + nu lap zeta)
+    (eqs 9-11). One neighbour loop over the refined velocity v^n gives its gradient
+    G_i = sum_j (m_j/rho_j) (v_j - v_i) (x) grad W_ij (row a: grad v^a, eq 8), so the stretching
+    G_i zeta^n_i, and zeta^n_i = curl v^n (Algorithm 2's first line) as G's antisymmetric part: the
+    same sum as eq 6. The artificial Laplacian (eq 10) is taken of the shared field curl v~, the
+    vorticity before this step's refinement, because the refined one at the neighbours would cost a
+    pass of its own; the two differ by alpha d zeta, whose diffusion over one step is
+    O(nu dt / h^2) smaller (<= 1/8 under the viscous time-step limit).
 
-    Taking zeta^n from what the refinement realised, not from what it asked for (curl v~ + alpha
-    d zeta), matters: the stream function summed within h realises only part of d zeta, and the
-    unrealised part would come back in the next d zeta multiplied by alpha; with alpha > 1 that
-    grew 1.2x a step until a dam break blew up (alpha 1.2, 1.3, 2)."""
+    zeta^n is what the refinement realised, not what it asked for (curl v~ + alpha d zeta): the
+    stream function summed within h realises only part of d zeta, and the unrealised part would
+    come back in the next d zeta multiplied by alpha; with alpha > 1 that grew 1.2x a step until
+    a dam break blew up (alpha 1.2, 1.3, 2)."""
     i = wp.tid()
     xi = x[i]
     vi = v[i]
@@ -84,9 +83,11 @@ def compute_target_vorticity(
         j = nb.fluid[k]
         x_ij = separation(nb, xi, x[j])
         volume = particle_mass / density[j]
-        lap += artificial_laplacian(zi - vorticity[j], x_ij, volume, support_radius)
-        grad -= volume * wp.outer(vi - v[j], cubic_kernel_gradient(x_ij, support_radius))
-    target[i] = zi + dt[0] * (grad * zi + viscosity * lap)
+        gw = cubic_kernel_gradient(x_ij, support_radius)
+        lap += artificial_laplacian(zi - vorticity[j], x_ij, gw, volume, support_radius)
+        grad -= volume * wp.outer(vi - v[j], gw)
+    refined = curl_of_gradient(grad)
+    target[i] = refined + dt[0] * (grad * refined + viscosity * lap)
 
 
 @wp.kernel

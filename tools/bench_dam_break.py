@@ -64,44 +64,79 @@ def main():
 def neighbour_passes(result, models):
     """k: neighbour passes a step (density+factor 1; each solver: warm start 1 + source 1 + 2 per
     iteration; viscosity 1; the models' own passes)."""
-    extra = sum({"none": 0, "vorticity_refinement": 2, "rankine": 1, "micropolar": 1}[m] for m in models)
+    extra = sum({"none": 0, "vorticity_refinement": 3, "rankine": 1, "micropolar": 1}[m] for m in models)
     return 1 + 4 + 2 * result["mean_divergence_iterations"] + 2 * result["mean_density_iterations"] + 1 + extra
 
 
 def markdown_table(results):
     stages = sorted({k for r in results for k in r["ms_per_step_by_stage_synchronised"]})
-    head = "| fluid particles | ms/step | steps/s | k | ms per pass | " + " | ".join(f"{s} %" for s in stages) + " | B/particle |"
-    rows = [head, "|" + "---|" * (6 + len(stages))]
+    head = ("| fluid particles | ms/step | steps/s | k | ms per pass | " + " | ".join(f"{s} %" for s in stages)
+            + " | B/particle arrays | B/particle device | B/particle device, marginal |")
+    rows = [head, "|" + "---|" * (8 + len(stages))]
+    previous = None
     for r in results:
         st = r["ms_per_step_by_stage_synchronised"]
         total = sum(st.values())
         rows.append(f"| {r['fluid_particles']:,} | {r['ms_per_step']:.2f} | {1e3 / r['ms_per_step']:.0f} | {r['k_passes']:.1f} | "
                     f"{r['ms_per_step'] / r['k_passes']:.3f} | " + " | ".join(f"{100 * st.get(s, 0) / total:.0f}" for s in stages)
-                    + f" | {r['bytes_per_fluid_particle_arrays']:.0f} |")
+                    + f" | {r['bytes_per_fluid_particle_arrays']:.0f} | {fmt(r['bytes_per_fluid_particle_device'])} | "
+                    f"{fmt(marginal_bytes(previous, r))} |")
+        previous = r
     return f"{results[0]['scene']} on {results[0]['device']}, Warp {results[0]['warp']}, commit {results[0]['commit']}\n\n" + "\n".join(rows) + "\n"
 
 
-def run(args, particles):
+def fmt(value):
+    return "—" if value is None else f"{value:.0f}"
+
+
+def marginal_bytes(smaller, larger):
+    """Device bytes per added fluid particle between two sizes: the slope of the device memory taken,
+    free of what does not grow with N (module code, kernel stacks, the hash grids' 128^3 cell tables)."""
+    if smaller is None or smaller.get("bytes_per_fluid_particle_device") is None:
+        return None
+    taken = [r["bytes_per_fluid_particle_device"] * r["fluid_particles"] for r in (smaller, larger)]
+    return (taken[1] - taken[0]) / (larger["fluid_particles"] - smaller["fluid_particles"])
+
+
+def make_scene(args, particles):
+    """The benchmark's scene at ~``particles`` fluid particles with the command line's overrides."""
     import dataclasses
 
-    from warpsph.scene import load_scene
-    from warpsph.simulation import Simulation
-
-    base = load_scene(args.scene)
+    from warpsph.scene import MODEL_TYPES, load_scene
     from warpsph.simulation import sample_scene
 
-    n_base = len(sample_scene(base)[0])
+    n_base = len(sample_scene(load_scene(args.scene))[0])
     scene = load_scene(args.scene, scale=particles / n_base)
+    solver = scene.solver
     if args.density_error:
-        scene = dataclasses.replace(scene, solver=dataclasses.replace(scene.solver, density_max_error=args.density_error))
+        solver = dataclasses.replace(solver, density_max_error=args.density_error)
     if args.sort_interval is not None:
-        scene = dataclasses.replace(scene, solver=dataclasses.replace(scene.solver, sort_interval=args.sort_interval))
+        solver = dataclasses.replace(solver, sort_interval=args.sort_interval)
+    scene = dataclasses.replace(scene, solver=solver)
     if args.model != "none":
-        from warpsph.scene import MODEL_TYPES
-
         names = list(MODEL_TYPES) if args.model == "all" else [args.model]
         scene = dataclasses.replace(scene, models=tuple(MODEL_TYPES[name]() for name in names))
+    return scene
+
+
+def load_modules(args, device):
+    """A few steps of the same scene at ~2K particles, so that loading the kernels' modules (code,
+    kernel stacks) is not counted as the large run's memory."""
+    from warpsph.simulation import Simulation
+
+    small = Simulation(make_scene(args, 2e3), device=device)
+    for _ in range(3):
+        small.step()
+    del small
+    wp.synchronize_device(device)
+
+
+def run(args, particles):
+    from warpsph.simulation import Simulation
+
+    scene = make_scene(args, particles)
     device = wp.get_device(args.device)
+    load_modules(args, device)
     wp.synchronize_device(device)
     free_before = device.free_memory if device.is_cuda else None
     sim = Simulation(scene, device=device)

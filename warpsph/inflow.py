@@ -84,11 +84,14 @@ class Inflow:
                               f"output.frames / output.fps); emission pauses until sinks free room", stacklevel=3)
                 self._warned = True
             return False
+        if self.next_id + k > np.iinfo(np.int32).max:
+            raise SceneError(sim.scene.source, "emitters",
+                             f"particle ids would pass {np.iinfo(np.int32).max} (int32): fewer or larger particles")
         for array in sim._per_particle:
             array[n: n + k].zero_()
         sim.fluid.x[n: n + k].assign(x)
         sim.fluid.v[n: n + k].assign(np.tile(velocity, (k, 1)))
-        sim.fluid.ids[n: n + k].assign(np.arange(self.next_id, self.next_id + k, dtype=np.int64))
+        sim.fluid.ids[n: n + k].assign(np.arange(self.next_id, self.next_id + k, dtype=np.int32))
         self.next_id += k
         sim.num_fluid = n + k
         return True

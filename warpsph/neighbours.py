@@ -9,7 +9,7 @@ from warpsph.kernels import neighbours as nk
 from warpsph.kernels.particles import Neighbours
 
 GRID_DIM = 128  # hash grid buckets per axis (cells hash into a 128^3 table)
-GROWTH = 1.1  # spare capacity when a neighbour list is sized (first update) or must grow
+GROWTH = 1.05  # spare capacity when a neighbour list is sized (first update) or must grow
 
 
 class NeighbourSearch:
@@ -19,7 +19,7 @@ class NeighbourSearch:
     about a tenth of a grid pass); the fluid grid and both
     lists are rebuilt by :meth:`update`, which costs two neighbour-grid passes and one
     host read of the list sizes per step. The lists are sized by the first update to what it
-    found plus 10 % (a fixed 32 + 8 slots a particle overestimated the boundary list 3x in a dam
+    found plus 5 % (a fixed 32 + 8 slots a particle overestimated the boundary list 3x in a dam
     break), and grow by the same margin when needed, so their arrays (and any CUDA graph that
     captured them) rarely change.
     """
@@ -34,9 +34,8 @@ class NeighbourSearch:
         if boundary_x.shape[0] > 0:
             self.boundary_grid = wp.HashGrid(GRID_DIM, GRID_DIM, GRID_DIM, device=sim.device)
             self.boundary_grid.build(boundary_x, self.support_radius)
-        self.fluid_counts = sim.zeros("neighbours", n + 1, dtype=wp.int32)
+        # counts are written into the offsets arrays and scanned in place (no count arrays)
         self.fluid_offsets = sim.zeros("neighbours", n + 1, dtype=wp.int32)
-        self.boundary_counts = sim.zeros("neighbours", n + 1, dtype=wp.int32)
         self.boundary_offsets = sim.zeros("neighbours", n + 1, dtype=wp.int32)
         self.fluid_neighbours = sim.zeros("neighbours", 1, dtype=wp.int32)  # sized by the first update
         self.boundary_neighbours = sim.zeros("neighbours", 1, dtype=wp.int32)
@@ -53,25 +52,24 @@ class NeighbourSearch:
         """Rebuilds the fluid grid and both neighbour lists for positions ``x``."""
         sim = self.sim
         n = sim.num_fluid
-        H = self.support_radius
-        self.fluid_grid.build(sim.active(x), H)
-        box = [self.lower, self.period]
-        sim.launch(nk.find_neighbours, n, [self.fluid_grid.id, x, x, H, 1, *box, 0, self.fluid_counts, self._no_list])
-        wp.utils.array_scan(self.fluid_counts, self.fluid_offsets, inclusive=False)
+        self.fluid_grid.build(sim.active(x), self.support_radius)
+        self.fluid_neighbours = self._build_list(self.fluid_grid, x, x, 1, self.fluid_offsets, self.fluid_neighbours)
         if self.boundary_grid is not None:
-            sim.launch(nk.find_neighbours, n,
-                       [self.boundary_grid.id, x, self.boundary_x, H, 0, *box, 0, self.boundary_counts, self._no_list])
-            wp.utils.array_scan(self.boundary_counts, self.boundary_offsets, inclusive=False)
-        fluid_total = int(self.fluid_offsets[n:].numpy()[0])
-        self.fluid_neighbours = self._ensure_capacity(self.fluid_neighbours, fluid_total)
-        sim.launch(nk.find_neighbours, n,
-                   [self.fluid_grid.id, x, x, H, 1, *box, 1, self.fluid_offsets, self.fluid_neighbours])
-        if self.boundary_grid is not None:
-            boundary_total = int(self.boundary_offsets[n:].numpy()[0])
-            self.boundary_neighbours = self._ensure_capacity(self.boundary_neighbours, boundary_total)
-            sim.launch(nk.find_neighbours, n,
-                       [self.boundary_grid.id, x, self.boundary_x, H, 0, *box, 1, self.boundary_offsets,
-                        self.boundary_neighbours])
+            self.boundary_neighbours = self._build_list(self.boundary_grid, x, self.boundary_x, 0,
+                                                        self.boundary_offsets, self.boundary_neighbours)
+
+    def _build_list(self, grid, x, grid_points, exclude_self, offsets, neighbours):
+        """One CSR list: counts into ``offsets``, an exclusive scan in place (row n: the total), then
+        the indices; returns the index array (reallocated when the total outgrew it)."""
+        sim, n = self.sim, self.sim.num_fluid
+        args = [grid.id, x, grid_points, self.support_radius, exclude_self, self.lower, self.period]
+        rows = offsets[: n + 1]
+        rows[n:].zero_()
+        sim.launch(nk.find_neighbours, n, args + [0, rows, self._no_list])
+        wp.utils.array_scan(rows, rows, inclusive=False)
+        neighbours = self._ensure_capacity(neighbours, int(rows[n:].numpy()[0]))
+        sim.launch(nk.find_neighbours, n, args + [1, rows, neighbours])
+        return neighbours
 
     @property
     def lists(self) -> Neighbours:
@@ -94,7 +92,7 @@ class NeighbourSearch:
     def counts(self):
         """Per-particle (fluid, boundary) neighbour counts as numpy arrays (for tests and stats)."""
         n = self.sim.num_fluid
-        return self.fluid_counts.numpy()[:n], self.boundary_counts.numpy()[:n]
+        return np.diff(self.fluid_offsets.numpy()[: n + 1]), np.diff(self.boundary_offsets.numpy()[: n + 1])
 
 
 def sort_order(sim, x: wp.array, keys: wp.array, order: wp.array):

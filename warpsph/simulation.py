@@ -25,7 +25,7 @@ from warpsph.kernels.integration import (
     compute_time_step,
     predict_velocity,
 )
-from warpsph.kernels.neighbours import gather_float, gather_int64, gather_vec3
+from warpsph.kernels.neighbours import gather
 from warpsph.kernels.particles import Boundary
 from warpsph.kernels.stability import DENSITY_LIMIT, NOT_FINITE, OUTSIDE_DOMAIN, check_particles
 from warpsph.models import REGISTRY
@@ -45,7 +45,7 @@ class FluidParticles:
 
     x: wp.array  # position [m]
     v: wp.array  # velocity [m/s]
-    ids: wp.array  # stable id (int64), follows the particle through re-sorting
+    ids: wp.array  # stable id (int32; int64 in USD), follows the particle through re-sorting
     density: wp.array  # [kg/m^3]
     factor: wp.array  # DFSPH factor
     acceleration: wp.array  # non-pressure acceleration of this step [m/s^2]
@@ -206,13 +206,15 @@ class Simulation:
         # per-particle arrays hold the fluid at its largest: the initial particles and what emitters add
         self.capacity = self.num_fluid + (self.inflow.room if self.inflow is not None else 0)
         self._per_particle = []
-        self._scratch = {}
+        self._scratch = None
+        model_classes = [REGISTRY[MODEL_NAMES[type(p)]] for p in scene.models]
+        self._scratch_columns = max([DFSPHSolver.scratch_columns] + [m.scratch_columns for m in model_classes])
         check_fits(scene, self.capacity, self.num_boundary, self.device)  # refuse before allocating
         with wp.ScopedDevice(self.device):
             z, p = self.zeros, self.per_particle
             self.fluid = FluidParticles(
                 x=p("fluid", wp.vec3, fluid_x), v=p("fluid", wp.vec3, fluid_v),
-                ids=p("fluid", wp.int64, np.arange(self.num_fluid, dtype=np.int64)),
+                ids=p("fluid", wp.int32, np.arange(self.num_fluid, dtype=np.int32)),
                 density=p("fluid"), factor=p("fluid"), acceleration=p("fluid", wp.vec3))
             has_dynamic = any(b.kind == "dynamic" for b in moving)
             first_dynamic = first_moving + sum(len(b.samples) for b in moving if b.kind == "kinematic")
@@ -234,7 +236,7 @@ class Simulation:
             viscous = scene.fluid.viscosity > 0.0 or scene.fluid.boundary_viscosity > 0.0
             if viscous:
                 self.models.append(REGISTRY["viscosity"](self))
-            self.models += [REGISTRY[MODEL_NAMES[type(p)]](self, p) for p in scene.models]
+            self.models += [cls(self, p) for cls, p in zip(model_classes, scene.models)]
             self.turbulence_models = self.models[1:] if viscous else list(self.models)
             # the vorticity of v~, shared by the models, exists only when one reads it
             self.vorticity_field = None
@@ -304,14 +306,20 @@ class Simulation:
         self._per_particle.append(a)
         return a
 
-    def scratch(self, dtype, slot):
-        """Per-particle scratch array number ``slot`` of ``dtype``, shared by the models for values
-        that live within one model's step (stream function, next angular velocity, ...): models run
-        one after the other, so enabling several does not multiply their temporaries."""
-        key = (dtype, slot)
-        if key not in self._scratch:
-            self._scratch[key] = self.zeros("scratch", self.capacity, dtype=dtype)
-        return self._scratch[key]
+    def scratch(self, dtype, column=0):
+        """A per-particle scratch array of ``dtype`` over float columns ``column ..`` of the scratch
+        pool, for values that live within one stage (stream function, next angular velocity,
+        solver stiffness and error). The models run one after the other and the pressure solver
+        apart from them, so they all share one pool: ``capacity`` x the widest ``scratch_columns``
+        that the solver or an enabled model declares."""
+        width = wp.types.type_size_in_bytes(dtype) // 4
+        if column + width > self._scratch_columns:
+            raise ValueError(f"scratch columns {column}..{column + width - 1} of {dtype} exceed the "
+                             f"{self._scratch_columns} declared (raise the owner's scratch_columns)")
+        if self._scratch is None:
+            self._scratch = self.zeros("scratch", self.capacity * self._scratch_columns)
+        return wp.array(ptr=self._scratch.ptr + 4 * column * self.capacity, dtype=dtype, shape=(self.capacity,),
+                        device=self.device)
 
     def active(self, array):
         """The rows of a per-particle array that hold particles (a view; the array itself when full)."""
@@ -331,12 +339,10 @@ class Simulation:
         wp.launch(kernel, dim=dim, inputs=inputs, device=self.device)
 
     # -- re-sorting by cell ------------------------------------------------------------------------
-    _GATHER = {wp.vec3: gather_vec3, wp.float32: gather_float, wp.int64: gather_int64}
-
     def permute(self, array, order):
         """array[:] = array[order] for one per-particle array (through a temporary copy)."""
         scratch = wp.empty_like(array)
-        self.launch(self._GATHER[array.dtype], self.num_fluid, [array, order, scratch])
+        self.launch(gather, self.num_fluid, [array, order, scratch])
         wp.copy(array, scratch, count=self.num_fluid)
 
     def sort_particles(self):

@@ -36,11 +36,13 @@ WARM_START_FACTOR = {DIVERGENCE: 0.5, DENSITY: 0.5}
 
 
 class DFSPHSolver:
+    scratch_columns = 2  # stiffness and error live within a solve: they share the models' scratch pool
+
     def __init__(self, sim):
         self.sim = sim
         z = sim.zeros
-        self.stiffness = sim.per_particle("pressure")
-        self.error = sim.per_particle("pressure")
+        self.stiffness = sim.scratch(float, 0)
+        self.error = sim.scratch(float, 1)
         # accumulated stiffness of the last solve of each kind, for the warm start
         self.pressure_sum = [sim.per_particle("pressure"), sim.per_particle("pressure")]
         self.error_stats = z("pressure", 2)  # sum, max

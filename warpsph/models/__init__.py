@@ -11,6 +11,8 @@ Every model has the same small interface (after SPlisHSPlasH's ``NonPressureForc
   re-sorted by cell;
 - ``fields()`` returns the per-particle arrays it publishes for output, by name;
   ``state()`` the arrays a checkpoint must keep;
+- ``scratch_columns`` (floats per particle) sizes the scratch pool that ``sim.scratch(dtype,
+  column)`` hands out for values living within the model's step; models share it;
 - ``needs_vorticity`` asks the stepper for the shared vorticity field, computed once per
   step after the divergence solve.
 
@@ -39,6 +41,7 @@ class Model:
 
     name = "model"
     needs_vorticity = False
+    scratch_columns = 0
 
     def __init__(self, sim, params=None):
         self.params = params

@@ -12,6 +12,7 @@ class MicropolarModel(Model):
     """Angular velocity omega per particle, coupled to v through nu_t. One launch and a copy."""
 
     needs_vorticity = True
+    scratch_columns = 3
 
     def __init__(self, sim, params):
         super().__init__(sim, params)

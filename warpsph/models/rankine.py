@@ -13,6 +13,7 @@ class RankineModel(Model):
     v += sum_j r_c^2/(2r) d omega_j x e_theta, before advection. Two launches."""
 
     needs_vorticity = True
+    scratch_columns = 3
 
     def __init__(self, sim, params):
         super().__init__(sim, params)

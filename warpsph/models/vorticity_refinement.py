@@ -6,40 +6,37 @@ from warpsph.kernels.vorticity_refinement import (
     apply_vorticity_refinement,
     compute_stream_function,
     compute_target_vorticity,
-    compute_vorticity_loss,
 )
 
 from . import Model, register
-from .vorticity import curl_of
 
 
 @register("vorticity_refinement")
 class VorticityRefinementModel(Model):
     """Per step, after the divergence solve gave v~ and its vorticity zeta~ (shared field):
-    d zeta = zeta^{n+1} - zeta~ (eq 12), psi (eq 15), v += alpha curl psi (eqs 16-17); then
+    d zeta = zeta^{n+1} - zeta~ (eq 12) inside psi (eq 15), v += alpha curl psi (eqs 16-17); then
     zeta^n = curl v of the refined velocity and from it the next ideal zeta^{n+1} (eqs 9-11).
-    Four neighbour passes."""
+    Three neighbour passes; one scratch vector per particle (psi) besides the carried target."""
 
     needs_vorticity = True
+    scratch_columns = 3
 
     def __init__(self, sim, params):
         super().__init__(sim, params)
         self.target = sim.per_particle(self.name, wp.vec3)  # zeta^{n+1}, carried to the next step
-        self.work = sim.scratch(wp.vec3, 0)  # d zeta, then the curl of the refined v (within the step)
-        self.stream_function = sim.scratch(wp.vec3, 1)  # psi (within the step)
+        self.stream_function = sim.scratch(wp.vec3, 0)  # psi (within the step)
         self.viscosity = sim.scene.fluid.viscosity if params.viscosity is None else params.viscosity
         self.has_target = 0
 
     def step(self, sim):
         f, n, field = sim.fluid, sim.num_fluid, sim.vorticity_field
         nb, mass, H = sim.neighbours.lists, sim.particle_mass, sim.support_radius
-        sim.launch(compute_vorticity_loss, n, [self.target, field.vorticity, self.has_target, self.work])
-        sim.launch(compute_stream_function, n, [f.x, f.density, nb, self.work, mass, H, self.stream_function])
+        sim.launch(compute_stream_function, n,
+                   [f.x, f.density, nb, self.target, field.vorticity, self.has_target, mass, H, self.stream_function])
         sim.launch(apply_vorticity_refinement, n,
                    [f.x, f.density, nb, self.stream_function, mass, self.params.alpha, H, f.v])
-        refined = curl_of(sim, f.v, self.work)  # zeta^n of Algorithm 2
         sim.launch(compute_target_vorticity, n,
-                   [f.x, f.v, f.density, nb, refined, mass, self.viscosity, H, sim.dt, self.target])
+                   [f.x, f.v, f.density, nb, field.vorticity, mass, self.viscosity, H, sim.dt, self.target])
         self.has_target = 1
 
     def reorder(self, sim, order):
