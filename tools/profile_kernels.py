@@ -1,56 +1,42 @@
-"""Time of every kernel of a step, launched alone: which neighbour pass costs what.
+"""GPU time of every kernel of a step: which neighbour pass costs what (CUDA only).
 
     python tools/profile_kernels.py --device cuda --particles 1e6 --model all --out tools/results/profile_kernels_1M_h100.json
 
-Runs the dam break at ~N fluid particles for ``--warmup`` steps, records the launches of one
-step (kernel, launch size, arguments), then replays each distinct kernel ``--repeats`` times with a
-device sync around each and reports the median in ms with how often the step launched it. The
-replays run on the state the step left (they may change it: this is a timing tool only). Compare a
-kernel with ``compute_density_and_factor`` (one plain neighbour pass) to see what a pass costs.
+Runs the dam break at ~N fluid particles for ``--warmup`` steps, then ``--steps`` steps without the
+CUDA graph under Warp's CUDA activity timing (events around every kernel, memcpy and memset) and
+reports per kernel the ms per step, launches per step and ms per launch. Compare a kernel with
+``compute_density_and_factor`` (one plain neighbour pass) to see what a pass costs.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import time
-from collections import Counter
+from collections import defaultdict
 from pathlib import Path
 
-import numpy as np
 import warp as wp
 
 from bench_dam_break import commit, make_scene
 
 
-def record_step(sim):
-    """Runs one step without a CUDA graph and returns its launches in order."""
-    launches = []
-    plain = sim.launch
-
-    def recording(kernel, dim, inputs):
-        launches.append((kernel, dim, list(inputs)))
-        plain(kernel, dim, inputs)
-
-    sim.launch, use_graph = recording, sim.use_graph
-    sim.use_graph = False
+def kernel_times(sim, steps):
+    """GPU time of every kernel (and memcpy/memset) over ``steps`` steps without a CUDA graph, from
+    CUDA events (``wp.timing_begin``): {name: [total ms, launches]} per step."""
+    use_graph, sim.use_graph = sim.use_graph, False
+    wp.timing_begin(cuda_filter=wp.TIMING_ALL)
     try:
-        sim.step()
+        for _ in range(steps):
+            sim.step()
     finally:
-        sim.launch, sim.use_graph = plain, use_graph
-    return launches
-
-
-def median_ms(kernel, dim, inputs, device, repeats):
-    wp.launch(kernel, dim=dim, inputs=inputs, device=device)
-    samples = []
-    for _ in range(repeats):
-        wp.synchronize_device(device)
-        start = time.perf_counter()
-        wp.launch(kernel, dim=dim, inputs=inputs, device=device)
-        wp.synchronize_device(device)
-        samples.append(1e3 * (time.perf_counter() - start))
-    return float(np.median(samples))
+        results = wp.timing_end()
+        sim.use_graph = use_graph
+    totals = defaultdict(lambda: [0.0, 0])
+    for r in results:
+        name = r.name.split("forward_kernel")[0].rstrip("_") if "forward_kernel" in r.name else r.name
+        totals[name][0] += r.elapsed / steps
+        totals[name][1] += 1
+    return {k: [v[0], v[1] / steps] for k, v in totals.items()}
 
 
 def main():
@@ -61,7 +47,7 @@ def main():
     parser.add_argument("--model", choices=["none", "vorticity_refinement", "rankine", "micropolar", "all"], default="all")
     parser.add_argument("--density-error", type=float, help="override solver.density_max_error [%%]")
     parser.add_argument("--warmup", type=int, default=300)
-    parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--steps", type=int, default=10, help="steps timed (no CUDA graph)")
     parser.add_argument("--out")
     args = parser.parse_args()
     args.sort_interval = None
@@ -73,19 +59,14 @@ def main():
     sim = Simulation(make_scene(args, args.particles), device=device)
     for _ in range(args.warmup):
         sim.step()
-    launches = record_step(sim)
-    counts = Counter(k.key for k, _, _ in launches)
-    first = {}
-    for kernel, dim, inputs in launches:
-        first.setdefault(kernel.key, (kernel, dim, inputs))
-    rows = [{"kernel": key, "ms": median_ms(*first[key], device, args.repeats), "launches_per_step": counts[key]}
-            for key in first]
-    rows.sort(key=lambda r: -r["ms"] * r["launches_per_step"])
+    times = kernel_times(sim, args.steps)
+    rows = sorted(({"kernel": k, "ms_per_step": t, "launches_per_step": n, "ms_per_launch": t / max(n, 1e-9)}
+                   for k, (t, n) in times.items()), key=lambda r: -r["ms_per_step"])
     result = {"benchmark": "kernels", "scene": sim.scene.name, "model": args.model,
               "device": device.name if device.is_cuda else "cpu", "warp": wp.__version__, "commit": commit(),
-              "fluid_particles": sim.num_fluid, "steps_before": args.warmup, "kernels": rows}
+              "fluid_particles": sim.num_fluid, "steps_before": args.warmup, "steps_timed": args.steps, "kernels": rows}
     for r in rows:
-        print(f"{r['kernel']:40s} {r['ms']:8.3f} ms x {r['launches_per_step']}")
+        print(f"{r['kernel'][:60]:60s} {r['ms_per_step']:8.3f} ms/step  {r['launches_per_step']:5.1f} x {r['ms_per_launch']:.3f} ms")
     if args.out:
         Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
 
