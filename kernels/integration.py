@@ -2,16 +2,22 @@
 
 import warp as wp
 
+from .pressure import REDUCE_THREADS
+
 wp.set_module_options({"enable_backward": False})
 
 
 @wp.kernel
-def compute_max_speed(v: wp.array(dtype=wp.vec3), max_speed_sq: wp.array(dtype=float)):
-    """max_speed_sq[0] = max_i |v_i|^2 (reset it to 0 first); skips atomics that cannot win."""
-    i = wp.tid()
-    s = wp.length_sq(v[i])
-    if s > max_speed_sq[0]:
-        wp.atomic_max(max_speed_sq, 0, s)
+def compute_max_speed(v: wp.array(dtype=wp.vec3), count: int, max_speed_sq: wp.array(dtype=float)):
+    """max_speed_sq[0] = max_i |v_i|^2 (reset it to 0 first): launched on min(count, REDUCE_THREADS)
+    threads, grid-stride, one atomic each (one atomic per particle on one address took 0.45 ms at 1M
+    on an H100, 7 % of a step)."""
+    t = wp.tid()
+    threads = wp.min(count, REDUCE_THREADS)
+    m = float(0.0)
+    for i in range(t, count, threads):
+        m = wp.max(m, wp.length_sq(v[i]))
+    wp.atomic_max(max_speed_sq, 0, m)
 
 
 @wp.kernel

@@ -15,35 +15,40 @@ wp.set_module_options({"enable_backward": False})
 STREAM_FUNCTION_GUARD = wp.constant(0.1)
 
 
-@wp.func
-def vorticity_loss(j: int, target: wp.array(dtype=wp.vec3), vorticity: wp.array(dtype=wp.vec3)):
-    """Dissipated vorticity d zeta_j = zeta^{n+1}_j - curl v~_j (eq 12)."""
-    return target[j] - vorticity[j]
+@wp.kernel
+def compute_vorticity_loss(
+    vorticity: wp.array(dtype=wp.vec3),
+    density: wp.array(dtype=float),
+    particle_mass: float,
+    has_target: int,
+    target_then_loss: wp.array(dtype=wp.vec3),
+):
+    """V_i d zeta_i with the dissipated vorticity d zeta = zeta^{n+1} - curl v~ (eq 12), written over
+    the target zeta^{n+1} (read here only; the target pass writes the next one), so the stream-function
+    pass reads one vector per neighbour; zero before the first target exists."""
+    i = wp.tid()
+    if has_target != 0:
+        target_then_loss[i] = (particle_mass / density[i]) * (target_then_loss[i] - vorticity[i])
+    else:
+        target_then_loss[i] = wp.vec3(0.0)
 
 
 @wp.kernel
 def compute_stream_function(
     x: wp.array(dtype=wp.vec3),
-    density: wp.array(dtype=float),
     nb: Neighbours,
-    target: wp.array(dtype=wp.vec3),
-    vorticity: wp.array(dtype=wp.vec3),
-    has_target: int,
-    particle_mass: float,
+    weighted_loss: wp.array(dtype=wp.vec3),
     support_radius: float,
     stream_function: wp.array(dtype=wp.vec3),
 ):
-    """psi_i = 1/(4 pi) sum_j d zeta_j V_j / (|x_ij| + 0.1 H) over kernel neighbours (eq 15), with
-    d zeta_j (eq 12) formed in the loop rather than stored; zero before the first target exists."""
+    """psi_i = 1/(4 pi) sum_j d zeta_j V_j / (|x_ij| + 0.1 H) over kernel neighbours (eq 15), from
+    V_j d zeta_j (``weighted_loss``)."""
     i = wp.tid()
+    xi = x[i]
     psi = wp.vec3(0.0)
-    if has_target != 0:
-        xi = x[i]
-        for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
-            j = nb.fluid[k]
-            x_ij = separation(nb, xi, x[j])
-            weight = particle_mass / density[j] / (wp.length(x_ij) + STREAM_FUNCTION_GUARD * support_radius)
-            psi += weight * vorticity_loss(j, target, vorticity)
+    for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
+        j = nb.fluid[k]
+        psi += weighted_loss[j] / (wp.length(separation(nb, xi, x[j])) + STREAM_FUNCTION_GUARD * support_radius)
     stream_function[i] = psi / (4.0 * PI)
 
 

@@ -6,13 +6,16 @@ import warp as wp
 
 from warpsph.kernels.rankine import rankine_velocity
 from warpsph.kernels.sph_kernel import cubic_kernel_gradient
-from warpsph.kernels.vorticity_refinement import apply_vorticity_refinement, compute_stream_function
+from warpsph.kernels.vorticity_refinement import (
+    apply_vorticity_refinement,
+    compute_stream_function,
+    compute_vorticity_loss,
+)
 from conftest import make_sim, tank_scene
 
 MODEL_OWNERS = {"vorticity", "vorticity_refinement", "rankine", "micropolar"}
-MODEL_KERNELS = {"compute_vorticity", "compute_stream_function", "compute_target_vorticity", "apply_vorticity_refinement",
-                 "compute_vorticity_change",
-                 "apply_rankine_feedback", "micropolar_step"}
+MODEL_KERNELS = {"compute_vorticity", "compute_vorticity_loss", "compute_stream_function", "compute_target_vorticity",
+                 "apply_vorticity_refinement", "compute_vorticity_change", "apply_rankine_feedback", "micropolar_step"}
 
 
 def dam(models=(), radius=0.03, **extra):
@@ -113,9 +116,10 @@ def test_stream_function_velocity_is_divergence_free(device):
     model.target.assign((50.0 * loss).astype(np.float32))  # d zeta = target - curl v~, with curl v~ = 0
     sim.vorticity_field.vorticity.zero_()
     f, nb = sim.fluid, sim.neighbours
+    sim.launch(compute_vorticity_loss, sim.num_fluid,
+               [sim.vorticity_field.vorticity, f.density, sim.particle_mass, 1, model.target])
     sim.launch(compute_stream_function, sim.num_fluid,
-               [f.x, f.density, nb.lists, model.target, sim.vorticity_field.vorticity, 1, sim.particle_mass,
-                sim.support_radius, model.stream_function])
+               [f.x, nb.lists, model.target, sim.support_radius, model.stream_function])
     f.v.zero_()
     sim.launch(apply_vorticity_refinement, sim.num_fluid,
                [f.x, f.density, nb.lists, model.stream_function, sim.particle_mass, 1.0, sim.support_radius, f.v])

@@ -26,6 +26,7 @@ from warpsph.kernels.integration import (
     predict_velocity,
 )
 from warpsph.kernels.neighbours import gather
+from warpsph.kernels.pressure import REDUCE_THREADS
 from warpsph.kernels.particles import Boundary
 from warpsph.kernels.stability import DENSITY_LIMIT, NOT_FINITE, OUTSIDE_DOMAIN, check_particles
 from warpsph.models import REGISTRY
@@ -415,7 +416,7 @@ class Simulation:
             self._compute_density()
         with t("time_step"):  # CFL condition on |v^n|
             self.max_speed_sq.zero_()
-            self.launch(compute_max_speed, n, [f.v, self.max_speed_sq])
+            self.launch(compute_max_speed, min(n, REDUCE_THREADS), [f.v, n, self.max_speed_sq])
             tm = self.scene.time
             self.launch(compute_time_step, 1,
                         [self.max_speed_sq, self.scene.particle_diameter, tm.cfl, *self.scene.time_step_bounds,

@@ -6,6 +6,7 @@ from warpsph.kernels.vorticity_refinement import (
     apply_vorticity_refinement,
     compute_stream_function,
     compute_target_vorticity,
+    compute_vorticity_loss,
 )
 
 from . import Model, register
@@ -14,7 +15,7 @@ from . import Model, register
 @register("vorticity_refinement")
 class VorticityRefinementModel(Model):
     """Per step, after the divergence solve gave v~ and its vorticity zeta~ (shared field):
-    d zeta = zeta^{n+1} - zeta~ (eq 12) inside psi (eq 15), v += alpha curl psi (eqs 16-17); then
+    V d zeta = V (zeta^{n+1} - zeta~) (eq 12) over the target, psi (eq 15), v += alpha curl psi (eqs 16-17); then
     zeta^n = curl v of the refined velocity and from it the next ideal zeta^{n+1} (eqs 9-11).
     Three neighbour passes; one scratch vector per particle (psi) besides the carried target."""
 
@@ -31,8 +32,8 @@ class VorticityRefinementModel(Model):
     def step(self, sim):
         f, n, field = sim.fluid, sim.num_fluid, sim.vorticity_field
         nb, mass, H = sim.neighbours.lists, sim.particle_mass, sim.support_radius
-        sim.launch(compute_stream_function, n,
-                   [f.x, f.density, nb, self.target, field.vorticity, self.has_target, mass, H, self.stream_function])
+        sim.launch(compute_vorticity_loss, n, [field.vorticity, f.density, mass, self.has_target, self.target])
+        sim.launch(compute_stream_function, n, [f.x, nb, self.target, H, self.stream_function])
         sim.launch(apply_vorticity_refinement, n,
                    [f.x, f.density, nb, self.stream_function, mass, self.params.alpha, H, f.v])
         sim.launch(compute_target_vorticity, n,
