@@ -50,6 +50,7 @@ def main():
 
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
+    load_modules(args, wp.get_device(args.device))
     results = []
     for particles in args.particles:
         results.append(run(args, particles))
@@ -110,7 +111,7 @@ def make_scene(args, particles):
     solver = scene.solver
     if args.density_error:
         solver = dataclasses.replace(solver, density_max_error=args.density_error)
-    if args.sort_interval is not None:
+    if getattr(args, "sort_interval", None) is not None:
         solver = dataclasses.replace(solver, sort_interval=args.sort_interval)
     scene = dataclasses.replace(scene, solver=solver)
     if args.model != "none":
@@ -120,8 +121,8 @@ def make_scene(args, particles):
 
 
 def load_modules(args, device):
-    """A few steps of the same scene at ~2K particles, so that loading the kernels' modules (code,
-    kernel stacks) is not counted as the large run's memory."""
+    """A few steps of the same scene at ~2K particles, once before the sizes, so that loading the
+    kernels' modules (code, kernel stacks) is not counted as a large run's memory."""
     from warpsph.simulation import Simulation
 
     small = Simulation(make_scene(args, 2e3), device=device)
@@ -136,7 +137,6 @@ def run(args, particles):
 
     scene = make_scene(args, particles)
     device = wp.get_device(args.device)
-    load_modules(args, device)
     wp.synchronize_device(device)
     free_before = device.free_memory if device.is_cuda else None
     sim = Simulation(scene, device=device)

@@ -33,9 +33,8 @@ def kernel_times(sim, steps):
         sim.use_graph = use_graph
     totals = defaultdict(lambda: [0.0, 0])
     for r in results:
-        name = r.name.split("forward_kernel")[0].rstrip("_") if "forward_kernel" in r.name else r.name
-        totals[name][0] += r.elapsed / steps
-        totals[name][1] += 1
+        totals[r.name][0] += r.elapsed / steps
+        totals[r.name][1] += 1
     return {k: [v[0], v[1] / steps] for k, v in totals.items()}
 
 
@@ -50,7 +49,6 @@ def main():
     parser.add_argument("--steps", type=int, default=10, help="steps timed (no CUDA graph)")
     parser.add_argument("--out")
     args = parser.parse_args()
-    args.sort_interval = None
 
     from warpsph.simulation import Simulation
 
