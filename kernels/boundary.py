@@ -2,7 +2,7 @@
 
 import warp as wp
 
-from .neighbours import image_shift
+from .neighbours import CellGrid, cell_coords, cell_index, cell_run_start, image_shift
 from .sph_kernel import cubic_kernel, cubic_kernel_zero
 
 wp.set_module_options({"enable_backward": False})
@@ -10,7 +10,7 @@ wp.set_module_options({"enable_backward": False})
 
 @wp.kernel
 def compute_boundary_volume(
-    grid: wp.uint64,
+    grid: CellGrid,
     boundary_x: wp.array(dtype=wp.vec3),
     sample_body: wp.array(dtype=wp.int32),
     first_moving_body: int,
@@ -34,11 +34,15 @@ def compute_boundary_volume(
         if wp.isnan(shift[0]):
             continue
         xs = x + shift
-        query = wp.hash_grid_query(grid, xs, support_radius)
-        k = int(0)
-        while wp.hash_grid_query_next(query, k):
-            other = sample_body[k]
-            same_group = other == body or (other < first_moving_body and body < first_moving_body)
-            if (k != b or image != 13) and same_group:
-                s += cubic_kernel(wp.length(xs - boundary_x[k]), support_radius)
+        lo = cell_coords(grid, xs - wp.vec3(support_radius))
+        hi = cell_coords(grid, xs + wp.vec3(support_radius))
+        for cz in range(lo[2], hi[2] + 1):
+            for cy in range(lo[1], hi[1] + 1):
+                row = cell_index(grid, wp.vec3i(0, cy, cz))
+                for r in range(cell_run_start(grid, row + lo[0]), grid.cell_end[row + hi[0]]):
+                    k = grid.ids[r]
+                    other = sample_body[k]
+                    same_group = other == body or (other < first_moving_body and body < first_moving_body)
+                    if (k != b or image != 13) and same_group:
+                        s += cubic_kernel(wp.length(xs - boundary_x[k]), support_radius)
     boundary_volume[b] = 1.0 / s

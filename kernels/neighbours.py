@@ -1,9 +1,9 @@
-"""Neighbour search on ``wp.HashGrid`` and cell-order reordering of particle arrays.
+"""Neighbour search on a counting-sorted cell grid and cell-order reordering of particle arrays.
 
 Neighbours are stored as compressed rows (CSR): the neighbours of particle ``i`` are
-``index[offset[i] : offset[i + 1]]``. The list is built once per step from the hash
+``index[offset[i] : offset[i + 1]]``. The list is built once per step from the cell
 grid and then read by every solver iteration, which is cheaper than repeating the
-27-cell grid query in each pass.
+grid query in each pass.
 """
 
 from typing import Any
@@ -35,9 +35,65 @@ def image_shift(x: wp.vec3, lower: wp.vec3, period: wp.vec3, support_radius: flo
     return shift
 
 
+@wp.struct
+class CellGrid:
+    """Points counting-sorted into a dense grid of cubic cells over the domain (x fastest).
+
+    ``ids`` lists the points cell by cell; the points of cell ``c`` are ``ids[start : cell_end[c]]``
+    with ``start = cell_end[c - 1]`` (0 for the first cell). Points outside the domain go into its
+    border cells (coordinates clamped), so every point is found by a query that clamps the same way;
+    along x the cells of a query are one run of ``ids``."""
+
+    lower: wp.vec3
+    inverse_cell_size: float
+    dims: wp.vec3i
+    cell_end: wp.array(dtype=wp.int32)
+    ids: wp.array(dtype=wp.int32)
+
+
+@wp.func
+def cell_coords(grid: CellGrid, p: wp.vec3):
+    """Integer cell of point ``p``, clamped into the grid."""
+    c = (p - grid.lower) * grid.inverse_cell_size
+    return wp.vec3i(
+        wp.clamp(int(wp.floor(c[0])), 0, grid.dims[0] - 1),
+        wp.clamp(int(wp.floor(c[1])), 0, grid.dims[1] - 1),
+        wp.clamp(int(wp.floor(c[2])), 0, grid.dims[2] - 1),
+    )
+
+
+@wp.func
+def cell_index(grid: CellGrid, c: wp.vec3i):
+    return (c[2] * grid.dims[1] + c[1]) * grid.dims[0] + c[0]
+
+
+@wp.func
+def cell_run_start(grid: CellGrid, cell: int):
+    """First entry of ``cell`` in ``grid.ids`` (after the build, ``cell_end`` holds the ends)."""
+    if cell == 0:
+        return 0
+    return grid.cell_end[cell - 1]
+
+
+@wp.kernel
+def count_points_in_cells(grid: CellGrid, points: wp.array(dtype=wp.vec3)):
+    """First of the counting sort: the number of points per cell, into ``cell_end`` (zeroed)."""
+    i = wp.tid()
+    wp.atomic_add(grid.cell_end, cell_index(grid, cell_coords(grid, points[i])), 1)
+
+
+@wp.kernel
+def scatter_points_to_cells(grid: CellGrid, points: wp.array(dtype=wp.vec3)):
+    """Last of the counting sort: with ``cell_end`` scanned to each cell's start, every point takes
+    the next slot of its cell; the cursor then ends at the cell's end, which is what stays."""
+    i = wp.tid()
+    slot = wp.atomic_add(grid.cell_end, cell_index(grid, cell_coords(grid, points[i])), 1)
+    grid.ids[slot] = i
+
+
 @wp.kernel
 def find_neighbours(
-    grid: wp.uint64,
+    grid: CellGrid,
     query_points: wp.array(dtype=wp.vec3),
     grid_points: wp.array(dtype=wp.vec3),
     support_radius: float,
@@ -49,7 +105,8 @@ def find_neighbours(
     neighbours: wp.array(dtype=wp.int32),
 ):
     """The grid points strictly inside the support radius of each query point, through the periodic
-    boundaries (the images of the query point) where the domain has them.
+    boundaries (the images of the query point) where the domain has them. Per image, each row of
+    cells along x is one contiguous run of the grid's ids (9 runs for a cell size of the radius).
 
     Two launches build a CSR list: with ``fill == 0`` ``rows[i]`` receives the count (scan it into
     offsets), with ``fill != 0`` ``rows`` holds the offsets and the indices go into ``neighbours``."""
@@ -61,21 +118,26 @@ def find_neighbours(
         k = rows[i]
         end = rows[i + 1]
     n = int(0)
+    reach = wp.vec3(support_radius)
     for image in range(27):
         shift = image_shift(x, lower, period, support_radius, image)
         if wp.isnan(shift[0]):
             continue
         xs = x + shift
-        query = wp.hash_grid_query(grid, xs, support_radius)
-        j = int(0)
-        while wp.hash_grid_query_next(query, j):
-            if exclude_self != 0 and j == i and image == 13:
-                continue
-            if wp.length(xs - grid_points[j]) < support_radius:
-                n += 1
-                if fill != 0 and k < end:
-                    neighbours[k] = j
-                    k += 1
+        lo = cell_coords(grid, xs - reach)
+        hi = cell_coords(grid, xs + reach)
+        for cz in range(lo[2], hi[2] + 1):
+            for cy in range(lo[1], hi[1] + 1):
+                row = cell_index(grid, wp.vec3i(0, cy, cz))
+                for s in range(cell_run_start(grid, row + lo[0]), grid.cell_end[row + hi[0]]):
+                    j = grid.ids[s]
+                    if exclude_self != 0 and j == i and image == 13:
+                        continue
+                    if wp.length(xs - grid_points[j]) < support_radius:
+                        n += 1
+                        if fill != 0 and k < end:
+                            neighbours[k] = j
+                            k += 1
     if fill == 0:
         rows[i] = n
 

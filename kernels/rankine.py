@@ -36,13 +36,14 @@ def rankine_velocity(change_j: wp.vec3, x_ij: wp.vec3, core_radius: float):
     """Velocity that vortex j induces at x_i = x_j + x_ij: r_c^2 / (2 r) d omega_j x e_theta (eq 15),
     e_theta pointing from the vortex to the receiver; inside the core the rigid rotation
     d omega_j / 2 x x_ij (eq 14) that it matches at r = r_c."""
-    r = wp.length(x_ij)
-    if r <= 0.0:
+    r2 = wp.dot(x_ij, x_ij)
+    if r2 <= 0.0:
         return wp.vec3(0.0)
-    e = x_ij / r
-    if r < core_radius:
-        return 0.5 * r * wp.cross(change_j, e)
-    return (core_radius * core_radius / (2.0 * r)) * wp.cross(change_j, e)
+    c = wp.cross(change_j, x_ij)  # r (d omega_j x e_theta)
+    rc2 = core_radius * core_radius
+    if r2 < rc2:
+        return 0.5 * c
+    return (0.5 * rc2 / r2) * c
 
 
 @wp.kernel

@@ -27,13 +27,15 @@ def cubic_kernel(r: float, H: float):
 
 @wp.func
 def cubic_kernel_gradient(x_ij: wp.vec3, H: float):
-    """Gradient of W with respect to x_i for the offset x_ij = x_i - x_j."""
+    """Gradient of W with respect to x_i for the offset x_ij = x_i - x_j (one division: it runs
+    once per neighbour in almost every pass)."""
     r = wp.length(x_ij)
-    q = r / H
-    if r < 1.0e-9 * H or q > 1.0:
+    if r < 1.0e-9 * H or r > H:
         return wp.vec3(0.0)
-    l = 48.0 / (PI * H * H * H)
-    grad_q = x_ij / (r * H)
+    inverse_h = 1.0 / H  # loop-invariant in the callers' neighbour loops
+    q = r * inverse_h
+    l = 48.0 / PI * inverse_h * inverse_h * inverse_h
+    grad_q = x_ij * (inverse_h / r)
     if q <= 0.5:
         return l * q * (3.0 * q - 2.0) * grad_q
     s = 1.0 - q

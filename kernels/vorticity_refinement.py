@@ -45,10 +45,11 @@ def compute_stream_function(
     V_j d zeta_j (``weighted_loss``)."""
     i = wp.tid()
     xi = x[i]
+    guard = STREAM_FUNCTION_GUARD * support_radius
     psi = wp.vec3(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         j = nb.fluid[k]
-        psi += weighted_loss[j] / (wp.length(separation(nb, xi, x[j])) + STREAM_FUNCTION_GUARD * support_radius)
+        psi += weighted_loss[j] * (1.0 / (wp.length(separation(nb, xi, x[j])) + guard))
     stream_function[i] = psi / (4.0 * PI)
 
 

@@ -59,11 +59,8 @@ def test_gradient_is_antisymmetric_and_matches_finite_differences(device):
         np.testing.assert_allclose(g_plus[:, axis], fd, atol=2e-3 * np.abs(g_plus).max())
 
 
-def test_neighbour_lists_match_brute_force(device):
-    sim = make_sim(tank_scene(radius=0.03), device=device)
-    rng = np.random.default_rng(0)
-    x = sim.fluid.x.numpy() + rng.normal(0, 0.01, (sim.num_fluid, 3)).astype(np.float32)
-    sim.fluid.x.assign(x)
+def _assert_lists_match_brute_force(sim, x):
+    sim.fluid.x.assign(x.astype(np.float32))
     sim.neighbours.update(sim.fluid.x)
     H = sim.support_radius
     nb = sim.neighbours
@@ -76,3 +73,26 @@ def test_neighbour_lists_match_brute_force(device):
         assert set(idx[off[i]:off[i + 1]]) == expected
         db = np.linalg.norm(bx - x[i], axis=1)
         assert set(bidx[boff[i]:boff[i + 1]]) == set(np.nonzero(db < H)[0])
+
+
+def test_neighbour_lists_match_brute_force(device):
+    sim = make_sim(tank_scene(radius=0.03), device=device)
+    rng = np.random.default_rng(0)
+    _assert_lists_match_brute_force(sim, sim.fluid.x.numpy() + rng.normal(0, 0.01, (sim.num_fluid, 3)))
+
+
+def test_neighbours_outside_domain_and_in_capped_coarse_cells(device, monkeypatch):
+    """Points beyond the domain share its border cells (clamped), and a cell table held to its
+    cap gets cells larger than the support radius: both still give every neighbour."""
+    import warpsph.neighbours as wn
+
+    sim = make_sim(tank_scene(radius=0.03), device=device)
+    x = sim.fluid.x.numpy().astype(np.float64)
+    x[::5] += np.array([0.0, 0.45, 0.0])  # a fifth of the particles above the lid, in clusters
+    x[1::9] -= np.array([0.3, 0.0, 0.0])  # some beyond the x = 0 wall
+    _assert_lists_match_brute_force(sim, x)
+    monkeypatch.setattr(wn, "MIN_CELLS", 8)
+    monkeypatch.setattr(wn, "CELLS_PER_POINT", 0)
+    coarse = make_sim(tank_scene(radius=0.03), device=device)
+    assert coarse.neighbours.cell_size > 1.5 * coarse.support_radius
+    _assert_lists_match_brute_force(coarse, x)

@@ -14,6 +14,7 @@ import warp as wp
 from pxr import Usd, UsdGeom
 
 from warpsph import SceneError, load_scene
+from warpsph.scene import scene_from_dict
 from warpsph.cli import main
 from conftest import tank_scene
 
@@ -53,8 +54,9 @@ def test_dry_run_prints_the_estimate_and_writes_nothing(tmp_path, capsys):
 def test_a_scene_too_large_for_the_device_is_refused_before_allocation(tmp_path, monkeypatch, capsys):
     import warpsph.resources as resources
 
-    monkeypatch.setattr(resources, "free_bytes", lambda device: 10 * 2**20)
     scene = write_scene(tmp_path, tank_scene(radius=0.02))
+    need = resources.estimate_bytes(scene_from_dict(tank_scene(radius=0.02)), 1000, 0)
+    monkeypatch.setattr(resources, "free_bytes", lambda device: need // 2)  # the tank has ~1000 particles
     out = tmp_path / "o.usdc"
     assert main(["run", str(scene), "--device", "cpu", "--out", str(out)]) == 2
     err = capsys.readouterr().err

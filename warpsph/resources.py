@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
+
 from warpsph.errors import SceneError
 
 # bytes per fluid particle, from the arrays Simulation allocates (measured 301 B/particle in all
@@ -13,8 +15,7 @@ SOLVER = 4 * 4  # stiffness, error, two warm-start pressures
 SORT = 2 * 8 + 12 + 8  # keys and order (2N each) and a gather copy: held only while sorting (the peak)
 NEIGHBOUR_ROWS = 4 * 4  # counts and offsets of both lists
 NEIGHBOUR_LISTS = 4 * (32 + 8)  # initial capacity: 32 fluid, 8 boundary neighbours a particle
-BOUNDARY = 12 + 12 + 4  # x, v, volume per boundary sample
-HASH_GRIDS = 2 * 2 * 4 * 128**3  # two grids of 128^3 cells with start and end indices
+BOUNDARY = 12 + 12 + 4 + 4  # x, v, volume and cell-sorted id per boundary sample
 MODEL = {"vorticity_refinement": 48, "rankine": 24 + 12, "micropolar": 24 + 12}
 
 
@@ -23,8 +24,12 @@ def estimate_bytes(scene, num_fluid, num_boundary):
     from warpsph.simulation import MODEL_NAMES
 
     per_fluid = FLUID_STATE + SOLVER + SORT + NEIGHBOUR_ROWS + NEIGHBOUR_LISTS
+    from warpsph.neighbours import grid_geometry
+
     per_fluid += sum(MODEL[MODEL_NAMES[type(m)]] for m in scene.models)
-    return num_fluid * per_fluid + num_boundary * BOUNDARY + HASH_GRIDS
+    _, dims = grid_geometry(scene.domain, 4.0 * scene.particle_radius, num_fluid + num_boundary)
+    cell_tables = 2 * 4 * int(np.prod(dims))  # the fluid's and the boundary's
+    return num_fluid * per_fluid + num_boundary * BOUNDARY + cell_tables
 
 
 def free_bytes(device):

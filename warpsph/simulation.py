@@ -230,7 +230,7 @@ class Simulation:
                 sample_body = wp.array(body, dtype=wp.int32, device=self.device)
                 first_moving_body = int(body[first_moving]) if moving else len(self.bodies) + 1
                 self.launch(compute_boundary_volume, self.num_boundary,
-                            [self.neighbours.boundary_grid.id, self.boundary.x, sample_body, first_moving_body,
+                            [self.neighbours.boundary_grid.grid, self.boundary.x, sample_body, first_moving_body,
                              self.support_radius, self.neighbours.lower, self.neighbours.period, self.boundary.volume])
             self.pressure_solver = DFSPHSolver(self)
             self.models = []
