@@ -17,14 +17,14 @@ def place_body_samples(
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
 ):
-    """Sample s of a moving body at its pose: x = c + R p (p in body space, about the body's
-    reference point c) and the rigid velocity v = v_c + omega x (x - c) that the divergence and
-    density solvers see at the boundary."""
+    """Sample s of the moving bodies (boundary sample first + s) at its body's pose: x = c + R p
+    (p in body space, about the body's reference point c) and the rigid velocity
+    v = v_c + omega x (x - c) that the divergence and density solvers see at the boundary."""
     s = wp.tid()
     b = sample_body[s]
     r = rotation[b] * local[s]
     x[first + s] = position[b] + r
-    v[first + s] = velocity[b] + wp.cross(angular_velocity[b], r)
+    v[s] = velocity[b] + wp.cross(angular_velocity[b], r)
 
 
 @wp.kernel

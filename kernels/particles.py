@@ -35,12 +35,23 @@ def separation(nb: Neighbours, a: wp.vec3, b: wp.vec3):
 
 @wp.struct
 class Boundary:
-    """Akinci boundary samples: position, velocity (of their body) and volume V_b. Samples from
-    ``first_dynamic`` on belong to dynamic bodies: the pressure solvers add the reaction of each
-    fluid-sample pair to ``impulse`` (per unit fluid particle mass) for two-way coupling."""
+    """Akinci boundary samples: position, volume V_b and velocity (of their body). Static samples
+    come first and stand still: ``v`` holds the moving ones' only, ``v[b - first_moving]`` (read it
+    through :func:`boundary_velocity`). Samples from ``first_dynamic`` on belong to dynamic bodies:
+    the pressure solvers add the reaction of each fluid-sample pair to ``impulse`` (per unit fluid
+    particle mass) for two-way coupling."""
 
     x: wp.array(dtype=wp.vec3)
     v: wp.array(dtype=wp.vec3)
     volume: wp.array(dtype=float)
     impulse: wp.array(dtype=wp.vec3)
+    first_moving: int
     first_dynamic: int
+
+
+@wp.func
+def boundary_velocity(boundary: Boundary, b: int):
+    """Velocity of boundary sample b: zero for a static one."""
+    if b < boundary.first_moving:
+        return wp.vec3(0.0)
+    return boundary.v[b - boundary.first_moving]

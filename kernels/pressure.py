@@ -8,7 +8,7 @@ value accumulated over a step is a physical pressure that warm-starts the next s
 
 import warp as wp
 
-from .particles import Boundary, Neighbours, separation
+from .particles import Boundary, Neighbours, boundary_velocity, separation
 from .sph_kernel import cubic_kernel_gradient
 
 wp.set_module_options({"enable_backward": False})
@@ -33,7 +33,7 @@ def density_rate(
         rate += fluid_volume * wp.dot(vi - v[j], cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius))
     for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
         b = nb.boundary[k]
-        rate += boundary.volume[b] * wp.dot(vi - boundary.v[b], cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius))
+        rate += boundary.volume[b] * wp.dot(vi - boundary_velocity(boundary, b), cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius))
     return rate
 
 

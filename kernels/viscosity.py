@@ -2,7 +2,7 @@
 
 import warp as wp
 
-from .particles import Boundary, Neighbours, separation
+from .particles import Boundary, Neighbours, boundary_velocity, separation
 from .sph_kernel import cubic_kernel_gradient
 from .vorticity import curl_term
 
@@ -61,7 +61,7 @@ def add_viscosity_acceleration(
             b = nb.boundary[k]
             x_ib = separation(nb, xi, boundary.x[b])
             gw = cubic_kernel_gradient(x_ib, support_radius)
-            term = boundary_viscosity * artificial_laplacian(vi - boundary.v[b], x_ib, gw, boundary.volume[b], support_radius)
+            term = boundary_viscosity * artificial_laplacian(vi - boundary_velocity(boundary, b), x_ib, gw, boundary.volume[b], support_radius)
             if b >= boundary.first_dynamic:
                 wp.atomic_add(boundary.impulse, b, -dt[0] * term)
             friction += term

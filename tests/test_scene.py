@@ -120,3 +120,6 @@ def test_mesh_obstacle_is_sampled_once_on_its_surface(tmp_path, fmt):
         sim.step()
     assert np.array_equal(sim.boundary.x.numpy(), before)
     assert sim.launches["compute_boundary_volume"] == 1
+    # sampled once and never moved: no velocities, and their cell grid is never rebuilt
+    assert sim.boundary.v.shape[0] == 0
+    assert sim.launches["scatter_points_to_cells"] == 1 + sim.step_count + 1  # boundary once; fluid at init and each step

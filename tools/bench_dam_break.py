@@ -10,8 +10,9 @@ stages in %, iterations, neighbour passes k, bytes per particle, steps/s) is wri
 Runs ``--warmup`` steps, then ``--steps`` steps with a synchronised per-stage timer
 (stage times), then ``--steps`` steps as the production stepper runs them (CUDA graph
 for the solver part where available) for the total. Writes JSON with the device, Warp
-version and commit, memory per particle (device free memory before/after) and the mean
-solver iterations.
+version and commit, memory per particle (device free memory before/after the allocation and the
+warm-up, with the memory pool returning freed blocks at once, so retained temporaries are not
+counted; and the pool's live bytes) and the mean solver iterations.
 """
 
 from __future__ import annotations
@@ -92,7 +93,7 @@ def fmt(value):
 
 def marginal_bytes(smaller, larger):
     """Device bytes per added fluid particle between two sizes: the slope of the device memory taken,
-    free of what does not grow with N (module code, kernel stacks, the hash grids' 128^3 cell tables)."""
+    free of what does not grow with N (module code, kernel stacks)."""
     if smaller is None or smaller.get("bytes_per_fluid_particle_device") is None:
         return None
     taken = [r["bytes_per_fluid_particle_device"] * r["fluid_particles"] for r in (smaller, larger)]
@@ -137,13 +138,18 @@ def run(args, particles):
 
     scene = make_scene(args, particles)
     device = wp.get_device(args.device)
+    pooled = device.is_cuda and wp.is_mempool_enabled(device)
+    if pooled:  # freed blocks go back to the device at each synchronisation: free memory shows what is held
+        wp.set_mempool_release_threshold(device, 0)
     wp.synchronize_device(device)
     free_before = device.free_memory if device.is_cuda else None
+    pool_before = wp.get_mempool_used_mem_current(device) if pooled else None
     sim = Simulation(scene, device=device)
     for _ in range(args.warmup):
         sim.step()
     wp.synchronize_device(device)
     free_after = device.free_memory if device.is_cuda else None
+    pool_after = wp.get_mempool_used_mem_current(device) if pooled else None
 
     # per-stage times (synchronised around every stage; no graph)
     sim.timer.enabled = True
@@ -184,6 +190,8 @@ def run(args, particles):
         "mean_divergence_iterations": (it1[0] - it0[0]) / solves[0],
         "mean_density_iterations": (it1[2] - it0[2]) / solves[1],
         "bytes_per_fluid_particle_device": None if free_before is None else (free_before - free_after) / sim.num_fluid,
+        "bytes_per_fluid_particle_mempool": None if pool_before is None else (pool_after - pool_before) / sim.num_fluid,
+        "mempool_release_threshold": 0 if pooled else None,
         "bytes_per_fluid_particle_arrays": sum(sim.allocations.values()) / sim.num_fluid,
         "allocations_bytes": dict(sim.allocations),
         "dt_last": float(sim.dt.numpy()[0]),

@@ -3,7 +3,7 @@
 Every body is a mesh sampled once at the particle spacing (Akinci et al. 2012). Static samples
 never move. A moving body keeps its samples in body space, about a reference point (the spin
 centre of a kinematic body, the centre of mass of a dynamic one); each step the samples are
-placed at the body's pose with the rigid velocity v + omega x r, and the boundary hash grid is
+placed at the body's pose with the rigid velocity v + omega x r, and the boundary cell grid is
 rebuilt. Dynamic bodies receive the equal and opposite pressure impulses of the fluid (gathered
 by the solvers' kernels), gravity, and contact with the domain walls, integrated on the host
 (a handful of numbers per body and step).

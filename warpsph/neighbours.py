@@ -79,7 +79,7 @@ class NeighbourSearch:
         self._no_list = wp.empty(0, dtype=wp.int32, device=sim.device)
 
     def rebuild_boundary_grid(self):
-        """After boundary samples moved: the boundary hash grid at their new positions."""
+        """After boundary samples moved: the boundary cell grid at their new positions."""
         self.boundary_grid.build(self.boundary_x, self.boundary_x.shape[0])
 
     def update(self, x: wp.array):

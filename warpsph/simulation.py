@@ -58,10 +58,11 @@ class BoundaryParticles:
     box and fixed obstacles) first, then kinematic bodies, then dynamic ones (from ``first_dynamic``)."""
 
     x: wp.array
-    v: wp.array
+    v: wp.array  # the moving samples' only (from first_moving on): static ones stand still
     volume: wp.array
     body: np.ndarray  # host: which body each sample belongs to (0 = domain box, k = obstacles[k - 1])
     impulse: wp.array  # reaction impulses on dynamic samples (empty without dynamic bodies)
+    first_moving: int
     first_dynamic: int
 
     @property
@@ -69,7 +70,7 @@ class BoundaryParticles:
         """The arrays as the struct the kernels take."""
         s = Boundary()
         s.x, s.v, s.volume = self.x, self.v, self.volume
-        s.impulse, s.first_dynamic = self.impulse, self.first_dynamic
+        s.impulse, s.first_moving, s.first_dynamic = self.impulse, self.first_moving, self.first_dynamic
         return s
 
 
@@ -220,9 +221,9 @@ class Simulation:
             has_dynamic = any(b.kind == "dynamic" for b in moving)
             first_dynamic = first_moving + sum(len(b.samples) for b in moving if b.kind == "kinematic")
             self.boundary = BoundaryParticles(
-                x=self.array("boundary", boundary_x, wp.vec3), v=z("boundary", self.num_boundary, dtype=wp.vec3),
+                x=self.array("boundary", boundary_x, wp.vec3), v=z("boundary", self.num_boundary - first_moving, dtype=wp.vec3),
                 volume=z("boundary", self.num_boundary), body=body,
-                impulse=z("bodies", self.num_boundary if has_dynamic else 0, dtype=wp.vec3),
+                impulse=z("bodies", self.num_boundary if has_dynamic else 0, dtype=wp.vec3), first_moving=first_moving,
                 first_dynamic=first_dynamic if has_dynamic else self.num_boundary)
             self.moving_bodies = MovingBodies(self, moving, first_moving) if moving else None
             self.neighbours = NeighbourSearch(self, self.boundary.x)
