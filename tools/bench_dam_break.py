@@ -18,6 +18,7 @@ counted; and the pool's live bytes) and the mean solver iterations.
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import subprocess
 import time
@@ -141,6 +142,7 @@ def run(args, particles):
     pooled = device.is_cuda and wp.is_mempool_enabled(device)
     if pooled:  # freed blocks go back to the device at each synchronisation: free memory shows what is held
         wp.set_mempool_release_threshold(device, 0)
+    gc.collect()  # an earlier simulation (the module-loading one, the previous size) must be gone first
     wp.synchronize_device(device)
     free_before = device.free_memory if device.is_cuda else None
     pool_before = wp.get_mempool_used_mem_current(device) if pooled else None
