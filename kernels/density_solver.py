@@ -20,14 +20,18 @@ def compute_density_source(
     rest_density: float,
     support_radius: float,
     dt: wp.array(dtype=float),
+    clamp: int,
     error: wp.array(dtype=float),
     stiffness: wp.array(dtype=float),
 ):
     """Predicted density rho*_i/rho0 = rho_i/rho0 + dt D(rho_i/rho0)/Dt; source
-    s_i = max(rho*_i/rho0 - 1, 0) (pressure clamped at >= 0) and k_i = s_i factor_i / dt^2."""
+    s_i = max(rho*_i/rho0 - 1, 0) (pressure clamped at >= 0; ``clamp`` 0: the signed
+    rho*_i/rho0 - 1, for confined flows) and k_i = s_i factor_i / dt^2."""
     i = wp.tid()
     h = dt[0]
     predicted = density[i] / rest_density + h * density_rate(i, x, v, nb, boundary, fluid_volume, support_radius)
-    s = wp.max(predicted - 1.0, 0.0)
+    s = predicted - 1.0
+    if clamp != 0:
+        s = wp.max(s, 0.0)
     error[i] = s
     stiffness[i] = s * factor[i] / (h * h)

@@ -29,7 +29,9 @@ def analytic_velocity(x, t, nu):
     return decay * np.stack([u, v, np.zeros(len(x))], axis=1)
 
 
-def taylor_green(models, resolution=20, nu=0.01, T=0.5, device="cpu", frames=10):
+def taylor_green(models, resolution=20, nu=0.01, T=0.5, device="cpu", frames=10, solver=None):
+    """Runs the vortex; returns (rows per frame, the simulation). ``solver``: scene "solver" keys (e.g.
+    {"pressure_mode": "confined"}); None: the defaults."""
     from warpsph.scene import scene_from_dict
     from warpsph.simulation import Simulation
 
@@ -39,6 +41,8 @@ def taylor_green(models, resolution=20, nu=0.01, T=0.5, device="cpu", frames=10)
             "domain": {"min": [0, 0, 0], "max": [1, 1, depth], "periodic": ["x", "y", "z"]},
             "fluid_blocks": [{"start": [0, 0, 0], "end": [1, 1, depth]}],
             "fluid": {"viscosity": nu}, "models": list(models), "output": {"fps": frames / T}}
+    if solver:
+        data["solver"] = dict(solver)
     sim = Simulation(scene_from_dict(data), device=device)
     x0 = sim.fluid.x.numpy()
     sim.fluid.v.assign(analytic_velocity(x0, 0.0, nu).astype(np.float32))

@@ -5,6 +5,11 @@ source and stiffness, average the error, decide} until the average error is belo
 tolerance and the minimum iterations are done, or the maximum is reached. The decision
 is made on the device (:func:`update_solver_status`) and the loop is a
 ``wp.capture_while``: on CUDA inside a captured graph no iteration waits on the host.
+
+With ``solver.clamp_pressure`` false (confined flows: a closed or fully periodic box filled
+with fluid) the sources are signed, less their mean, and the Jacobi step is relaxed (see
+:func:`remove_mean_source`); particle shifting (``solver.shifting``, :func:`compute_shift`)
+after the position update keeps the particles from pairing up under the negative pressure.
 """
 
 from __future__ import annotations
@@ -18,8 +23,11 @@ from warpsph.kernels.pressure import (
     apply_pressure_acceleration,
     scale_warm_start,
     reduce_error,
+    reduce_source_sum,
+    remove_mean_source,
     update_solver_status,
 )
+from warpsph.kernels.shifting import apply_shift, compute_shift
 
 DIVERGENCE, DENSITY = 0, 1
 # The largest per-particle error may be this many times the average tolerance (density:
@@ -33,19 +41,45 @@ PEAK_ERROR_RATIO = 100.0
 # 0.9 and 0.7 injected energy (KE rose to 122 % and 56 % where a cold start has 48 %); 0.5
 # follows the cold-start decay within 1 %, so trust wins over speed here.
 WARM_START_FACTOR = {DIVERGENCE: 0.5, DENSITY: 0.5}
+# Confined mode (solver.clamp_pressure false): signed sources less their mean (see
+# remove_mean_source), Jacobi relaxed by this factor (the clamped solve is plain Jacobi). Measured
+# on Taylor-Green at 16 across (branch confined-solver, tools/results/CONFINED_NOTES.md): 1.0 and
+# 0.6-0.8 blew up, 0.5: KE ratio 0.603 and 24.4 density iterations a step, 0.4: 0.589 and 28.5.
+CONFINED_RELAXATION = 0.5
+# default solver.shifting (coefficient A of D = A h max|v| dt) in the confined mode
+DEFAULT_SHIFTING = 2.0
+# largest shift a step, in particle spacings
+MAX_SHIFT = 0.1
+
+
+def shifting_coefficient(solver):
+    """The scene's particle-shifting coefficient: 0 in the clamped (free-surface) mode."""
+    if solver.clamp_pressure:
+        return 0.0
+    return DEFAULT_SHIFTING if solver.shifting is None else solver.shifting
 
 
 class DFSPHSolver:
     scratch_columns = 2  # stiffness and error live within a solve: they share the models' scratch pool
+
+    @staticmethod
+    def columns(scene):
+        """Scratch columns this scene's solver needs: shifting holds two vectors after the solves."""
+        return 6 if shifting_coefficient(scene.solver) > 0.0 else DFSPHSolver.scratch_columns
 
     def __init__(self, sim):
         self.sim = sim
         z = sim.zeros
         self.stiffness = sim.scratch(float, 0)
         self.error = sim.scratch(float, 1)
+        self.clamp = int(sim.scene.solver.clamp_pressure)
+        self.shifting = shifting_coefficient(sim.scene.solver)
+        if self.shifting > 0.0:  # after the solves: the pool is free again
+            self.shift = sim.scratch(wp.vec3, 0)
+            self.velocity_correction = sim.scratch(wp.vec3, 3)
         # accumulated stiffness of the last solve of each kind, for the warm start
         self.pressure_sum = [sim.per_particle("pressure"), sim.per_particle("pressure")]
-        self.error_stats = z("pressure", 2)  # sum, max
+        self.error_stats = z("pressure", 3)  # sum |error|, max |error|, sum of the signed source (confined)
         self.average_error = [z("pressure", 1), z("pressure", 1)]
         self.condition = z("pressure", 1, dtype=wp.int32)  # read by wp.capture_while
         self.iterations = z("pressure", 1, dtype=wp.int32)
@@ -79,12 +113,12 @@ class DFSPHSolver:
 
     def _divergence_inputs(self):
         sim = self.sim
-        return self._common() + [sim.fluid.factor, sim.fluid_volume, sim.support_radius, sim.dt]
+        return self._common() + [sim.fluid.factor, sim.fluid_volume, sim.support_radius, sim.dt, self.clamp]
 
     def _density_inputs(self):
         sim = self.sim
         return self._common() + [sim.fluid.density, sim.fluid.factor, sim.fluid_volume, sim.rest_density,
-                                 sim.support_radius, sim.dt]
+                                 sim.support_radius, sim.dt, self.clamp]
 
     def _apply(self, kind, accumulate):
         sim = self.sim
@@ -95,6 +129,11 @@ class DFSPHSolver:
     def _measure(self, kind, source_kernel, inputs, max_error, min_it, max_it, first):
         sim = self.sim
         sim.launch(source_kernel, sim.num_fluid, inputs + [self.error, self.stiffness])
+        if not self.clamp:  # confined: signed source less its mean (compatibility condition), relaxed
+            sim.launch(reduce_source_sum, min(sim.num_fluid, REDUCE_THREADS), [self.error, sim.num_fluid, self.error_stats])
+            sim.launch(remove_mean_source, sim.num_fluid,
+                       [self.error_stats, sim.num_fluid, sim.fluid.factor, sim.dt, int(kind == DIVERGENCE),
+                        CONFINED_RELAXATION, self.error, self.stiffness])
         sim.launch(reduce_error, min(sim.num_fluid, REDUCE_THREADS), [self.error, sim.num_fluid, self.error_stats])
         sim.launch(update_solver_status, 1,
                    [self.error_stats, sim.num_fluid, max_error, max_error * PEAK_ERROR_RATIO, int(kind == DIVERGENCE), sim.dt, min_it, max_it,
@@ -117,6 +156,19 @@ class DFSPHSolver:
             self._measure(kind, source_kernel, inputs, max_error, min_it, max_it, False)
 
         wp.capture_while(self.condition, iteration)
+
+    def shift_particles(self):
+        """Confined mode: particle shifting after the position update (two passes: the shifts
+        from the neighbour lists of this step, then the move; no-op when shifting is off)."""
+        if self.shifting <= 0.0:
+            return
+        sim, f = self.sim, self.sim.fluid
+        sim.launch(compute_shift, sim.num_fluid,
+                   [f.x, f.v, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume, sim.support_radius,
+                    sim.scene.particle_diameter, sim.dt, sim.max_speed_sq, self.shifting,
+                    MAX_SHIFT * sim.scene.particle_diameter, self.shift, self.velocity_correction])
+        sim.launch(apply_shift, sim.num_fluid,
+                   [self.shift, self.velocity_correction, sim.neighbours.lower, sim.neighbours.period, f.x, f.v])
 
     # -- statistics (host reads, outside the step) -----------------------------------------
     def iteration_totals(self):
