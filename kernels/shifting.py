@@ -5,7 +5,9 @@ has a higher summation density than the lattice at the same number density. The 
 removes the mean of its source (a constant pressure moves nothing in a closed or periodic box), so
 nothing would stop that rise. Shifting moves each particle down the gradient of the particle
 concentration C_i = sum_j V_j W_ij after the position update, which keeps the distribution close to
-uniform; the velocity is corrected to the shifted position by a first-order Taylor step.
+uniform. Measured on Taylor-Green (tools/results/CONFINED_NOTES.md), Lind et al.'s anti-pairing factor
+(1 + 0.2 (W_ij / W(d))^4) and the first-order Taylor correction of the velocity to the shifted position
+both injected energy, so the shift is the plain -D grad C and the velocity stays.
 """
 
 import warp as wp
@@ -15,8 +17,6 @@ from .sph_kernel import cubic_kernel, cubic_kernel_gradient, cubic_kernel_zero
 
 wp.set_module_options({"enable_backward": False})
 
-# Lind et al. 2012's anti-pairing term of grad C: (1 + R (W_ij / W(d))^N) grad W_ij, d the spacing
-PAIRING_R = wp.constant(0.2)
 # A particle whose concentration (fluid and boundary) is below this is at a free surface: no shift
 # (the confined mode expects none; a shift there would pull the surface apart)
 SURFACE_CONCENTRATION = wp.constant(0.9)
@@ -25,39 +25,27 @@ SURFACE_CONCENTRATION = wp.constant(0.9)
 @wp.kernel
 def compute_shift(
     x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
     nb: Neighbours,
     boundary: Boundary,
     fluid_volume: float,
     support_radius: float,
-    particle_diameter: float,
     dt: wp.array(dtype=float),
     max_speed_sq: wp.array(dtype=float),
     coefficient: float,
     max_shift: float,
     shift: wp.array(dtype=wp.vec3),
-    velocity_correction: wp.array(dtype=wp.vec3),
 ):
-    """shift_i = -D grad C_i, D = coefficient h max|v| dt (Skillen et al. 2013 with the step's
-    largest speed, h = H / 2), |shift_i| <= max_shift; grad C_i = sum_f V_j (1 + R (W_ij/W(d))^4)
-    grad W_ij + sum_b V_b grad W_ib. velocity_correction_i = (shift_i . grad) v_i with
-    grad v_i = sum_f V_j (v_j - v_i) (x) grad W_ij."""
+    """shift_i = -D grad C_i, D = coefficient h max|v| dt (Skillen et al. 2013 with the step's largest
+    speed, h = H / 2), |shift_i| <= max_shift; grad C_i = sum_f V_j grad W_ij + sum_b V_b grad W_ib.
+    No shift where C_i < SURFACE_CONCENTRATION (a free surface)."""
     i = wp.tid()
     xi = x[i]
-    vi = v[i]
-    w_spacing = cubic_kernel(particle_diameter, support_radius)
     concentration = fluid_volume * cubic_kernel_zero(support_radius)
     grad_c = wp.vec3(0.0)
-    grad_v = wp.mat33(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
-        j = nb.fluid[k]
-        x_ij = separation(nb, xi, x[j])
-        w = cubic_kernel(wp.length(x_ij), support_radius)
-        g = fluid_volume * cubic_kernel_gradient(x_ij, support_radius)
-        ratio = w / w_spacing
-        concentration += fluid_volume * w
-        grad_c += (1.0 + PAIRING_R * ratio * ratio * ratio * ratio) * g
-        grad_v += wp.outer(v[j] - vi, g)
+        x_ij = separation(nb, xi, x[nb.fluid[k]])
+        concentration += fluid_volume * cubic_kernel(wp.length(x_ij), support_radius)
+        grad_c += fluid_volume * cubic_kernel_gradient(x_ij, support_radius)
     for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
         b = nb.boundary[k]
         x_ib = separation(nb, xi, boundary.x[b])
@@ -71,23 +59,19 @@ def compute_shift(
         if length > max_shift:
             d = d * (max_shift / length)
     shift[i] = d
-    velocity_correction[i] = grad_v * d
 
 
 @wp.kernel
 def apply_shift(
     shift: wp.array(dtype=wp.vec3),
-    velocity_correction: wp.array(dtype=wp.vec3),
     lower: wp.vec3,
     period: wp.vec3,
     x: wp.array(dtype=wp.vec3),
-    v: wp.array(dtype=wp.vec3),
 ):
-    """x_i += shift_i (wrapped into the domain along periodic axes), v_i += velocity_correction_i."""
+    """x_i += shift_i, wrapped into the domain along periodic axes."""
     i = wp.tid()
     p = x[i] + shift[i]
     for k in range(3):
         if period[k] > 0.0:
             p[k] = lower[k] + (p[k] - lower[k]) - period[k] * wp.floor((p[k] - lower[k]) / period[k])
     x[i] = p
-    v[i] = v[i] + velocity_correction[i]
