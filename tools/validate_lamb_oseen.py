@@ -238,6 +238,8 @@ def main():
     parser.add_argument("--frames", type=int, default=10)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
+    parser.add_argument("--confined", action="store_true",
+                        help="the confined pressure mode (solver.clamp_pressure false, particle shifting)")
     parser.add_argument("--out", help="JSON file (PNGs beside it when matplotlib is present)")
     args = parser.parse_args()
     import warp as wp
@@ -247,11 +249,12 @@ def main():
 
     p = setup(args.resolution, args.nu, args.core, args.u_peak, args.depth)
     report = {"case": "Lamb-Oseen vortex, closed box L = 1 m, quasi-2D, no gravity", "resolution": args.resolution,
-              "T": args.T, "warp": wp.__version__, **p, "methods": {}}
+              "T": args.T, "confined": args.confined, "warp": wp.__version__, **p, "methods": {}}
     for name in args.methods:
         try:
             rows, sim, p = lamb_oseen(METHODS[name], args.resolution, args.nu, args.T, args.core, args.u_peak,
-                                      args.depth, args.device, args.frames)
+                                      args.depth, args.device, args.frames,
+                                      solver={"clamp_pressure": False} if args.confined else None)
         except InstabilityError as exc:
             report["methods"][name] = {"unstable": str(exc), "step": exc.step, "time": exc.time, "check": exc.check}
             print(f"{name:11s} {exc}")

@@ -67,18 +67,22 @@ def main():
     parser.add_argument("--T", type=float, default=0.5, help="simulated time [s]")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
+    parser.add_argument("--confined", action="store_true",
+                        help="the confined pressure mode (solver.clamp_pressure false, particle shifting): the box is "
+                             "full and periodic; the default free-surface solver loses almost all the energy here")
     parser.add_argument("--out")
     args = parser.parse_args()
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING
     report = {"case": "Taylor-Green, periodic, L = 1, U = 1", "resolution": args.resolution, "nu": args.nu,
-              "T": args.T, "warp": wp.__version__, "methods": {}}
+              "T": args.T, "confined": args.confined, "warp": wp.__version__, "methods": {}}
     from warpsph.simulation import InstabilityError
 
     for name in args.methods:
         try:
-            rows, sim = taylor_green(METHODS[name], args.resolution, args.nu, args.T, args.device)
+            rows, sim = taylor_green(METHODS[name], args.resolution, args.nu, args.T, args.device,
+                                     solver={"clamp_pressure": False} if args.confined else None)
         except InstabilityError as exc:
             report["methods"][name] = {"unstable": str(exc)}
             print(f"{name:11s} {exc}")
