@@ -1,4 +1,5 @@
-"""Particle shifting of the confined pressure mode (Lind et al. 2012, Skillen et al. 2013).
+"""Particle shifting and the transport-velocity displacement of the confined pressure mode (Lind et al.
+2012, Skillen et al. 2013; Adami, Hu & Adams 2013).
 
 Under a signed pressure, SPH particles pair up (tensile instability) and a disordered distribution
 has a higher summation density than the lattice at the same number density. The confined solver
@@ -75,3 +76,64 @@ def apply_shift(
         if period[k] > 0.0:
             p[k] = lower[k] + (p[k] - lower[k]) - period[k] * wp.floor((p[k] - lower[k]) / period[k])
     x[i] = p
+
+
+@wp.kernel
+def compute_transport_shift(
+    x: wp.array(dtype=wp.vec3),
+    nb: Neighbours,
+    boundary: Boundary,
+    density: wp.array(dtype=float),
+    fluid_volume: float,
+    rest_density: float,
+    support_radius: float,
+    dt: wp.array(dtype=float),
+    max_speed_sq: wp.array(dtype=float),
+    coefficient: float,
+    max_shift: float,
+    shift: wp.array(dtype=wp.vec3),
+):
+    """Transport-velocity displacement (Adami, Hu & Adams 2013): shift_i = dt^2 a_b,i with the
+    acceleration of a uniform background pressure p_b = coefficient rho0 max|v|^2,
+    a_b,i = -(p_b / m_i) sum_j (V_i^2 + V_j^2) grad W_ij, V = m / rho (rho of the step start);
+    a boundary sample counts with V_b and (rho0 / rho_i)^2 V0 for i. |shift_i| <= max_shift."""
+    i = wp.tid()
+    xi = x[i]
+    ri = rest_density / density[i]
+    ri2 = ri * ri
+    g = wp.vec3(0.0)
+    for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
+        j = nb.fluid[k]
+        rj = rest_density / density[j]
+        g += fluid_volume * (ri2 + rj * rj) * cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius)
+    for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
+        b = nb.boundary[k]
+        g += (fluid_volume * ri2 + boundary.volume[b]) * cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius)
+    h = dt[0]
+    d = -coefficient * max_speed_sq[0] * h * h * g
+    length = wp.length(d)
+    if length > max_shift:
+        d = d * (max_shift / length)
+    shift[i] = d
+
+
+@wp.kernel
+def transport_velocity_correction(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    shift: wp.array(dtype=wp.vec3),
+    nb: Neighbours,
+    fluid_volume: float,
+    support_radius: float,
+    v_out: wp.array(dtype=wp.vec3),
+):
+    """v_out_i = v_i + (shift_i . grad) v_i, grad v_i = sum_j V_j (v_j - v_i) grad W_ij^T."""
+    i = wp.tid()
+    xi = x[i]
+    vi = v[i]
+    d = shift[i]
+    dv = wp.vec3(0.0)
+    for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
+        j = nb.fluid[k]
+        dv += fluid_volume * (v[j] - vi) * wp.dot(cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius), d)
+    v_out[i] = vi + dv

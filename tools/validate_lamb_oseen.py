@@ -53,7 +53,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from validate_taylor_green import METHODS  # noqa: E402  (the same four methods and parameters)
+from validate_taylor_green import METHODS, confined_solver  # noqa: E402  (the same four methods and parameters)
 
 R_PEAK = 1.1209  # u_theta peaks at r = 1.1209 r_c (root of 1 + 2 s = exp(s), s = r^2 / r_c^2)
 L = 1.0  # box side [m]
@@ -240,6 +240,8 @@ def main():
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
     parser.add_argument("--confined", action="store_true",
                         help="the confined pressure mode (solver.clamp_pressure false, particle shifting)")
+    parser.add_argument("--transport-velocity", type=float, metavar="B",
+                        help="with --confined: solver.transport_velocity B (replaces particle shifting)")
     parser.add_argument("--out", help="JSON file (PNGs beside it when matplotlib is present)")
     args = parser.parse_args()
     import warp as wp
@@ -254,7 +256,7 @@ def main():
         try:
             rows, sim, p = lamb_oseen(METHODS[name], args.resolution, args.nu, args.T, args.core, args.u_peak,
                                       args.depth, args.device, args.frames,
-                                      solver={"clamp_pressure": False} if args.confined else None)
+                                      solver=confined_solver(args))
         except InstabilityError as exc:
             report["methods"][name] = {"unstable": str(exc), "step": exc.step, "time": exc.time, "check": exc.check}
             print(f"{name:11s} {exc}")

@@ -60,6 +60,15 @@ def taylor_green(models, resolution=20, nu=0.01, T=0.5, device="cpu", frames=10,
     return rows, sim
 
 
+def confined_solver(args):
+    """The "solver" keys of --confined / --transport-velocity (None: the defaults)."""
+    if not args.confined:
+        return None
+    if args.transport_velocity is None:
+        return {"clamp_pressure": False}
+    return {"clamp_pressure": False, "transport_velocity": args.transport_velocity}
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--resolution", type=int, default=20, help="particles across L")
@@ -70,6 +79,8 @@ def main():
     parser.add_argument("--confined", action="store_true",
                         help="the confined pressure mode (solver.clamp_pressure false, particle shifting): the box is "
                              "full and periodic; the default free-surface solver loses almost all the energy here")
+    parser.add_argument("--transport-velocity", type=float, metavar="B",
+                        help="with --confined: solver.transport_velocity B (replaces particle shifting)")
     parser.add_argument("--out")
     args = parser.parse_args()
     import warp as wp
@@ -82,7 +93,7 @@ def main():
     for name in args.methods:
         try:
             rows, sim = taylor_green(METHODS[name], args.resolution, args.nu, args.T, args.device,
-                                     solver={"clamp_pressure": False} if args.confined else None)
+                                     solver=confined_solver(args))
         except InstabilityError as exc:
             report["methods"][name] = {"unstable": str(exc)}
             print(f"{name:11s} {exc}")

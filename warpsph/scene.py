@@ -222,6 +222,11 @@ class Solver:
     # with clamp_pressure false (it would pull a free surface apart)
     shifting: typing.Optional[float] = field(default=None, metadata=_check("null or a number >= 0",
                                                                           lambda v: v is None or v >= 0))
+    # transport velocity of the confined mode (Adami, Hu & Adams 2013), replacing shifting: B of the
+    # background pressure p_b = B rho0 max|v|^2 whose acceleration moves the particles (not their
+    # velocity); null or 0: off. Only valid with clamp_pressure false and shifting null or 0
+    transport_velocity: typing.Optional[float] = field(default=None, metadata=_check(
+        "null or a number >= 0", lambda v: v is None or v >= 0))
     sort_interval: int = field(default=16, metadata=_check("an integer >= 0 (0: never)", lambda v: v >= 0))
 
     def validate(self, file, key):
@@ -230,6 +235,11 @@ class Solver:
         if self.clamp_pressure and self.shifting:
             raise SceneError(file, f"{key}.shifting", "particle shifting needs clamp_pressure false (confined flow, "
                                                       "no free surface)")
+        if self.transport_velocity and self.clamp_pressure:
+            raise SceneError(file, f"{key}.transport_velocity", "the transport velocity needs clamp_pressure false "
+                                                                "(confined flow, no free surface)")
+        if self.transport_velocity and self.shifting:
+            raise SceneError(file, f"{key}.transport_velocity", "replaces particle shifting: set shifting to 0 or null")
 
 
 @dataclass(frozen=True)

@@ -435,6 +435,7 @@ class Simulation:
         with t("density_solve"):  # projection: rho*(x + dt v_adv) -> rho0
             self.pressure_solver.correct_density()
         with t("integration"):  # x^{n+1} = x^n + dt v
+            self.pressure_solver.transport_velocity()  # confined mode, transport velocity (no-op otherwise)
             self.launch(advect_positions, n, [f.v, self.dt, self.neighbours.lower, self.neighbours.period, f.x])
             self.pressure_solver.shift_particles()  # confined mode: particle shifting (no-op otherwise)
             self.launch(advance_clock, 1, [self.dt, self.time_device, self.steps_device])

@@ -27,7 +27,7 @@ from warpsph.kernels.pressure import (
     remove_mean_source,
     update_solver_status,
 )
-from warpsph.kernels.shifting import apply_shift, compute_shift
+from warpsph.kernels.shifting import apply_shift, compute_shift, compute_transport_shift, transport_velocity_correction
 
 DIVERGENCE, DENSITY = 0, 1
 # The largest per-particle error may be this many times the average tolerance (density:
@@ -57,9 +57,29 @@ DEFAULT_SHIFTING = 2.0
 MAX_SHIFT = 0.1
 
 
+# Transport velocity (solver.transport_velocity = B, Adami, Hu & Adams 2013): particles move by
+# dt v + dt^2 a_b, a_b the acceleration of a background pressure p_b = B rho0 max|v|^2, used for the
+# position only; v is moved with them ((shift . grad) v, first order), and the density solver
+# corrects only this share of the density error rho/rho0 - 1 a step (its velocity-divergence part is
+# whole): with the full error it turned each displacement back into velocity (Taylor-Green KE rose
+# above 1 mid-run at B >= 20, as with shifting). Measured at 16 across (tools/results/CONFINED_NOTES.md):
+# weight 1: B = 5 KE fine, mean rho 1.10; B = 20: KE +33 % at 0.15 s; 0.05 with B = 40 and the velocity
+# correction: KE within 6 % of analytic at 0.09, 0.15 and 0.3 s, mean rho 1.009; weight 0 lets the
+# mean rise (B = 20: 1.038) and loses 7-16 %.
+TRANSPORT_DENSITY_WEIGHT = 0.05
+
+
+def transport_coefficient(solver):
+    """The scene's transport-velocity coefficient B: 0 (off) unless set in the confined mode."""
+    if solver.clamp_pressure or solver.transport_velocity is None:
+        return 0.0
+    return solver.transport_velocity
+
+
 def shifting_coefficient(solver):
-    """The scene's particle-shifting coefficient: 0 in the clamped (free-surface) mode."""
-    if solver.clamp_pressure:
+    """The scene's particle-shifting coefficient: 0 in the clamped (free-surface) mode and with the
+    transport velocity (which replaces it)."""
+    if solver.clamp_pressure or transport_coefficient(solver) > 0.0:
         return 0.0
     return DEFAULT_SHIFTING if solver.shifting is None else solver.shifting
 
@@ -69,7 +89,10 @@ class DFSPHSolver:
 
     @staticmethod
     def columns(scene):
-        """Scratch columns this scene's solver needs: shifting holds a vector after the solves."""
+        """Scratch columns this scene's solver needs: shifting holds a vector after the solves, the
+        transport velocity two (the displacement and the corrected velocity)."""
+        if transport_coefficient(scene.solver) > 0.0:
+            return 6
         return 3 if shifting_coefficient(scene.solver) > 0.0 else DFSPHSolver.scratch_columns
 
     def __init__(self, sim):
@@ -81,6 +104,12 @@ class DFSPHSolver:
         self.shifting = shifting_coefficient(sim.scene.solver)
         if self.shifting > 0.0:  # after the solves: the pool is free again
             self.shift = sim.scratch(wp.vec3, 0)
+        self.transport = transport_coefficient(sim.scene.solver)
+        if self.transport > 0.0:
+            self.shift = sim.scratch(wp.vec3, 0)
+            self.moved_velocity = sim.scratch(wp.vec3, 3)
+        # share of the density error rho/rho0 - 1 in the density source
+        self.density_weight = TRANSPORT_DENSITY_WEIGHT if self.transport > 0.0 else 1.0
         # accumulated stiffness of the last solve of each kind, for the warm start
         self.pressure_sum = [sim.per_particle("pressure"), sim.per_particle("pressure")]
         self.error_stats = z("pressure", 3)  # sum |error|, max |error|, sum of the signed source (confined)
@@ -122,7 +151,7 @@ class DFSPHSolver:
     def _density_inputs(self):
         sim = self.sim
         return self._common() + [sim.fluid.density, sim.fluid.factor, sim.fluid_volume, sim.rest_density,
-                                 sim.support_radius, sim.dt, self.clamp]
+                                 sim.support_radius, sim.dt, self.clamp, self.density_weight]
 
     def _apply(self, kind, accumulate):
         sim = self.sim
@@ -161,12 +190,32 @@ class DFSPHSolver:
 
         wp.capture_while(self.condition, iteration)
 
-    def shift_particles(self):
-        """Confined mode: particle shifting after the position update (two passes: the shifts
-        from the neighbour lists of this step, then the move; no-op when shifting is off)."""
-        if self.shifting <= 0.0:
+    def transport_velocity(self):
+        """Transport velocity, before the position update: the displacement dt^2 a_b at x^n (neighbour
+        lists of the step) and v_i := v_i + (shift_i . grad) v_i; :meth:`shift_particles` then moves
+        the particles by it. No-op when it is off."""
+        if self.transport <= 0.0:
             return
         sim, f = self.sim, self.sim.fluid
+        sim.launch(compute_transport_shift, sim.num_fluid,
+                   [f.x, sim.neighbours.lists, sim.boundary.samples, f.density, sim.fluid_volume, sim.rest_density,
+                    sim.support_radius, sim.dt, sim.max_speed_sq, self.transport,
+                    MAX_SHIFT * sim.scene.particle_diameter, self.shift])
+        sim.launch(transport_velocity_correction, sim.num_fluid,
+                   [f.x, f.v, self.shift, sim.neighbours.lists, sim.fluid_volume, sim.support_radius,
+                    self.moved_velocity])
+        wp.copy(f.v, self.moved_velocity, count=sim.num_fluid)
+
+    def shift_particles(self):
+        """Confined mode: particle shifting after the position update (two passes: the shifts
+        from the neighbour lists of this step, then the move), or the transport velocity's
+        displacement; no-op when both are off."""
+        sim, f = self.sim, self.sim.fluid
+        if self.transport > 0.0:
+            sim.launch(apply_shift, sim.num_fluid, [self.shift, sim.neighbours.lower, sim.neighbours.period, f.x])
+            return
+        if self.shifting <= 0.0:
+            return
         sim.launch(compute_shift, sim.num_fluid,
                    [f.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume, sim.support_radius,
                     sim.dt, sim.max_speed_sq, self.shifting,
