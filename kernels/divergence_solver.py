@@ -22,17 +22,18 @@ def compute_divergence_source(
     fluid_volume: float,
     support_radius: float,
     dt: wp.array(dtype=float),
+    clamp: int,
     error: wp.array(dtype=float),
     stiffness: wp.array(dtype=float),
 ):
-    """Source s_i = max(D(rho_i/rho0)/Dt, 0) (compression only) and k_i = s_i factor_i / dt."""
+    """Source s_i = max(D(rho_i/rho0)/Dt, 0) (compression only; ``clamp`` 0: the signed
+    D(rho_i/rho0)/Dt, for confined flows) and k_i = s_i factor_i / dt."""
     i = wp.tid()
     count = nb.fluid_offsets[i + 1] - nb.fluid_offsets[i] + nb.boundary_offsets[i + 1] - nb.boundary_offsets[i]
     s = float(0.0)
     if count >= MIN_NEIGHBOURS:
-        s = wp.max(
-            density_rate(i, x, v, nb, boundary, fluid_volume, support_radius),
-            0.0,
-        )
+        s = density_rate(i, x, v, nb, boundary, fluid_volume, support_radius)
+        if clamp != 0:
+            s = wp.max(s, 0.0)
     error[i] = s
     stiffness[i] = s * factor[i] / dt[0]

@@ -97,6 +97,45 @@ def reduce_error(error: wp.array(dtype=float), count: int, error_stats: wp.array
 
 
 @wp.kernel
+def reduce_source_sum(source: wp.array(dtype=float), count: int, error_stats: wp.array(dtype=float)):
+    """error_stats[2] += sum of the signed source (update_solver_status resets it after
+    reading). Grid-stride like :func:`reduce_error`; allocates nothing."""
+    t = wp.tid()
+    threads = wp.min(count, REDUCE_THREADS)
+    s = float(0.0)
+    for i in range(t, count, threads):
+        s += source[i]
+    wp.atomic_add(error_stats, 2, s)
+
+
+@wp.kernel
+def remove_mean_source(
+    error_stats: wp.array(dtype=float),
+    count: int,
+    factor: wp.array(dtype=float),
+    dt: wp.array(dtype=float),
+    per_unit_time: int,
+    relaxation: float,
+    error: wp.array(dtype=float),
+    stiffness: wp.array(dtype=float),
+):
+    """Compatibility condition of the periodic / pure-Neumann pressure Poisson problem: a
+    constant pressure moves nothing, so a source with a non-zero sum has no solution and
+    Jacobi drifts; s_i := s_i - mean(s) (mean = error_stats[2] / count, from
+    :func:`reduce_source_sum`). Then k_i = relaxation s_i factor_i / dt^2 (per_unit_time:
+    / dt), relaxed Jacobi (the signed solve diverges at 0.6 and above), and error_i = |s_i|,
+    whose average decides convergence."""
+    i = wp.tid()
+    s = error[i] - error_stats[2] / float(wp.max(count, 1))
+    h = dt[0]
+    scale = h * h
+    if per_unit_time != 0:
+        scale = h
+    error[i] = wp.abs(s)
+    stiffness[i] = relaxation * s * factor[i] / scale
+
+
+@wp.kernel
 def scale_warm_start(
     pressure_sum: wp.array(dtype=float),
     dt: wp.array(dtype=float),
@@ -153,6 +192,7 @@ def update_solver_status(
     peak = error_stats[1]
     error_stats[0] = 0.0  # ready for the next reduce_error, without a memset in the loop body
     error_stats[1] = 0.0
+    error_stats[2] = 0.0  # and for the next reduce_source_sum (confined mode)
     average_error[0] = avg
     eta = max_error
     eta_peak = max_peak_error

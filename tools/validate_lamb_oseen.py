@@ -53,7 +53,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from validate_taylor_green import METHODS  # noqa: E402  (the same four methods and parameters)
+from validate_taylor_green import METHODS, confined_solver  # noqa: E402  (the same four methods and parameters)
 
 R_PEAK = 1.1209  # u_theta peaks at r = 1.1209 r_c (root of 1 + 2 s = exp(s), s = r^2 / r_c^2)
 L = 1.0  # box side [m]
@@ -238,6 +238,10 @@ def main():
     parser.add_argument("--frames", type=int, default=10)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
+    parser.add_argument("--confined", action="store_true",
+                        help="the confined pressure mode (solver.clamp_pressure false, particle shifting)")
+    parser.add_argument("--transport-velocity", type=float, metavar="B",
+                        help="with --confined: solver.transport_velocity B (replaces particle shifting)")
     parser.add_argument("--out", help="JSON file (PNGs beside it when matplotlib is present)")
     args = parser.parse_args()
     import warp as wp
@@ -247,11 +251,12 @@ def main():
 
     p = setup(args.resolution, args.nu, args.core, args.u_peak, args.depth)
     report = {"case": "Lamb-Oseen vortex, closed box L = 1 m, quasi-2D, no gravity", "resolution": args.resolution,
-              "T": args.T, "warp": wp.__version__, **p, "methods": {}}
+              "T": args.T, "confined": args.confined, "warp": wp.__version__, **p, "methods": {}}
     for name in args.methods:
         try:
             rows, sim, p = lamb_oseen(METHODS[name], args.resolution, args.nu, args.T, args.core, args.u_peak,
-                                      args.depth, args.device, args.frames)
+                                      args.depth, args.device, args.frames,
+                                      solver=confined_solver(args))
         except InstabilityError as exc:
             report["methods"][name] = {"unstable": str(exc), "step": exc.step, "time": exc.time, "check": exc.check}
             print(f"{name:11s} {exc}")

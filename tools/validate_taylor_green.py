@@ -29,7 +29,9 @@ def analytic_velocity(x, t, nu):
     return decay * np.stack([u, v, np.zeros(len(x))], axis=1)
 
 
-def taylor_green(models, resolution=20, nu=0.01, T=0.5, device="cpu", frames=10):
+def taylor_green(models, resolution=20, nu=0.01, T=0.5, device="cpu", frames=10, solver=None):
+    """Runs the vortex; returns (rows per frame, the simulation). ``solver``: scene "solver" keys (e.g.
+    {"pressure_mode": "confined"}); None: the defaults."""
     from warpsph.scene import scene_from_dict
     from warpsph.simulation import Simulation
 
@@ -39,6 +41,8 @@ def taylor_green(models, resolution=20, nu=0.01, T=0.5, device="cpu", frames=10)
             "domain": {"min": [0, 0, 0], "max": [1, 1, depth], "periodic": ["x", "y", "z"]},
             "fluid_blocks": [{"start": [0, 0, 0], "end": [1, 1, depth]}],
             "fluid": {"viscosity": nu}, "models": list(models), "output": {"fps": frames / T}}
+    if solver:
+        data["solver"] = dict(solver)
     sim = Simulation(scene_from_dict(data), device=device)
     x0 = sim.fluid.x.numpy()
     sim.fluid.v.assign(analytic_velocity(x0, 0.0, nu).astype(np.float32))
@@ -56,6 +60,15 @@ def taylor_green(models, resolution=20, nu=0.01, T=0.5, device="cpu", frames=10)
     return rows, sim
 
 
+def confined_solver(args):
+    """The "solver" keys of --confined / --transport-velocity (None: the defaults)."""
+    if not args.confined:
+        return None
+    if args.transport_velocity is None:
+        return {"clamp_pressure": False}
+    return {"clamp_pressure": False, "transport_velocity": args.transport_velocity}
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--resolution", type=int, default=20, help="particles across L")
@@ -63,18 +76,24 @@ def main():
     parser.add_argument("--T", type=float, default=0.5, help="simulated time [s]")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
+    parser.add_argument("--confined", action="store_true",
+                        help="the confined pressure mode (solver.clamp_pressure false, particle shifting): the box is "
+                             "full and periodic; the default free-surface solver loses almost all the energy here")
+    parser.add_argument("--transport-velocity", type=float, metavar="B",
+                        help="with --confined: solver.transport_velocity B (replaces particle shifting)")
     parser.add_argument("--out")
     args = parser.parse_args()
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING
     report = {"case": "Taylor-Green, periodic, L = 1, U = 1", "resolution": args.resolution, "nu": args.nu,
-              "T": args.T, "warp": wp.__version__, "methods": {}}
+              "T": args.T, "confined": args.confined, "warp": wp.__version__, "methods": {}}
     from warpsph.simulation import InstabilityError
 
     for name in args.methods:
         try:
-            rows, sim = taylor_green(METHODS[name], args.resolution, args.nu, args.T, args.device)
+            rows, sim = taylor_green(METHODS[name], args.resolution, args.nu, args.T, args.device,
+                                     solver=confined_solver(args))
         except InstabilityError as exc:
             report["methods"][name] = {"unstable": str(exc)}
             print(f"{name:11s} {exc}")

@@ -210,7 +210,7 @@ class Simulation:
         self._per_particle = []
         self._scratch = None
         model_classes = [REGISTRY[MODEL_NAMES[type(p)]] for p in scene.models]
-        self._scratch_columns = max([DFSPHSolver.scratch_columns] + [m.scratch_columns for m in model_classes])
+        self._scratch_columns = max([DFSPHSolver.columns(scene)] + [m.scratch_columns for m in model_classes])
         check_fits(scene, self.capacity, self.num_boundary, self.device)  # refuse before allocating
         with wp.ScopedDevice(self.device):
             z, p = self.zeros, self.per_particle
@@ -436,7 +436,9 @@ class Simulation:
         with t("density_solve"):  # projection: rho*(x + dt v_adv) -> rho0
             self.pressure_solver.correct_density()
         with t("integration"):  # x^{n+1} = x^n + dt v
+            self.pressure_solver.transport_velocity()  # confined mode, transport velocity (no-op otherwise)
             self.launch(advect_positions, n, [f.v, self.dt, self.neighbours.lower, self.neighbours.period, f.x])
+            self.pressure_solver.shift_particles()  # confined mode: particle shifting (no-op otherwise)
             self.launch(advance_clock, 1, [self.dt, self.time_device, self.steps_device])
         with t("health"):  # NaN/inf, escaped particles, runaway density: counted on the device
             self.health_counts.zero_()
