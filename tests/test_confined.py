@@ -16,11 +16,12 @@ T = 0.3
 SOLVERS = {"clamped": None, "confined": {"clamp_pressure": False},
            "unshifted": {"clamp_pressure": False, "shifting": 0},
            "transport": {"clamp_pressure": False, "transport_velocity": 40}}
-# KE(t)/KE(0) per frame of the clamped (default) solver at 16 across on the CPU, recorded at main 5e14e5e
-# before the confined mode existed: the default must not change.
-CLAMPED_KE = [1.0, 0.7288078975721145, 3.046295400791651, 0.7114726911374972, 0.5847666169818991,
-              0.4370998245138276, 0.33397882433189313, 0.18958620228559478, 0.1069681128994841,
-              0.05959847938369327, 0.03553476183433743]
+# KE(t)/KE(0) per frame of the clamped (default) solver at 16 across on the CPU: the confined mode must
+# not change it. Recorded at main 14770c0 (the kernel gradient with one division moved the chaotic
+# middle frames of this unstable run from the values recorded at 5e14e5e; the last 0.036 -> 0.032).
+CLAMPED_KE = [1.0, 0.7287838042639748, 5.725874318517991, 1.5079221203261959, 0.5715520501979057,
+              0.4705120431171146, 0.35407109330315323, 0.21547546479836222, 0.11620482729627969,
+              0.060273950674213976, 0.03174051457476677]
 
 
 @pytest.fixture(scope="module")
