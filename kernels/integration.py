@@ -2,6 +2,7 @@
 
 import warp as wp
 
+from .particles import wrap_into_domain
 from .pressure import REDUCE_THREADS
 
 wp.set_module_options({"enable_backward": False})
@@ -71,11 +72,7 @@ def advect_positions(
 ):
     """x^{n+1} = x^n + dt v (after the density solve), wrapped into the domain along periodic axes."""
     i = wp.tid()
-    p = x[i] + dt[0] * v[i]
-    for k in range(3):
-        if period[k] > 0.0:
-            p[k] = lower[k] + (p[k] - lower[k]) - period[k] * wp.floor((p[k] - lower[k]) / period[k])
-    x[i] = p
+    x[i] = wrap_into_domain(x[i] + dt[0] * v[i], lower, period)
 
 
 @wp.kernel

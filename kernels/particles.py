@@ -28,6 +28,16 @@ def periodic_offset(d: wp.vec3, period: wp.vec3):
 
 
 @wp.func
+def wrap_into_domain(p: wp.vec3, lower: wp.vec3, period: wp.vec3):
+    """Point p mapped into [lower, lower + period) along the periodic axes (period > 0)."""
+    out = p
+    for k in range(3):
+        if period[k] > 0.0:
+            out[k] = lower[k] + (p[k] - lower[k]) - period[k] * wp.floor((p[k] - lower[k]) / period[k])
+    return out
+
+
+@wp.func
 def separation(nb: Neighbours, a: wp.vec3, b: wp.vec3):
     """x_ab = a - b, through the periodic boundaries where the domain has them."""
     return periodic_offset(a - b, nb.period)

@@ -13,7 +13,7 @@ both injected energy, so the shift is the plain -D grad C and the velocity stays
 
 import warp as wp
 
-from .particles import Boundary, Neighbours, separation
+from .particles import Boundary, Neighbours, separation, wrap_into_domain
 from .sph_kernel import cubic_kernel, cubic_kernel_gradient, cubic_kernel_zero
 
 wp.set_module_options({"enable_backward": False})
@@ -21,6 +21,15 @@ wp.set_module_options({"enable_backward": False})
 # A particle whose concentration (fluid and boundary) is below this is at a free surface: no shift
 # (the confined mode expects none; a shift there would pull the surface apart)
 SURFACE_CONCENTRATION = wp.constant(0.9)
+
+
+@wp.func
+def limit_length(d: wp.vec3, max_length: float):
+    """d, scaled down to ``max_length`` when it is longer."""
+    length = wp.length(d)
+    if length > max_length:
+        return d * (max_length / length)
+    return d
 
 
 @wp.kernel
@@ -55,10 +64,7 @@ def compute_shift(
     d = wp.vec3(0.0)
     if concentration >= SURFACE_CONCENTRATION:
         diffusion = coefficient * 0.5 * support_radius * wp.sqrt(max_speed_sq[0]) * dt[0]
-        d = -diffusion * grad_c
-        length = wp.length(d)
-        if length > max_shift:
-            d = d * (max_shift / length)
+        d = limit_length(-diffusion * grad_c, max_shift)
     shift[i] = d
 
 
@@ -71,11 +77,7 @@ def apply_shift(
 ):
     """x_i += shift_i, wrapped into the domain along periodic axes."""
     i = wp.tid()
-    p = x[i] + shift[i]
-    for k in range(3):
-        if period[k] > 0.0:
-            p[k] = lower[k] + (p[k] - lower[k]) - period[k] * wp.floor((p[k] - lower[k]) / period[k])
-    x[i] = p
+    x[i] = wrap_into_domain(x[i] + shift[i], lower, period)
 
 
 @wp.kernel
@@ -110,11 +112,7 @@ def compute_transport_shift(
         b = nb.boundary[k]
         g += (fluid_volume * ri2 + boundary.volume[b]) * cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius)
     h = dt[0]
-    d = -coefficient * max_speed_sq[0] * h * h * g
-    length = wp.length(d)
-    if length > max_shift:
-        d = d * (max_shift / length)
-    shift[i] = d
+    shift[i] = limit_length(-coefficient * max_speed_sq[0] * h * h * g, max_shift)
 
 
 @wp.kernel

@@ -102,11 +102,10 @@ class DFSPHSolver:
         self.error = sim.scratch(float, 1)
         self.clamp = int(sim.scene.solver.clamp_pressure)
         self.shifting = shifting_coefficient(sim.scene.solver)
-        if self.shifting > 0.0:  # after the solves: the pool is free again
-            self.shift = sim.scratch(wp.vec3, 0)
         self.transport = transport_coefficient(sim.scene.solver)
-        if self.transport > 0.0:
+        if self.shifting > 0.0 or self.transport > 0.0:  # after the solves: the pool is free again
             self.shift = sim.scratch(wp.vec3, 0)
+        if self.transport > 0.0:
             self.moved_velocity = sim.scratch(wp.vec3, 3)
         # share of the density error rho/rho0 - 1 in the density source
         self.density_weight = TRANSPORT_DENSITY_WEIGHT if self.transport > 0.0 else 1.0
