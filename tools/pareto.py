@@ -7,13 +7,18 @@ resolution and solver tolerance, and the Pareto front of those points.
 
 The question it answers: for a given error budget, which method and resolution is cheapest?
 
-Error: the Lamb-Oseen vortex of tools/validate_lamb_oseen.py (its set-up, measurements and summary; the
+Error (``--case``): ``lamb-oseen`` (default), the Lamb-Oseen vortex of tools/validate_lamb_oseen.py (its set-up, measurements and summary; the
 functions are imported, not copied). The physical problem is the same at every resolution: box
 L = 1 m, initial core radius sqrt(4 nu t0) = ``--core-radius`` metres (0.125 m: the validation tool's
 default of 3 spacings at 24 particles across), peak speed 0.5 m/s, nu = 0.01, T = 0.5 s. Only the box
 depth is counted in spacings (6, quasi-2D: the flow does not depend on z). The primary error is the L1
 error of u_theta at T, in % of the analytic peak speed at T; the peak-vorticity ratio (against the same
 fit of the analytic field), the effective viscosity and the kinetic energy ratio are recorded too.
+``taylor-green``: the Taylor-Green vortex of tools/validate_taylor_green.py (L = 1, U = 1, nu = 0.01, T = 0.3 s,
+6 spacings deep, periodic) in the confined pressure mode (``solver.clamp_pressure`` false, transport velocity
+``TG_TRANSPORT_VELOCITY``), started from its particle packing (``--pack-steps``, set-up, not timed): the error
+is the L1 error of the velocity magnitude at T in % of the analytic peak speed at T; the kinetic energy error
+KE(T)/KE_exact(T) - 1 is recorded too.
 
 Optionally (``--dam-front R ...``, R in particles across the column width a) the Martin & Moyce dam-break
 front of tools/validate_dam_front.py per method and tolerance: the RMS of Z/a after the best time shift,
@@ -64,6 +69,9 @@ METHODS = {
     "micropolar": ("DFSPH+micropolar ν_t=0.05", [{"type": "micropolar", "transfer_coefficient": 0.05}]),
 }
 
+CASES = ("lamb-oseen", "taylor-green")
+# Taylor-Green: the confined mode's transport velocity B (tools/results/CONFINED_NOTES.md)
+TG_TRANSPORT_VELOCITY = 40.0
 CORE_RADIUS = 0.125  # m: validate_lamb_oseen's 3 spacings at 24 particles across L = 1 m
 ERROR_KEY, TIME_KEY = "error_percent", "wall_per_sim_s"
 DAM_ERROR_KEY, DAM_TIME_KEY = "dam_rms", "dam_wall_per_sim_s"
@@ -129,15 +137,23 @@ def timed_run(sim, run, on_frame=None):
     return time.perf_counter() - start - spent[0], spent[0]
 
 
-def warm_up(models, device):
+def warm_up(models, device, case="lamb-oseen"):
     """Loads (compiles) every kernel module a method uses, outside the timed runs: a tiny vortex, a few
     steps (the second captures the CUDA graph) and one measurement."""
-    from validate_lamb_oseen import build, measure
+    if case == "taylor-green":
+        import validate_taylor_green as tg
 
-    sim, p, edges = build(models, resolution=8, core=1.0, device=device, frames=10)
-    for _ in range(3):
-        sim.step()
-    measure(sim, p, edges, sim.time)
+        sim, ke0 = tg.build(models, resolution=8, device=device, solver=taylor_green_solver(0.05), pack_steps=2)
+        for _ in range(3):
+            sim.step()
+        tg.measure(sim, ke0, 0.01)
+    else:
+        from validate_lamb_oseen import build, measure
+
+        sim, p, edges = build(models, resolution=8, core=1.0, device=device, frames=10)
+        for _ in range(3):
+            sim.step()
+        measure(sim, p, edges, sim.time)
     sim.check_health()
     sim.statistics()
 
@@ -185,6 +201,47 @@ def lamb_oseen_point(models, resolution, tolerance, device, core_radius=CORE_RAD
                        "omega_ratio": [r["omega_ratio"] for r in rows], "ke_ratio": [r["ke_ratio"] for r in rows]},
                profile_end={"r": [round(v, 6) for v in p["r_bins"]], "u_theta": [round(v, 6) for v in rows[-1]["u_theta"]],
                             "u_theta_exact": [round(v, 6) for v in rows[-1]["u_theta_exact"]]})
+    del sim
+    return out
+
+
+def taylor_green_solver(tolerance):
+    return {"density_max_error": tolerance, "clamp_pressure": False, "transport_velocity": TG_TRANSPORT_VELOCITY}
+
+
+def taylor_green_point(models, resolution, tolerance, device, nu=0.01, T=0.3, frames=10, on_instability="stop",
+                       pack_steps=None):
+    """One Taylor-Green run (confined mode, packed start): error, timing and solver statistics."""
+    import validate_taylor_green as tg
+    from warpsph.simulation import InstabilityError
+
+    pack_steps = tg.PACK_STEPS if pack_steps is None else pack_steps
+    start = time.perf_counter()
+    sim, ke0 = tg.build(models, resolution, nu, T, device, frames, taylor_green_solver(tolerance), pack_steps)
+    sim.on_instability = on_instability
+    out = {"particles": sim.num_fluid, "spacing": 1.0 / resolution, "pack_steps": pack_steps,
+           "setup_s": time.perf_counter() - start}
+    rows = []
+    try:
+        wall, measuring = timed_run(sim, lambda cb: sim.run(frames=frames, on_frame=cb),
+                                    lambda s, f: rows.append(tg.measure(s, ke0, nu)))
+    except InstabilityError as exc:
+        out.update(unstable=str(exc), unstable_step=exc.step, unstable_time=exc.time, **solver_stats(sim))
+        return out
+    end = rows[-1]
+    peak = math.exp(-8 * math.pi**2 * nu * end["time"])  # analytic peak speed at T (U = 1)
+    density = sim.host(sim.fluid.density)
+    out.update(solver_stats(sim))
+    out.update(simulated_s=end["time"], wall_s=wall, measure_s=measuring, wall_per_sim_s=wall / end["time"],
+               ms_per_step=1e3 * wall / max(sim.step_count, 1), error_percent=100.0 * end["l1_speed_error"] / peak,
+               ke_ratio=end["ke_ratio"], ke_ratio_exact=end["ke_ratio_exact"],
+               ke_error_percent=100.0 * (end["ke_ratio"] / end["ke_ratio_exact"] - 1.0),
+               mean_density_ratio=float(density.mean() / sim.rest_density),
+               max_density_ratio=float(density.max() / sim.rest_density),
+               frames={"time": [r["time"] for r in rows],
+                       "error_percent": [100.0 * r["l1_speed_error"] / math.exp(-8 * math.pi**2 * nu * r["time"])
+                                         for r in rows],
+                       "ke_error_percent": [100.0 * (r["ke_ratio"] / r["ke_ratio_exact"] - 1.0) for r in rows]})
     del sim
     return out
 
@@ -244,7 +301,7 @@ def commit():
     out = {"commit": head() or "unknown"}
     try:  # uncommitted changes in the simulator make the commit alone not enough to reproduce
         status = subprocess.run(["git", "status", "--porcelain", "--", "warpsph", "kernels", "tools/validate_lamb_oseen.py",
-                                 "tools/validate_dam_front.py", "tools/pareto.py"], cwd=ROOT, capture_output=True,
+                                 "tools/validate_taylor_green.py", "tools/validate_dam_front.py", "tools/pareto.py"], cwd=ROOT, capture_output=True,
                                 text=True).stdout
         out["uncommitted"] = [line[3:] for line in status.splitlines() if line[:2].strip()]
     except OSError:
@@ -275,15 +332,27 @@ def markdown(report):
     points = report["points"]
     dam = any("dam_resolution" in p for p in points)
     s = report["setup"]
-    head = (f"Lamb-Oseen vortex (L = {s['L']:g} m, core radius {s['core_radius_m']:g} m, peak speed {s['u_peak']:g} m/s, "
-            f"nu = {s['nu']:g}, T = {s['T']:g} s, depth {s['depth_spacings']} spacings) on {report['device']}, "
-            f"Warp {report['warp']}, commit {report['commit']}"
-            + (f" (uncommitted: {', '.join(report['uncommitted'])})" if report.get("uncommitted") else "") + ".\n"
-            "error = L1 error of u_theta at T in % of the analytic peak speed; ω ratio = peak vorticity / analytic; "
-            "KE ratio = kinetic energy at T / at 0 (analytic decay keeps it below 1: above 1 the method injected energy); "
-            "s/s = wall seconds per simulated second (run only, synchronised). Pareto: no other point has both a "
-            "lower error and a lower time.\n\n")
-    cols = ["method", "resolution", "particles", "tolerance %", "error %", "ω ratio", "KE ratio", "steps", "density it.",
+    tg = report.get("case_key") == "taylor-green"
+    if tg:
+        head = (f"Taylor-Green vortex (L = 1 m, U = 1 m/s, nu = {s['nu']:g}, T = {s['T']:g} s, periodic, depth 6 spacings; "
+                f"confined mode, transport velocity {s['transport_velocity']:g}, packed start of {s['pack_steps']} steps) "
+                f"on {report['device']}, Warp {report['warp']}, commit {report['commit']}"
+                + (f" (uncommitted: {', '.join(report['uncommitted'])})" if report.get("uncommitted") else "") + ".\n"
+                "error = L1 error of |u| at T in % of the analytic peak speed at T; KE error = KE(T)/KE_exact(T) - 1 "
+                "(above 0: the method kept more energy than the analytic decay); mean ρ = mean density / ρ0 at T; "
+                "s/s = wall seconds per simulated second (run only, synchronised). Pareto: no other point has both a "
+                "lower error and a lower time.\n\n")
+    else:
+        head = (f"Lamb-Oseen vortex (L = {s['L']:g} m, core radius {s['core_radius_m']:g} m, peak speed {s['u_peak']:g} m/s, "
+                f"nu = {s['nu']:g}, T = {s['T']:g} s, depth {s['depth_spacings']} spacings) on {report['device']}, "
+                f"Warp {report['warp']}, commit {report['commit']}"
+                + (f" (uncommitted: {', '.join(report['uncommitted'])})" if report.get("uncommitted") else "") + ".\n"
+                "error = L1 error of u_theta at T in % of the analytic peak speed; ω ratio = peak vorticity / analytic; "
+                "KE ratio = kinetic energy at T / at 0 (analytic decay keeps it below 1: above 1 the method injected energy); "
+                "s/s = wall seconds per simulated second (run only, synchronised). Pareto: no other point has both a "
+                "lower error and a lower time.\n\n")
+    measures = ["KE error %", "mean ρ"] if tg else ["ω ratio", "KE ratio"]
+    cols = ["method", "resolution", "particles", "tolerance %", "error %", *measures, "steps", "density it.",
             "ms/step", "s wall / s sim", "Pareto"]
     if dam:
         cols += ["dam res.", "dam RMS Z/a", "dam s/s", "dam Pareto"]
@@ -293,9 +362,12 @@ def markdown(report):
             cells = [p["label"], p["resolution"], f"{p['particles']:,}", p["tolerance"], f"unstable: {p['unstable']}",
                      "", "", fmt(p.get("steps"), "d"), "", "", "", ""]
         else:
+            if tg:
+                values = [fmt(p["ke_error_percent"], "+.2f"), fmt(p["mean_density_ratio"], ".4f")]
+            else:
+                values = [fmt(p["omega_ratio"], ".3f"), fmt(p["ke_ratio"], ".3f") + (" (gain!)" if p["ke_ratio"] > 1 else "")]
             cells = [p["label"], p["resolution"], f"{p['particles']:,}", p["tolerance"], fmt(p[ERROR_KEY], ".2f"),
-                     fmt(p["omega_ratio"], ".3f"), fmt(p["ke_ratio"], ".3f") + (" (gain!)" if p["ke_ratio"] > 1 else ""),
-                     p["steps"], fmt(p["mean_density_iterations"], ".2f"),
+                     *values, p["steps"], fmt(p["mean_density_iterations"], ".2f"),
                      fmt(p["ms_per_step"], ".2f"), fmt(p[TIME_KEY], ".3g"), "**yes**" if p.get("pareto") else ""]
         if dam:
             cells += [p.get("dam_resolution", ""), p.get("dam_unstable") or fmt(p.get(DAM_ERROR_KEY), ".3f"),
@@ -320,8 +392,12 @@ def plot(report, out):
 
     points = [p for p in report["points"] if p.get(TIME_KEY) is not None]
     dam = [p for p in report["points"] if p.get(DAM_TIME_KEY) is not None]
-    panels = [(TIME_KEY, ERROR_KEY, "pareto", "L1 error of u_θ at T [% of peak speed]",
-               "Lamb–Oseen vortex", points)]
+    if report.get("case_key") == "taylor-green":
+        panels = [(TIME_KEY, ERROR_KEY, "pareto", "L1 error of |u| at T [% of peak speed]",
+                   "Taylor–Green vortex (confined mode, packed start)", points)]
+    else:
+        panels = [(TIME_KEY, ERROR_KEY, "pareto", "L1 error of u_θ at T [% of peak speed]",
+                   "Lamb–Oseen vortex", points)]
     if dam:
         panels.append((DAM_TIME_KEY, DAM_ERROR_KEY, "dam_pareto", "RMS error of front Z/a (shifted)",
                        "Martin & Moyce dam front", dam))
@@ -389,11 +465,12 @@ def write(report, out, png=False):
 
 # --- driver -----------------------------------------------------------------------------------------
 
-def study(methods, resolutions, tolerances, device="cpu", out=None, core_radius=CORE_RADIUS, nu=0.01, T=0.5,
+def study(methods, resolutions, tolerances, device="cpu", out=None, core_radius=CORE_RADIUS, nu=0.01, T=None,
           u_peak=0.5, depth=6, frames=10, dam_resolutions=(), dam_T_end=6.0, png=True, quiet=False,
-          on_instability="stop"):
+          on_instability="stop", case="lamb-oseen", pack_steps=None):
     """Runs every (resolution, tolerance, method) point, coarsest first; returns the report (and writes it
-    to ``out`` after every point)."""
+    to ``out`` after every point). ``case``: "lamb-oseen" or "taylor-green" (then ``core_radius``,
+    ``u_peak`` and ``depth`` do not apply; ``T`` None means 0.3 s there, 0.5 s for Lamb-Oseen)."""
     import warp as wp
 
     from validate_lamb_oseen import L
@@ -401,12 +478,28 @@ def study(methods, resolutions, tolerances, device="cpu", out=None, core_radius=
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
     say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
-    report = {"benchmark": "pareto", "case": "Lamb-Oseen vortex, closed box, quasi-2D, no gravity (validate_lamb_oseen.py)",
+    tg = case == "taylor-green"
+    if tg:
+        import validate_taylor_green
+
+        T = 0.3 if T is None else T
+        depth = 6
+        pack_steps = validate_taylor_green.PACK_STEPS if pack_steps is None else pack_steps
+        setup = {"L": L, "u_peak": 1.0, "nu": nu, "T": T, "depth_spacings": depth, "frames": frames,
+                 "solver": taylor_green_solver("per point"), "transport_velocity": TG_TRANSPORT_VELOCITY,
+                 "pack_steps": pack_steps, "pack_jitter_spacings": validate_taylor_green.PACK_JITTER}
+        description = "Taylor-Green vortex, periodic box, quasi-2D, confined mode (validate_taylor_green.py)"
+        error = "L1 error of |u| at T, % of the analytic peak speed at T"
+    else:
+        T = 0.5 if T is None else T
+        setup = {"L": L, "core_radius_m": core_radius, "nu": nu, "T": T, "u_peak": u_peak, "depth_spacings": depth,
+                 "frames": frames}
+        description = "Lamb-Oseen vortex, closed box, quasi-2D, no gravity (validate_lamb_oseen.py)"
+        error = "L1 error of u_theta at T, % of the analytic peak speed at T"
+    setup.update(dam_resolutions=list(dam_resolutions), dam_T_end=dam_T_end, on_instability=on_instability)
+    report = {"benchmark": "pareto", "case": description, "case_key": case,
               **device_info(device), **commit(), "command": " ".join([Path(sys.argv[0]).name] + sys.argv[1:]),
-              "setup": {"L": L, "core_radius_m": core_radius, "nu": nu, "T": T, "u_peak": u_peak,
-                        "depth_spacings": depth, "frames": frames, "dam_resolutions": list(dam_resolutions),
-                        "dam_T_end": dam_T_end, "on_instability": on_instability},
-              "error": "L1 error of u_theta at T, % of the analytic peak speed at T",
+              "setup": setup, "error": error,
               "time": "wall seconds per simulated second, run only (device synchronised, per-frame measurement "
                       "subtracted, set-up and kernel compilation excluded)",
               "tolerance": "solver.density_max_error [%]", "pareto": "no other point has both lower error and lower time",
@@ -415,7 +508,7 @@ def study(methods, resolutions, tolerances, device="cpu", out=None, core_radius=
     started = time.perf_counter()
     for name in methods:
         t0 = time.perf_counter()
-        warm_up(METHODS[name][1], device)
+        warm_up(METHODS[name][1], device, case)
         report.setdefault("warmup_s", {})[name] = time.perf_counter() - t0
     say(f"device {report['device']}, Warp {report['warp']}; warm-up {sum(report['warmup_s'].values()):.1f} s")
     grid = [(res, tol, name) for res in sorted(resolutions) for tol in tolerances for name in methods]
@@ -426,14 +519,19 @@ def study(methods, resolutions, tolerances, device="cpu", out=None, core_radius=
         say(f"[{k}/{len(grid)}] {label}, resolution {res} ({res * res * depth:,} particles), tolerance {tol} % ...")
         point = {"method": name, "label": label, "models": models, "resolution": res, "tolerance": tol}
         load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
-        point.update(lamb_oseen_point(models, res, tol, device, core_radius, nu, T, u_peak, depth, frames,
-                                      on_instability))
+        if tg:
+            point.update(taylor_green_point(models, res, tol, device, nu, T, frames, on_instability, pack_steps))
+        else:
+            point.update(lamb_oseen_point(models, res, tol, device, core_radius, nu, T, u_peak, depth, frames,
+                                          on_instability))
         if load is not None:  # host load before and after: other processes on the machine skew the timings
             point["load_average"] = [round(load, 2), round(os.getloadavg()[0], 2)]
         if "unstable" in point:
             say(f"    unstable: {point['unstable']}")
         else:
-            say(f"    error {point[ERROR_KEY]:.2f} %, omega ratio {point['omega_ratio']:.3f}, {point['steps']} steps, "
+            detail = (f"KE error {point['ke_error_percent']:+.2f} %, mean density {point['mean_density_ratio']:.4f}" if tg
+                      else f"omega ratio {point['omega_ratio']:.3f}")
+            say(f"    error {point[ERROR_KEY]:.2f} %, {detail}, {point['steps']} steps, "
                 f"{point['mean_density_iterations']:.2f} density it., {point['wall_s']:.2f} s wall "
                 f"({point[TIME_KEY]:.3g} s/s, {point['ms_per_step']:.2f} ms/step; measuring {point['measure_s']:.2f} s)")
         if dam_of.get(res):
@@ -486,7 +584,10 @@ def main(argv=None):
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
     parser.add_argument("--core-radius", type=float, default=CORE_RADIUS, help="initial core radius sqrt(4 nu t0) [m]")
     parser.add_argument("--nu", type=float, default=0.01)
-    parser.add_argument("--T", type=float, default=0.5, help="simulated time [s]")
+    parser.add_argument("--case", choices=CASES, default="lamb-oseen", help="the flow whose error is measured")
+    parser.add_argument("--T", type=float, help="simulated time [s] (default: 0.5 Lamb-Oseen, 0.3 Taylor-Green)")
+    parser.add_argument("--pack-steps", type=int, help="Taylor-Green: steps of the particle packing (default "
+                                                      "validate_taylor_green.PACK_STEPS)")
     parser.add_argument("--u-peak", type=float, default=0.5, help="initial peak speed [m/s]")
     parser.add_argument("--depth", type=int, default=6, help="box depth in particle spacings")
     parser.add_argument("--frames", type=int, default=10)
@@ -521,7 +622,7 @@ def main(argv=None):
         parser.error("give at most one --dam-front resolution per --resolutions entry")
     report = study(args.methods, args.resolutions, args.tolerances, args.device, args.out, args.core_radius, args.nu,
                    args.T, args.u_peak, args.depth, args.frames, args.dam_front, args.dam_T_end, png=not args.no_plot,
-                   on_instability=args.on_instability)
+                   on_instability=args.on_instability, case=args.case, pack_steps=args.pack_steps)
     print(markdown(report), flush=True)
     return 0
 
