@@ -6,11 +6,12 @@ particles, plain DFSPH, T = 0.3 s (analytic KE(T)/KE(0) = exp(-16 pi^2 nu T) = 0
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
 
-from validate_taylor_green import taylor_green  # noqa: E402
+from validate_taylor_green import PACK_STEPS, taylor_green  # noqa: E402
 
 T = 0.3
 SOLVERS = {"clamped": None, "confined": {"clamp_pressure": False},
@@ -87,4 +88,47 @@ def test_transport_velocity_follows_the_decay_and_holds_the_density(runs):
         assert abs(rows[frame]["ke_ratio"] / rows[frame]["ke_ratio_exact"] - 1) < 0.1, rows[frame]
     ke = [r["ke_ratio"] for r in rows]
     assert all(b < a for a, b in zip(ke, ke[1:]))  # decays every frame (shifting: flat / rising 0.09-0.18 s)
+    assert abs(mean_density(sim) - 1) < 0.01
+
+
+@pytest.fixture(scope="module")
+def packed():
+    """Taylor-Green from the particle packing, 16 across, plain DFSPH, with the Pareto study's solver
+    (transport velocity 40, density tolerance 0.05 %)."""
+    solver = dict(SOLVERS["transport"], density_max_error=0.05)
+    return taylor_green([], resolution=16, nu=0.01, T=T, device="cpu", solver=solver, pack_steps=PACK_STEPS)
+
+
+def _density_range(sim):
+    sim.neighbours.update(sim.fluid.x)
+    sim._compute_density()
+    return np.abs(sim.host(sim.fluid.density) / sim.rest_density - 1.0).max()
+
+
+def test_packing_evens_out_a_jittered_lattice():
+    """The packing jitters the lattice by up to 0.1 spacing (one packing step leaves the summation density
+    0.88-1.12 rho0 at 16 across) and relaxes it at rest: after 40 steps 0.984-1.021 rho0, and the positions
+    are no longer a lattice."""
+    from validate_taylor_green import build
+
+    one, _ = build([], resolution=16, T=T, device="cpu", solver=SOLVERS["transport"], pack_steps=1)
+    sim, ke0 = build([], resolution=16, T=T, device="cpu", solver=SOLVERS["transport"], pack_steps=PACK_STEPS)
+    jittered, relaxed = _density_range(one), _density_range(sim)
+    assert jittered > 0.08 and relaxed < 0.03 and relaxed < 0.25 * jittered, (jittered, relaxed)
+    x = sim.host(sim.fluid.x)
+    offset = np.mod(x / (2 * sim.scene.particle_radius) - 0.5, 1.0)  # lattice sites sit at half spacings
+    assert np.mean(np.minimum(offset, 1 - offset)) > 0.02
+    assert ke0 > 0 and np.isfinite(ke0)
+
+
+def test_packed_start_follows_the_decay_at_every_frame(packed):
+    """From the packing the energy stays within 4.5 % of the analytic decay at every frame (measured -1.6 to
+    -3.5 %; from the lattice -6 / -5 / -7 % at 0.09 / 0.15 / 0.3 s, and at 128+ across on the H100 the lattice
+    shook apart with KE 12-30 % above the analytic curve), decays every frame and holds the mean density
+    (1.004 rho0). With the default tolerance 0.01 % the loss grows to -7.3 % at T at this coarse size."""
+    rows, sim = packed
+    for r in rows[1:]:
+        assert abs(r["ke_ratio"] / r["ke_ratio_exact"] - 1) < 0.045, r
+    ke = [r["ke_ratio"] for r in rows]
+    assert all(b < a for a, b in zip(ke, ke[1:]))
     assert abs(mean_density(sim) - 1) < 0.01

@@ -401,7 +401,8 @@ def plot(report, out):
     if dam:
         panels.append((DAM_TIME_KEY, DAM_ERROR_KEY, "dam_pareto", "RMS error of front Z/a (shifted)",
                        "Martin & Moyce dam front", dam))
-    fig, axes = plt.subplots(1, len(panels), figsize=(7.5 * len(panels), 6.5), squeeze=False)
+    fig, axes = plt.subplots(1, len(panels), figsize=(7.5 * len(panels), 8.0 if len(panels) == 1 else 6.5),
+                             squeeze=False)
     methods = list(dict.fromkeys(p["method"] for p in report["points"]))
     tolerances = sorted({p["tolerance"] for p in report["points"]}, reverse=True)
     markers = ["o", "s", "^", "D", "v"]
@@ -438,10 +439,11 @@ def plot(report, out):
         ax.set_title(title + " (numbers: resolution)", fontsize=10)
         ax.grid(True, which="both", alpha=0.3)
     handles, labels = axes[0][0].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=7, frameon=False)
-    fig.suptitle(f"{report['device']}, Warp {report['warp']}, commit {report['commit']}; tolerance = solver "
-                 f"density_max_error; circled: Pareto-optimal", fontsize=9)
-    fig.tight_layout(rect=(0, 0.1, 1, 1))
+    one = len(panels) == 1  # one panel: a narrower legend and a two-line title
+    fig.legend(handles, labels, loc="lower center", ncol=2 if one else 4, fontsize=7, frameon=False)
+    fig.suptitle(f"{report['device']}, Warp {report['warp']}, commit {report['commit']};" + ("\n" if one else " ")
+                 + "tolerance = solver density_max_error; circled: Pareto-optimal", fontsize=9)
+    fig.tight_layout(rect=(0, 0.2 if one else 0.1, 1, 1))
     fig.savefig(out, dpi=120)
     plt.close(fig)
     return Path(out)
