@@ -334,23 +334,19 @@ def markdown(report):
     s = report["setup"]
     tg = report.get("case_key") == "taylor-green"
     if tg:
-        head = (f"Taylor-Green vortex (L = 1 m, U = 1 m/s, nu = {s['nu']:g}, T = {s['T']:g} s, periodic, depth 6 spacings; "
-                f"confined mode, transport velocity {s['transport_velocity']:g}, packed start of {s['pack_steps']} steps) "
-                f"on {report['device']}, Warp {report['warp']}, commit {report['commit']}"
-                + (f" (uncommitted: {', '.join(report['uncommitted'])})" if report.get("uncommitted") else "") + ".\n"
-                "error = L1 error of |u| at T in % of the analytic peak speed at T; KE error = KE(T)/KE_exact(T) - 1 "
-                "(above 0: the method kept more energy than the analytic decay); mean ρ = mean density / ρ0 at T; "
-                "s/s = wall seconds per simulated second (run only, synchronised). Pareto: no other point has both a "
-                "lower error and a lower time.\n\n")
+        flow = (f"Taylor-Green vortex (L = 1 m, U = 1 m/s, nu = {s['nu']:g}, T = {s['T']:g} s, periodic, depth 6 spacings; "
+                f"confined mode, transport velocity {s['transport_velocity']:g}, packed start of {s['pack_steps']} steps)")
+        legend = ("error = L1 error of |u| at T in % of the analytic peak speed at T; KE error = KE(T)/KE_exact(T) - 1 "
+                  "(above 0: the method kept more energy than the analytic decay); mean ρ = mean density / ρ0 at T; ")
     else:
-        head = (f"Lamb-Oseen vortex (L = {s['L']:g} m, core radius {s['core_radius_m']:g} m, peak speed {s['u_peak']:g} m/s, "
-                f"nu = {s['nu']:g}, T = {s['T']:g} s, depth {s['depth_spacings']} spacings) on {report['device']}, "
-                f"Warp {report['warp']}, commit {report['commit']}"
-                + (f" (uncommitted: {', '.join(report['uncommitted'])})" if report.get("uncommitted") else "") + ".\n"
-                "error = L1 error of u_theta at T in % of the analytic peak speed; ω ratio = peak vorticity / analytic; "
-                "KE ratio = kinetic energy at T / at 0 (analytic decay keeps it below 1: above 1 the method injected energy); "
-                "s/s = wall seconds per simulated second (run only, synchronised). Pareto: no other point has both a "
-                "lower error and a lower time.\n\n")
+        flow = (f"Lamb-Oseen vortex (L = {s['L']:g} m, core radius {s['core_radius_m']:g} m, peak speed {s['u_peak']:g} m/s, "
+                f"nu = {s['nu']:g}, T = {s['T']:g} s, depth {s['depth_spacings']} spacings)")
+        legend = ("error = L1 error of u_theta at T in % of the analytic peak speed; ω ratio = peak vorticity / analytic; "
+                  "KE ratio = kinetic energy at T / at 0 (analytic decay keeps it below 1: above 1 the method injected energy); ")
+    head = (f"{flow} on {report['device']}, Warp {report['warp']}, commit {report['commit']}"
+            + (f" (uncommitted: {', '.join(report['uncommitted'])})" if report.get("uncommitted") else "") + ".\n"
+            + legend + "s/s = wall seconds per simulated second (run only, synchronised). Pareto: no other point has "
+            "both a lower error and a lower time.\n\n")
     measures = ["KE error %", "mean ρ"] if tg else ["ω ratio", "KE ratio"]
     cols = ["method", "resolution", "particles", "tolerance %", "error %", *measures, "steps", "density it.",
             "ms/step", "s wall / s sim", "Pareto"]
