@@ -1,4 +1,8 @@
-"""Scan of the confined mode's knobs on Taylor-Green (diagnostic): KE/KE_exact at frames, per variant.
+"""Scan of the confined mode's knobs on Taylor-Green (diagnostic): KE/KE_exact - 1, mean and max density at 10
+frames, per variant (keys: res, B (0: shifting A), w (density weight), max_shift, relax, tol, dt_max, jitter
+(spacings), pre (packing steps at rest in the same simulation), method, T, max_wall). It overrides the solver's
+module constants for a variant, so it is a diagnostic, not a supported interface; the packing used by the
+tools is validate_taylor_green.packed_positions. Results: tools/results/CONFINED_NOTES.md ("Packed start").
 
     python tools/scan_confined.py --device cuda --variants '[{"res": 128, "B": 40}]' --out /tmp/scan.json
 """
@@ -7,7 +11,7 @@ import numpy as np
 import warp as wp
 
 sys.path.insert(0, __file__.rsplit("/", 1)[0])
-from validate_taylor_green import analytic_velocity
+from validate_taylor_green import analytic_velocity, scene_data
 
 
 def run(v, device):
@@ -26,10 +30,7 @@ def run(v, device):
     else:
         solver["shifting"] = v.get("A", 2.0)
     models = {"dfsph": [], "vr": [{"type": "vorticity_refinement", "alpha": 1.0}]}[v.get("method", "dfsph")]
-    data = {"name": "tg", "particle_radius": d / 2, "gravity": [0, 0, 0],
-            "domain": {"min": [0, 0, 0], "max": [1, 1, depth], "periodic": ["x", "y", "z"]},
-            "fluid_blocks": [{"start": [0, 0, 0], "end": [1, 1, depth]}], "fluid": {"viscosity": nu},
-            "models": models, "solver": solver, "output": {"fps": 10 / T}}
+    data = scene_data(models, res, nu, T, 10, solver)
     if v.get("dt_max"):
         data["time"] = {"dt_max": v["dt_max"]}
     sim = Simulation(scene_from_dict(data), device=device)
