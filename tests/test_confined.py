@@ -1,7 +1,8 @@
 """The confined-flow pressure mode (scene ``solver.clamp_pressure`` false): signed pressure, sources less
-their mean, particle shifting (``solver.shifting``). Taylor-Green in a full periodic box, 16 x 16 x 6
-particles, plain DFSPH, T = 0.3 s (analytic KE(T)/KE(0) = exp(-16 pi^2 nu T) = 0.62 at nu = 0.01); about
-20 s on one CPU core for the three runs. Numbers: tools/results/CONFINED_NOTES.md."""
+their mean, particle shifting (``solver.shifting``) or the transport velocity, and the packed start.
+Taylor-Green in a full periodic box, 16 x 16 x 6 particles, plain DFSPH, T = 0.3 s (analytic KE(T)/KE(0) =
+exp(-16 pi^2 nu T) = 0.62 at nu = 0.01); about 20 s on one CPU core for the six runs. Numbers:
+tools/results/CONFINED_NOTES.md."""
 
 import sys
 from pathlib import Path
