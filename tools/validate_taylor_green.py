@@ -27,8 +27,13 @@ PACK_JITTER = 0.1
 PACK_STEPS = 40
 
 
+def peak_speed(t, nu):
+    """The analytic peak speed at time t (U = 1): exp(-8 pi^2 nu t)."""
+    return np.exp(-8 * np.pi**2 * nu * t)
+
+
 def analytic_velocity(x, t, nu):
-    decay = np.exp(-8 * np.pi**2 * nu * t)
+    decay = peak_speed(t, nu)
     u = -np.cos(2 * np.pi * x[:, 0]) * np.sin(2 * np.pi * x[:, 1])
     v = np.sin(2 * np.pi * x[:, 0]) * np.cos(2 * np.pi * x[:, 1])
     return decay * np.stack([u, v, np.zeros(len(x))], axis=1)
