@@ -169,3 +169,109 @@ def test_mesh_problems_name_the_file(tmp_path):
         with pytest.raises(SceneError, match=words) as info:
             Simulation(scene, device="cpu")
         assert name in str(info.value)
+
+
+def run_cli(*args):
+    return main([*map(str, args), "--device", "cpu", "--quiet"])
+
+
+def test_overwrite_replaces_only_warpsph_outputs(tmp_path, capsys):
+    scene = write_scene(tmp_path, tank_scene(radius=0.05, output={"frames": 1}))
+    folder = tmp_path / "renders"
+    folder.mkdir()
+    (folder / "mine.txt").write_text("keep me")
+    assert run_cli("run", scene, "--out", folder, "--overwrite") == 2
+    assert "is a directory" in capsys.readouterr().err and (folder / "mine.txt").read_text() == "keep me"
+    notes = tmp_path / "notes.usda"  # a file warpsph did not write, even a valid USD layer
+    stage = Usd.Stage.CreateNew(str(notes))
+    UsdGeom.Cube.Define(stage, "/Cube")
+    stage.GetRootLayer().Save()
+    before = notes.read_bytes()
+    assert run_cli("run", scene, "--out", notes, "--overwrite") == 2
+    assert "not written by warpsph" in capsys.readouterr().err and notes.read_bytes() == before
+    out = tmp_path / "o.usdc"
+    assert run_cli("run", scene, "--out", out, "--clips", "--particles-h5", "--checkpoint-every", "1") == 0
+    assert run_cli("run", scene, "--out", out, "--clips", "--particles-h5", "--overwrite") == 0  # its own: replaced
+    out.with_suffix(".stats.csv").write_text("my spreadsheet\n")  # a user's file where a side file goes
+    (tmp_path / "o.clips" / "readme.txt").write_text("mine")
+    stamp = out.stat().st_mtime_ns
+    assert run_cli("run", scene, "--out", out, "--overwrite") == 2
+    assert "not written by warpsph" in capsys.readouterr().err
+    assert out.stat().st_mtime_ns == stamp and out.with_suffix(".stats.csv").read_text() == "my spreadsheet\n"
+    assert (tmp_path / "o.clips" / "readme.txt").exists() and (tmp_path / "o.clips" / "frame.000001.usdc").exists()
+
+
+def test_dry_run_reports_disk_and_an_output_the_run_would_refuse(tmp_path, capsys):
+    scene = write_scene(tmp_path, tank_scene(radius=0.02, output={"frames": 4}))
+    out = tmp_path / "o.usdc"
+    assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "--dry-run"]) == 0
+    text = capsys.readouterr().out
+    assert "of disk" in text and "would write" in text
+    out.write_text("not a cache")
+    assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "--dry-run", "--overwrite"]) == 0
+    assert "would refuse" in capsys.readouterr().out and out.read_text() == "not a cache"
+
+
+def test_resume_works_from_any_directory(tmp_path, monkeypatch):
+    project, elsewhere = tmp_path / "project", tmp_path / "elsewhere"
+    (project / "meshes").mkdir(parents=True)
+    elsewhere.mkdir()
+    trimesh.creation.box(extents=[0.12, 0.12, 0.12]).export(project / "meshes" / "box.obj")
+    obstacle = {"mesh": "meshes/box.obj", "translation": [0.2, 0.5, 0.2]}
+    write_scene(project, tank_scene(radius=0.05, block=(0.4, 0.3, 0.4), obstacles=[obstacle]))
+    monkeypatch.chdir(project)
+    assert run_cli("run", "scene.json", "--out", "out/r.usdc", "--frames", 2, "--checkpoint-every", 1) == 0
+    (project / "scene.json").rename(project / "renamed.json")  # the checkpoint holds the scene
+    monkeypatch.chdir(elsewhere)
+    assert run_cli("resume", project / "out" / "r.checkpoint.h5", "--frames", 3) == 0
+    assert time_samples(project / "out" / "r.usdc") == [0.0, 1.0, 2.0, 3.0]
+    assert not list(elsewhere.iterdir())
+
+
+def stats_frames(path):
+    import csv
+
+    with open(path) as f:
+        return [int(row["frame"]) for row in csv.DictReader(f)]
+
+
+@pytest.mark.parametrize("clips", [False, True])
+def test_resume_is_idempotent(tmp_path, clips):
+    import h5py
+
+    scene = write_scene(tmp_path, tank_scene(radius=0.05, output={"frames": 3}))
+    out = tmp_path / "o.usdc"
+    extra = ["--clips"] if clips else []
+    assert run_cli("run", scene, "--out", out, "--checkpoint-every", 2, "--particles-h5", *extra) == 0
+    checkpoint = out.with_suffix(".checkpoint.h5")
+    # a finished run resumed again; then on to frame 5 (a checkpoint at 4), twice; then the stored 5 frames
+    for frames, last in [([], 3), ([], 3), (["--frames", 5], 5), (["--frames", 5], 5), ([], 5)]:
+        assert run_cli("resume", checkpoint, *frames) == 0
+        assert stats_frames(out.with_suffix(".stats.csv")) == list(range(last + 1))
+        assert time_samples(out) == [float(f) for f in range(last + 1)]
+        with h5py.File(out.with_suffix(".particles.h5"), "r") as f:
+            assert sorted(f["frames"]) == [f"{n:06d}" for n in range(last + 1)]
+
+
+def test_frames_must_be_at_least_one(tmp_path, capsys):
+    scene = write_scene(tmp_path, tank_scene(radius=0.05, output={"frames": 2}))
+    out = tmp_path / "o.usdc"
+    for frames in ("0", "-3"):
+        assert run_cli("run", scene, "--out", out, "--frames", frames) == 2
+        assert "--frames" in capsys.readouterr().err and not list(tmp_path.glob("o*"))
+    assert run_cli("run", scene, "--out", out, "--checkpoint-every", 1) == 0
+    assert run_cli("resume", out.with_suffix(".checkpoint.h5"), "--frames", 0) == 2
+    assert "--frames" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("model, key, value", [("vorticity_refinement", "alpha", 1e9), ("vorticity_refinement", "alpha", -1),
+                                               ("rankine", "beta", 2.0), ("rankine", "viscosity", 1e4),
+                                               ("micropolar", "transfer_coefficient", 1e6),
+                                               ("micropolar", "inverse_inertia", 1e9),
+                                               ("micropolar", "viscosity_omega", 50.0)])
+def test_model_parameters_outside_their_range_are_refused(tmp_path, capsys, model, key, value):
+    scene = write_scene(tmp_path, tank_scene(radius=0.05, models=[{"type": model, key: value}]))
+    assert run_cli("run", scene, "--out", tmp_path / "o.usdc") == 2
+    err = capsys.readouterr().err
+    assert f"models[0].{key}: expected" in err and "a number in" in err
+    assert not list(tmp_path.glob("o*"))

@@ -4,7 +4,11 @@
                            [--overwrite] [--checkpoint-every N] [--on-instability stop|reduce-dt] [--dry-run]
     warpsph resume CHECKPOINT.h5 [--device ...] [--frames N]
 
-Exit codes: 0 done, 2 bad input (scene, mesh, device, existing output, memory), 3 unstable,
+--overwrite replaces only files warpsph wrote (a directory or anyone else's file is refused). A
+checkpoint holds the whole scene: resume works from any directory, and resuming again rewrites
+the frames after the checkpoint, so the outputs hold each frame once.
+
+Exit codes: 0 done, 2 bad input (scene, mesh, device, option, existing output, memory), 3 unstable,
 130 / 143 stopped by SIGINT / SIGTERM (after finishing the frame, saving the cache and a checkpoint).
 """
 
@@ -12,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 
 import numpy as np
 import signal
@@ -24,15 +29,44 @@ from .errors import SceneError
 EXIT_UNSTABLE = 3
 
 
-def _pick_device(name):
+CUDA_DRIVER_WARNING = "Could not find or load the NVIDIA CUDA driver"
+USD_SUFFIXES = (".usdc", ".usda", ".usd")
+
+
+def _init_warp():
+    """wp.init() without the warning Warp's native library prints on a machine without a CUDA
+    driver (for --device cuda the CLI says so itself); its other messages pass through."""
+    import tempfile
+
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING
-    wp.init()
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as captured:
+        os.dup2(captured.fileno(), 2)
+        try:
+            wp.init()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        captured.seek(0)
+        text = captured.read().decode(errors="replace")
+    sys.stderr.write("".join(line for line in text.splitlines(True) if CUDA_DRIVER_WARNING not in line))
+    return wp
+
+
+def _pick_device(name):
+    wp = _init_warp()
     if name == "auto":
         return "cuda:0" if wp.is_cuda_available() else "cpu"
     if name.startswith("cuda") and not wp.is_cuda_available():
-        raise SceneError(None, "--device", f"'{name}' was asked for but this machine has no CUDA device; use --device cpu")
+        raise SceneError("", "--device", f"'{name}' was asked for but this machine has no CUDA device; use --device cpu")
+    try:
+        wp.get_device(name)
+    except (ValueError, RuntimeError, TypeError):
+        known = ", ".join(["auto", "cpu"] + [f"cuda:{n}" for n in range(wp.get_cuda_device_count())])
+        raise SceneError("", "--device", f"unknown device '{name}'; this machine has {known}") from None
     return name
 
 
@@ -62,21 +96,70 @@ class Progress:
         self.stream.flush()
 
 
+CLIP_FILE = re.compile(r"frame\.\d{6}\.usdc|boundary\.npz|bodies\.npz")
+
+
 class Outputs:
     """The files of one run: the USD cache (single file: written as NAME.partial.usdc and renamed
-    when the run stops; value clips: NAME.clips/ stitched into NAME when the run stops), the
-    diagnostics CSV and the latest checkpoint, all beside each other."""
+    when the run stops; value clips: NAME.clips/ stitched into NAME, NAME.topology and
+    NAME.manifest when the run stops), the diagnostics CSV, the particle frames and the latest
+    checkpoint, all beside each other."""
 
     def __init__(self, out):
         self.out = Path(out)
         self.partial = self.out.with_name(self.out.stem + ".partial" + self.out.suffix)
         self.clips = self.out.with_name(self.out.stem + ".clips")
+        self.stitched = [self.out.with_name(f"{self.out.stem}.{kind}{self.out.suffix}") for kind in ("topology", "manifest")]
         self.stats = self.out.with_suffix(".stats.csv")
         self.checkpoint = self.out.with_suffix(".checkpoint.h5")
         self.particles = self.out.with_suffix(".particles.h5")
 
     def existing(self):
-        return [p for p in (self.out, self.partial, self.clips, self.stats, self.checkpoint, self.particles) if p.exists()]
+        return [p for p in (self.out, self.partial, self.clips, *self.stitched, self.stats, self.checkpoint, self.particles)
+                if p.exists() or p.is_symlink()]
+
+    def check(self):
+        """Raises :class:`SceneError` when --out cannot name a cache: a directory, another
+        extension, a parent that is a file or not writable."""
+        if self.out.is_dir():
+            raise SceneError(self.out, "--out", f"is a directory; --out names the USD file to write, "
+                                                f"e.g. {self.out / 'NAME.usdc'}")
+        if self.out.suffix.lower() not in USD_SUFFIXES:
+            raise SceneError(self.out, "--out", f"expected a file name ending in {', '.join(USD_SUFFIXES)}")
+        parent = self.out.absolute().parent
+        while not parent.exists() and not parent.is_symlink():
+            parent = parent.parent
+        if not parent.is_dir():
+            raise SceneError(self.out, "--out", f"{parent} is not a directory")
+        if not os.access(parent, os.W_OK | os.X_OK):
+            raise SceneError(self.out, "--out", f"cannot write in {parent}")
+
+    def owned(self, path):
+        """Whether warpsph wrote ``path`` (so that --overwrite may replace it)."""
+        from .diagnostics import is_stats_csv
+        from .io.particles_h5 import is_particles_h5
+
+        if path.is_symlink():
+            return False
+        if path == self.clips:
+            return path.is_dir() and all(p.is_file() and CLIP_FILE.fullmatch(p.name) for p in path.iterdir())
+        if not path.is_file():
+            return False
+        if path == self.stats:
+            return is_stats_csv(path)
+        if path == self.particles:
+            return is_particles_h5(path)
+        if path == self.checkpoint:
+            from .io.checkpoint import is_checkpoint
+
+            return is_checkpoint(path)
+        from .io.usd import written_by_warpsph
+
+        return written_by_warpsph(path)
+
+    def foreign(self):
+        """The existing paths of this run's outputs that warpsph did not write."""
+        return [p for p in self.existing() if not self.owned(p)]
 
     def remove(self, path):
         if path.is_dir():
@@ -93,19 +176,21 @@ class StopRequest(Exception):
 
 
 def _simulate(sim, outputs, frames, args, options, append):
+    """Runs to ``frames``, writing every frame; ``append`` (a frame number) continues the outputs
+    after that frame (a resumed run: later frames are dropped and written again, each once)."""
     from .diagnostics import DiagnosticsWriter
     from .io.checkpoint import save_checkpoint
     from .io.usd import UsdClipCache, UsdPointCache, body_meshes, frame_writer
 
     scene = sim.scene
     static = sim.num_boundary if sim.moving_bodies is None else sim.moving_bodies.first_sample
-    boundary = None if append else sim.boundary.x.numpy()[:static]
-    meshes = None if append else body_meshes(sim)
+    boundary = None if append is not None else sim.boundary.x.numpy()[:static]
+    meshes = None if append is not None else body_meshes(sim)
     if options.get("clips"):
         cache = UsdClipCache(outputs.out, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
                              boundary_radius=scene.particle_radius, append=append, bodies=meshes)
     else:
-        if append and outputs.out.exists():
+        if append is not None and outputs.out.exists():
             os.replace(outputs.out, outputs.partial)
         cache = UsdPointCache(outputs.partial, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
                               boundary_radius=scene.particle_radius, append=append, bodies=meshes)
@@ -125,7 +210,7 @@ def _simulate(sim, outputs, frames, args, options, append):
         stop["signum"] = signum
 
     def checkpoint():
-        save_checkpoint(sim, outputs.checkpoint, extra={**options, "output": str(outputs.out), "frames": frames})
+        save_checkpoint(sim, outputs.checkpoint, extra={**options, "output": os.path.abspath(outputs.out), "frames": frames})
 
     def on_frame(sim, frame):
         write(sim, frame)
@@ -186,43 +271,93 @@ def _simulate(sim, outputs, frames, args, options, append):
     return 0
 
 
-def run_command(args):
+def _check_options(args):
+    if args.frames is not None and args.frames < 1:
+        raise SceneError("", "--frames", f"expected an integer >= 1 (the last frame to simulate), got {args.frames}")
+    for option in ("checkpoint_every", "preview"):
+        if getattr(args, option, 0) < 0:
+            raise SceneError("", "--" + option.replace("_", "-"), f"expected an integer >= 0, got {getattr(args, option)}")
+
+
+def _refusal(outputs, overwrite):
+    """Why the run would not start over the existing outputs, or None."""
+    foreign = outputs.foreign()
+    if foreign:
+        return SceneError(foreign[0], "--out", "exists and was not written by warpsph: refusing to replace it "
+                                               "(--overwrite replaces only warpsph's own outputs); choose another --out")
+    existing = outputs.existing()
+    if existing and not overwrite:
+        return SceneError(existing[0], "--out", "exists; pass --overwrite to replace it, or choose another --out")
+    return None
+
+
+def disk_bytes(scene, num_fluid, frames, particles_h5=False):
+    """Disk the outputs of a run take (an estimate): per frame and fluid particle the USD cache's
+    points, velocities, ids, widths and fields (and as much again with --particles-h5)."""
+    from .simulation import MODEL_NAMES
+
+    names = {MODEL_NAMES[type(m)] for m in scene.models}
+    per_particle = 12 + 12 + 8 + 4 + 4 + (16 if names else 0) + (12 if "micropolar" in names else 0)
+    return (frames + 1) * num_fluid * per_particle * (2 if particles_h5 else 1)
+
+
+def _size(n):
+    return next(f"{n / 2**k:.1f} {unit}" for k, unit in ((30, "GiB"), (20, "MiB"), (10, "KiB"), (0, "B")) if n >= 2**k or not k)
+
+
+def _dry_run(scene, frames, outputs, args):
+    import warp as wp
+
     from .resources import estimate_bytes, free_bytes
-    from .scene import load_scene
     from .simulation import sample_scene
 
-    scene = load_scene(args.scene, scale=args.scale)
-    frames = args.frames or scene.output.frames
-    if frames < 1:
-        raise SceneError(None, "--frames", "expected an integer >= 1")
-    outputs = Outputs(args.out or f"out/{scene.name}.usdc")
-    if args.dry_run:
-        import warp as wp
-
-        device = wp.get_device(_pick_device(args.device))
-        fluid, _, static, _, bodies = sample_scene(scene)
-        boundary = len(static) + sum(len(b.samples) for b in bodies if b.kind != "static")
-        need, free = estimate_bytes(scene, len(fluid), boundary), free_bytes(device)
-        print(f"{scene.name}: {len(fluid)} fluid + {boundary} boundary particles, r = {scene.particle_radius:.4g} m, "
-              f"{frames} frames; about {need / 2**20:.1f} MiB on {device}"
-              + ("" if free is None else f" ({free / 2**20:.0f} MiB free)") + f"; would write {outputs.out}")
-        return 0
+    device = wp.get_device(_pick_device(args.device))
+    fluid, _, static, _, bodies = sample_scene(scene)
+    boundary = len(static) + sum(len(b.samples) for b in bodies if b.kind != "static")
+    need, free = estimate_bytes(scene, len(fluid), boundary), free_bytes(device)
+    disk = disk_bytes(scene, len(fluid), frames, args.particles_h5)
+    refusal = _refusal(outputs, args.overwrite)
     existing = outputs.existing()
-    if existing and not args.overwrite:
-        raise SceneError(existing[0], "--out", "exists; pass --overwrite to replace it, or choose another --out")
-    for path in existing:
-        outputs.remove(path)
+    if refusal is not None:
+        status = f"the run would refuse: {refusal}"
+    elif existing:
+        status = f"the run would replace {', '.join(str(p) for p in existing)}"
+    else:
+        status = f"would write {outputs.out}"
+    print(f"{scene.name}: {len(fluid)} fluid + {boundary} boundary particles, r = {scene.particle_radius:.4g} m, "
+          f"{frames} frames; about {need / 2**20:.1f} MiB on {device}"
+          + ("" if free is None else f" ({free / 2**20:.0f} MiB free)")
+          + f"; about {_size(disk)} of disk" + (" (more as emitters add particles)" if scene.emitters else "")
+          + f"; {status}")
+    return 0
+
+
+def run_command(args):
+    from .scene import load_scene
+
+    _check_options(args)
+    scene = load_scene(args.scene, scale=args.scale)
+    frames = scene.output.frames if args.frames is None else args.frames
+    outputs = Outputs(args.out or f"out/{scene.name}.usdc")
+    outputs.check()
+    if args.dry_run:
+        return _dry_run(scene, frames, outputs, args)
+    refusal = _refusal(outputs, args.overwrite)
+    if refusal is not None:
+        raise refusal
     device = _pick_device(args.device)
     from .simulation import Simulation
 
     sim = Simulation(scene, device=device)
     sim.on_instability = args.on_instability
+    for path in outputs.existing():
+        outputs.remove(path)
     print(f"warpsph: {scene.name} on {device}: {sim.num_fluid} fluid + {sim.num_boundary} boundary particles, "
           f"r = {scene.particle_radius:.4g} m, {frames} frames at {scene.output.fps:g} fps -> {outputs.out}",
           file=sys.stderr)
     options = {"checkpoint_every": args.checkpoint_every, "on_instability": args.on_instability, "clips": int(args.clips),
                "preview": args.preview, "particles_h5": int(args.particles_h5)}
-    return _simulate(sim, outputs, frames, args, options, append=False)
+    return _simulate(sim, outputs, frames, args, options, append=None)
 
 
 def resume_command(args):
@@ -230,20 +365,29 @@ def resume_command(args):
 
     from .io.checkpoint import load_checkpoint
 
+    _check_options(args)
     device = _pick_device(args.device)
-    sim = load_checkpoint(args.checkpoint, device=device)
-    with h5py.File(args.checkpoint, "r") as f:
-        options = {k: (v.item() if hasattr(v, "item") else v) for k, v in f.attrs.items() if k.startswith("run:")}
-    options = {k[4:]: v for k, v in options.items()}
-    frames = args.frames or int(options.get("frames", sim.scene.output.frames))
-    outputs = Outputs(options["output"])
+    checkpoint = Path(args.checkpoint)
+    sim = load_checkpoint(checkpoint, device=device)
+    with h5py.File(checkpoint, "r") as f:
+        options = {k[4:]: (v.item() if hasattr(v, "item") else v) for k, v in f.attrs.items() if k.startswith("run:")}
+    if "output" not in options:
+        raise SceneError(checkpoint, "", "written without the command line's options: continue it from Python "
+                                         "(warpsph.io.checkpoint.load_checkpoint)")
+    frames = int(options.get("frames", sim.scene.output.frames)) if args.frames is None else args.frames
+    if frames < sim.frame:
+        raise SceneError("", "--frames", f"the checkpoint is at frame {sim.frame}; expected {sim.frame} or more, got {frames}")
+    outputs = Outputs(checkpoint.parent / Path(options["output"]).name)  # the outputs lie beside their checkpoint
+    clips = bool(int(options.get("clips", 0)))
+    if not (outputs.clips.is_dir() if clips else outputs.out.exists() or outputs.partial.exists()):
+        raise SceneError(outputs.out, "", "the cache of this checkpoint's run is missing: it cannot be continued")
     sim.on_instability = options.get("on_instability", "stop")
     print(f"warpsph: resuming {sim.scene.name} at frame {sim.frame} (t = {sim.time:.3f} s) on {device} -> {outputs.out}",
           file=sys.stderr)
     run_options = {"checkpoint_every": int(options.get("checkpoint_every", 0)), "on_instability": sim.on_instability,
-                   "clips": int(options.get("clips", 0)), "preview": int(options.get("preview", 0)),
+                   "clips": int(clips), "preview": int(options.get("preview", 0)),
                    "particles_h5": int(options.get("particles_h5", 0))}
-    return _simulate(sim, outputs, frames, args, run_options, append=True)
+    return _simulate(sim, outputs, frames, args, run_options, append=sim.frame)
 
 
 def plot_energy_command(args):
@@ -320,6 +464,9 @@ def main(argv=None):
     except SceneError as exc:
         print(f"warpsph: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("\nwarpsph: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

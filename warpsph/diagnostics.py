@@ -73,13 +73,15 @@ class Diagnostics:
 
 
 class DiagnosticsWriter:
-    """An ``on_frame`` callback that appends one CSV row per frame (flushed, so a stopped run keeps its rows)."""
+    """An ``on_frame`` callback that appends one CSV row per frame (flushed, so a stopped run keeps its rows).
+    ``append``: continue the file after frame ``append`` (rows of later frames, from a run resumed
+    before, are dropped: each frame once)."""
 
-    def __init__(self, path, append=False):
+    def __init__(self, path, append=None):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.diagnostics = Diagnostics()
-        append = append and self.path.exists()
+        append = append is not None and self.path.exists() and _keep_rows(self.path, append)
         self._file = open(self.path, "a" if append else "w", newline="")
         self._csv = csv.DictWriter(self._file, fieldnames=COLUMNS)
         if not append:
@@ -94,6 +96,32 @@ class DiagnosticsWriter:
 
     def close(self):
         self._file.close()
+
+
+def _keep_rows(path, last):
+    """Rewrites the CSV with the rows of frames up to ``last`` only; False when it is unreadable."""
+    try:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+        rows = [r for r in rows if float(r["frame"]) <= last]
+    except (OSError, ValueError, KeyError, TypeError, UnicodeDecodeError):
+        return False
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore")
+        writer.writeheader()
+        writer.writerows(rows)
+    tmp.replace(path)
+    return True
+
+
+def is_stats_csv(path):
+    """Whether ``path`` is a diagnostics CSV that warpsph wrote (its header)."""
+    try:
+        with open(path, newline="") as f:
+            return f.readline().strip().startswith(",".join(COLUMNS[:3]) + ",")
+    except (OSError, UnicodeDecodeError):
+        return False
 
 
 def read_csv(path):

@@ -20,8 +20,20 @@ def _pyplot():
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:
-        raise SceneError(None, "plot", 'needs matplotlib: pip install "warpsph[plot]" (or pip install matplotlib)') from None
+        raise SceneError("", "plot", 'needs matplotlib: pip install "warpsph[plot]" (or pip install matplotlib)') from None
     return plt
+
+
+def _save(fig, out):
+    """fig.savefig with a clear error for a bad --out (missing folder, unknown image format)."""
+    plt = _pyplot()
+    try:
+        fig.savefig(out, dpi=120)
+    except (OSError, ValueError) as exc:
+        raise SceneError(out, "--out", f"cannot write the plot ({getattr(exc, 'strerror', None) or exc})") from None
+    finally:
+        plt.close(fig)
+    return Path(out)
 
 
 def stats_path(run) -> Path:
@@ -40,13 +52,20 @@ def plot_energy(runs, out, labels=None):
     paths = [stats_path(r) for r in runs]
     labels = labels or [p.name.replace(".stats.csv", "") for p in paths]
     if len(labels) != len(paths):
-        raise SceneError(None, "--labels", "give one label per run")
+        raise SceneError("", "--labels", "give one label per run")
     panels = [("kinetic_energy", "kinetic energy [J]"), ("total", "kinetic + potential [J]"),
               ("rotational_energy", "rotational energy [J]"), ("enstrophy", "enstrophy [m^3/s^2]")]
+    tables = []
+    for path in paths:
+        try:
+            data = read_csv(path)
+            data["total"] = data["kinetic_energy"] + data["potential_energy"]
+            [data[key] for key, _ in panels + [("time", "")]]
+        except (KeyError, ValueError, UnicodeDecodeError):
+            raise SceneError(path, "", "not a warpsph diagnostics CSV, or one without rows") from None
+        tables.append(data)
     fig, axes = plt.subplots(2, 2, figsize=(11, 7), sharex=True)
-    for path, label in zip(paths, labels):
-        data = read_csv(path)
-        data["total"] = data["kinetic_energy"] + data["potential_energy"]
+    for data, label in zip(tables, labels):
         for ax, (key, title) in zip(axes.flat, panels):
             ax.plot(data["time"], data[key], label=label)
             ax.set_title(title)
@@ -54,9 +73,7 @@ def plot_energy(runs, out, labels=None):
         ax.set_xlabel("time [s]")
     axes.flat[0].legend()
     fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return Path(out)
+    return _save(fig, out)
 
 
 def xy_plot(out, curves, xlabel, ylabel, figsize=(6, 4)):
@@ -69,9 +86,7 @@ def xy_plot(out, curves, xlabel, ylabel, figsize=(6, 4)):
     ax.set_ylabel(ylabel)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return Path(out)
+    return _save(fig, out)
 
 
 def write_report(report, out, curves, xlabel, ylabel, figsize=(6, 4)):
@@ -107,19 +122,22 @@ def plot_slice(points, values, out, axis="z", thickness=None, title="", label="v
     ax.set_ylabel("xyz"[v] + " [m]")
     ax.set_title((title + "\n" if title else "") + f"|{axis} - {mid:.3g}| <= {thickness / 2:.3g} m: {int(slab.sum())} particles")
     fig.tight_layout()
-    fig.savefig(out, dpi=120)
-    plt.close(fig)
-    return Path(out), int(slab.sum())
+    return _save(fig, out), int(slab.sum())
 
 
 def slice_from_cache(cache, frame, axis, out):
     """plot_slice of one frame of a USD cache: vorticity magnitude, or speed when there is none."""
     from pxr import Usd, UsdGeom
 
-    stage = Usd.Stage.Open(str(cache))
+    try:
+        stage = Usd.Stage.Open(str(cache))
+    except Exception:  # pxr raises Tf.ErrorException for a missing or foreign file
+        stage = None
     if stage is None:
         raise SceneError(cache, "", "cannot open the USD cache")
     points_prim = UsdGeom.Points(stage.GetPrimAtPath("/World/Fluid"))
+    if not points_prim:
+        raise SceneError(cache, "", "no particles (/World/Fluid) in this file: not a warpsph cache")
     samples = points_prim.GetPointsAttr().GetTimeSamples()
     if float(frame) not in samples:
         last = int(samples[-1]) if samples else None

@@ -5,6 +5,8 @@ Runs once per scene on the host (numpy + trimesh); nothing here runs per step.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import trimesh
 
@@ -86,12 +88,18 @@ def sample_box_walls(lo, hi, spacing, periodic=()):
 
 def load_mesh(path):
     """Reads a mesh with trimesh; any failure is a :class:`SceneError` naming the file."""
+    path = Path(path)
     try:
         mesh = trimesh.load(str(path), force="mesh", process=True)
-    except Exception as exc:  # trimesh raises many types for unreadable files
-        raise SceneError(path, "", f"cannot read mesh: {exc}") from None
+    except OSError as exc:
+        raise SceneError(path, "", f"cannot read mesh: {exc.strerror or exc}") from None
+    except Exception as exc:  # trimesh raises many types (even ImportError) for damaged files
+        raise SceneError(path, "", f"cannot read mesh: not a valid {path.suffix.lstrip('.').upper() or 'mesh'} file "
+                                   f"(damaged, or another format; {type(exc).__name__})") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise SceneError(path, "", "the mesh has no triangles")
+    if not np.isfinite(mesh.vertices).all():
+        raise SceneError(path, "", "the mesh has vertices that are not finite numbers")
     return mesh
 
 

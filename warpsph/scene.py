@@ -249,31 +249,42 @@ class Output:
     up_axis: str = field(default="Y", metadata=_check('"Y" or "Z"', lambda v: v in ("Y", "Z")))
 
 
+def _within(lo, hi, null=False):
+    """A model parameter's documented range [lo, hi]: beyond it a run blows up or means nothing."""
+    return _check(("null or " if null else "") + f"a number in [{lo:g}, {hi:g}]",
+                  lambda v: (null and v is None) or lo <= v <= hi)
+
+
+MAX_MODEL_VISCOSITY = 1.0  # [m^2/s], 20x the fluid's default
+
+
 @dataclass(frozen=True)
 class VorticityRefinement:
     """Vorticity refinement (VR paper, Algorithm 2): v <- v~ + alpha dv (eq 17)."""
 
-    alpha: float = field(default=1.0, metadata=_check("a number >= 0", lambda v: v >= 0))
+    # the VR paper uses 0 to 1.3; tools/stress.py found every alpha in [0, 2] stable
+    alpha: float = field(default=1.0, metadata=_within(0.0, 2.0))
     viscosity: typing.Optional[float] = field(  # nu_v of eq 10 [m^2/s]; default: the fluid's
-        default=None, metadata=_check("null or a number >= 0", lambda v: v is None or v >= 0))
+        default=None, metadata=_within(0.0, MAX_MODEL_VISCOSITY, null=True))
 
 
 @dataclass(frozen=True)
 class RankineFeedback:
     """Rankine vortex feedback (Rankine paper, Algorithm 1): r_c = beta sqrt(4 1.25643 nu dt)."""
 
-    beta: float = field(default=1.0, metadata=_check("a number in [0, 1]", lambda v: 0 <= v <= 1))
+    beta: float = field(default=1.0, metadata=_within(0.0, 1.0))
     viscosity: typing.Optional[float] = field(  # nu of eq 11 [m^2/s]; default: the fluid's
-        default=None, metadata=_check("null or a number >= 0", lambda v: v is None or v >= 0))
+        default=None, metadata=_within(0.0, MAX_MODEL_VISCOSITY, null=True))
 
 
 @dataclass(frozen=True)
 class Micropolar:
-    """Micropolar turbulence (Bender et al. 2017/2018), the papers' baseline."""
+    """Micropolar turbulence (Bender et al. 2017/2018), the papers' baseline (SPlisHSPlasH's defaults:
+    nu_t 0.1, Theta^-1 0.5, zeta 0.1; tools/stress.py ran nu_t up to 0.4)."""
 
-    transfer_coefficient: float = field(default=0.05, metadata=_check("a number >= 0", lambda v: v >= 0))  # nu_t
-    inverse_inertia: float = field(default=0.5, metadata=_positive())  # Theta^-1
-    viscosity_omega: float = field(default=0.1, metadata=_check("a number >= 0", lambda v: v >= 0))  # zeta
+    transfer_coefficient: float = field(default=0.05, metadata=_within(0.0, 1.0))  # nu_t
+    inverse_inertia: float = field(default=0.5, metadata=_check("a number in (0, 10]", lambda v: 0 < v <= 10))  # Theta^-1
+    viscosity_omega: float = field(default=0.1, metadata=_within(0.0, MAX_MODEL_VISCOSITY))  # zeta [m^2/s]
 
 
 # scene "models" entries: {"type": NAME, ...parameters}
@@ -456,13 +467,17 @@ def load_scene(path, scale: float = 1.0) -> Scene:
     if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
         raise SceneError(path, "--scale", f"expected a number > 0, got {scale}")
     try:
-        text = path.read_text()
+        text = path.read_text(encoding="utf-8-sig")
     except OSError as exc:
         raise SceneError(path, "", f"cannot read the scene file ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise SceneError(path, "", f"not UTF-8 text (byte {exc.start}): save the scene file as UTF-8 JSON") from None
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise SceneError(path, "", f"not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
+    except RecursionError:
+        raise SceneError(path, "", "not a scene: its JSON is nested too deeply") from None
     from .io.splishsplash import convert, is_splishsplash
 
     if is_splishsplash(data):  # a SPlisHSPlasH scene file

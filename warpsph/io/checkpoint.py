@@ -1,6 +1,7 @@
 """HDF5 checkpoints (h5py): the complete state of a simulation, written atomically.
 
-A checkpoint holds the scene (as JSON) and its hash, the Warp version, and
+A checkpoint holds the scene (as JSON, with the scene file's absolute path: its meshes resolve
+against it from any working directory) and its hash, the Warp version, and
 ``Simulation.state_arrays()`` (positions, velocities, ids, the solvers' warm-start pressures,
 the device clock, every model's ``state()``) with ``state_flags()`` (step, frame, model flags). Restoring it into a new :class:`Simulation` continues the run bit for bit on ``cpu``.
 """
@@ -10,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import math
 import os
 from pathlib import Path
 
@@ -22,7 +24,9 @@ FORMAT = "warpsph-checkpoint-1"
 
 
 def scene_json(scene) -> str:
+    """The scene as JSON, without the path it was read from."""
     data = dataclasses.asdict(scene)
+    data.pop("source")
     data["models"] = [{"type": type(m).__name__, **dataclasses.asdict(m)} for m in scene.models]
     return json.dumps(data, sort_keys=True)
 
@@ -42,7 +46,7 @@ def save_checkpoint(sim, path, extra=None):
         f.attrs["warp_version"] = wp.__version__
         f.attrs["scene_hash"] = scene_hash(sim.scene)
         f.attrs["scene"] = scene_json(sim.scene)
-        f.attrs["scene_file"] = str(sim.scene.source or "")
+        f.attrs["scene_file"] = os.path.abspath(sim.scene.source) if sim.scene.source else ""
         f.attrs["particle_radius"] = sim.scene.particle_radius
         f.attrs["time"] = sim.time  # for people; the state is in clock/time
         f.attrs["frame"] = sim.frame
@@ -57,10 +61,36 @@ def save_checkpoint(sim, path, extra=None):
     os.replace(tmp, path)
 
 
+def _same(a, b):
+    """Equal JSON values, floats to rounding (a scene reloaded at a --scale)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        return a.keys() == b.keys() and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b))
+    if isinstance(a, float) and isinstance(b, float):
+        return math.isclose(a, b, rel_tol=1e-9, abs_tol=0.0)
+    return a == b
+
+
+def _stored_scene(f, path):
+    """The scene the checkpoint holds, its source the original scene file's absolute path (older
+    checkpoints stored it relative to the working directory of the run)."""
+    from warpsph.scene import MODEL_TYPES, Scene, parse_dataclass
+
+    source = Path(f.attrs["scene_file"]).absolute() if f.attrs["scene_file"] else path.absolute()
+    stored = json.loads(f.attrs["scene"])
+    stored.pop("source", None)
+    names = {cls.__name__: key for key, cls in MODEL_TYPES.items()}
+    data = {**stored, "models": [{**m, "type": names.get(m["type"], m["type"])} for m in stored["models"]]}
+    scene = parse_dataclass(Scene, data, source)
+    return dataclasses.replace(scene, source=str(source)), stored
+
+
 def load_checkpoint(path, scene=None, device=None):
-    """A :class:`Simulation` in the checkpoint's state. ``scene`` (the same scene file, loaded
-    with the same scale) is checked against the stored hash; by default the scene is read
-    from the file named in the checkpoint."""
+    """A :class:`Simulation` in the checkpoint's state. By default the scene is the one stored in
+    the checkpoint (its mesh files found beside the original scene file); ``scene`` (the same
+    scene file, loaded with the same scale) is checked against it, and so is the original scene
+    file while it exists: an edited scene file is refused."""
     from warpsph.scene import load_scene
     from warpsph.simulation import Simulation
 
@@ -72,20 +102,41 @@ def load_checkpoint(path, scene=None, device=None):
     with f:
         if f.attrs.get("format") != FORMAT:
             raise SceneError(path, "", "not a warpsph checkpoint")
+        try:
+            stored, data = _stored_scene(f, path)
+        except SceneError:
+            raise
+        except (KeyError, ValueError, TypeError) as exc:
+            raise SceneError(path, "", f"damaged checkpoint ({exc!r})") from None
         if scene is None:
-            scene_file = f.attrs["scene_file"]
-            base = load_scene(scene_file)
-            scale = (base.particle_radius / float(f.attrs["particle_radius"])) ** 3
-            scene = load_scene(scene_file, scale=scale)
-        if scene_hash(scene) != f.attrs["scene_hash"]:
+            scene = stored
+            if Path(stored.source).is_file():
+                base = load_scene(stored.source)
+                scene_file = load_scene(stored.source, scale=(base.particle_radius / stored.particle_radius) ** 3)
+                if not _same(json.loads(scene_json(scene_file)), json.loads(scene_json(stored))):
+                    raise SceneError(path, "", f"the scene differs from the one this checkpoint was written for "
+                                               f"({stored.source} was edited since)")
+        elif not _same(json.loads(scene_json(scene)), data):
             raise SceneError(path, "", "the scene differs from the one this checkpoint was written for")
         sim = Simulation(scene, device=device)
-        if len(f["fluid/x"]) != sim.capacity:
+        if "fluid/x" not in f or len(f["fluid/x"]) != sim.capacity:
             raise SceneError(path, "", "particle count differs from the scene's")
-        for name, a in sim.state_arrays().items():
-            a.assign(f[name][...])
+        try:
+            for name, a in sim.state_arrays().items():
+                a.assign(f[name][...])
+        except (KeyError, ValueError, TypeError) as exc:
+            raise SceneError(path, "", f"damaged checkpoint ({exc!r})") from None
         sim.restore_flags({k[5:]: v for k, v in f.attrs.items() if k.startswith("flag:")})
         with wp.ScopedDevice(sim.device):
             sim.neighbours.update(sim.fluid.x)
             sim._compute_density()
     return sim
+
+
+def is_checkpoint(path):
+    """Whether ``path`` is a checkpoint that warpsph wrote."""
+    try:
+        with h5py.File(path, "r") as f:
+            return f.attrs.get("format") == FORMAT
+    except Exception:  # h5py raises OSError, and others for damaged files
+        return False

@@ -11,14 +11,21 @@ from pathlib import Path
 
 import h5py
 
+FORMAT = "warpsph-particles-1"
+
 
 class ParticleFrames:
-    """An ``on_frame`` callback that appends each frame to an HDF5 file (flushed every frame)."""
+    """An ``on_frame`` callback that appends each frame to an HDF5 file (flushed every frame).
+    ``append``: continue the file after frame ``append`` (later frames are dropped)."""
 
-    def __init__(self, path, append=False):
+    def __init__(self, path, append=None):
         self.path = Path(path)
-        self.file = h5py.File(self.path, "a" if append else "w")
+        self.file = h5py.File(self.path, "w" if append is None else "a")
+        self.file.attrs["format"] = FORMAT
         self.frames = self.file.require_group("frames")
+        for name in list(self.frames) if append is not None else ():
+            if int(name) > append:
+                del self.frames[name]
 
     def __call__(self, sim, frame):
         name = f"{frame:06d}"
@@ -36,3 +43,12 @@ class ParticleFrames:
 
     def close(self):
         self.file.close()
+
+
+def is_particles_h5(path):
+    """Whether ``path`` is an HDF5 file of particle frames that warpsph wrote."""
+    try:
+        with h5py.File(path, "r") as f:
+            return f.attrs.get("format") == FORMAT or set(f) == {"frames"}
+    except Exception:  # h5py raises OSError, and others for damaged files
+        return False

@@ -30,6 +30,26 @@ import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdUtils, Vt
 
 _PRIMVAR_TYPES = {1: Sdf.ValueTypeNames.FloatArray, 3: Sdf.ValueTypeNames.Float3Array}
+GENERATOR = "warpsph"  # customLayerData["generator"] of every layer warpsph writes: --overwrite replaces only these
+
+
+def _mark(layer):
+    layer.customLayerData = {**layer.customLayerData, "generator": GENERATOR}
+
+
+def written_by_warpsph(path):
+    """Whether ``path`` is a USD layer that warpsph wrote (marked, or an unmarked point cache of
+    earlier versions: default prim World holding the Points prim /World/Fluid)."""
+    try:
+        layer = Sdf.Layer.FindOrOpen(str(path))
+    except Exception:  # pxr raises Tf.ErrorException for files that are not USD
+        return False
+    if layer is None:
+        return False
+    if layer.customLayerData.get("generator") == GENERATOR:
+        return True
+    fluid = layer.GetPrimAtPath("/World/Fluid")
+    return layer.defaultPrim == "World" and fluid is not None and fluid.typeName == "Points"
 
 
 def _set_stage_metadata(stage, fps, up_axis):
@@ -99,19 +119,27 @@ def _write_points(points_prim, frame, points, velocities, ids, radius, fields):
 
 class UsdPointCache:
     """A single file, saved after every frame (a stopped run leaves the frames done).
-    ``append=True`` reopens an existing cache to continue it."""
+    ``append=K`` reopens an existing cache to continue it after frame K (later frames, from a run
+    resumed before, are dropped: each frame once)."""
 
-    def __init__(self, path, fps, up_axis="Y", boundary_points=None, boundary_radius=None, append=False, bodies=None):
+    def __init__(self, path, fps, up_axis="Y", boundary_points=None, boundary_radius=None, append=None, bodies=None):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.frames = 0
-        if append:
+        if append is not None:
             self.stage = Usd.Stage.Open(str(self.path))
             self.points = UsdGeom.Points(self.stage.GetPrimAtPath("/World/Fluid"))
+            for prim in self.stage.Traverse():
+                for attr in prim.GetAttributes():
+                    for t in attr.GetTimeSamples():
+                        if t > append:
+                            attr.ClearAtTime(t)
+            self.stage.SetEndTimeCode(min(append, self.stage.GetEndTimeCode()))
             return
         if self.path.exists():
             self.path.unlink()
         self.stage = Usd.Stage.CreateNew(str(self.path))
+        _mark(self.stage.GetRootLayer())
         _set_stage_metadata(self.stage, fps, up_axis)
         self.stage.SetStartTimeCode(0)
         self.stage.SetEndTimeCode(0)
@@ -139,13 +167,17 @@ class UsdClipCache:
 
     Memory does not grow with the number of frames: each frame's stage is written and
     released. The top-level file is made when the run ends or stops; the frame layers of a
-    crashed run stay readable on their own."""
+    crashed run stay readable on their own. ``append=K`` continues after frame K (later frame
+    layers are dropped)."""
 
-    def __init__(self, final_path, fps, up_axis="Y", boundary_points=None, boundary_radius=None, append=False,
+    def __init__(self, final_path, fps, up_axis="Y", boundary_points=None, boundary_radius=None, append=None,
                  bodies=None):
         self.final = Path(final_path)
         self.dir = self.final.with_name(self.final.stem + ".clips")
         self.dir.mkdir(parents=True, exist_ok=True)
+        for layer in self.dir.glob("frame.*.usdc") if append is not None else ():
+            if int(layer.name.split(".")[1]) > append:
+                layer.unlink()
         self.fps, self.up_axis = fps, up_axis
         self.boundary = (None if boundary_points is None else np.asarray(boundary_points), boundary_radius)
         self.boundary_file = self.dir / "boundary.npz"
@@ -180,12 +212,19 @@ class UsdClipCache:
         frames = sorted(self.dir.glob("frame.*.usdc"))
         if not frames:
             return
-        for stale in (final, final.with_name(final.stem + ".topology" + final.suffix)):
+        helpers = [final.with_name(f"{final.stem}.{kind}{final.suffix}") for kind in ("topology", "manifest")]
+        for stale in (final, *helpers):
             if stale.exists():
                 stale.unlink()
         layer = Sdf.Layer.CreateNew(str(final))
         numbers = [int(f.name.split(".")[1]) for f in frames]
         UsdUtils.StitchClips(layer, [str(f) for f in frames], Sdf.Path("/World"), min(numbers), max(numbers))
+        for helper in helpers:
+            written = Sdf.Layer.FindOrOpen(str(helper)) if helper.exists() else None
+            if written is not None:
+                _mark(written)
+                written.Save()
+        _mark(layer)
         stage = Usd.Stage.Open(layer)
         _set_stage_metadata(stage, self.fps, self.up_axis)
         stage.SetDefaultPrim(stage.GetPrimAtPath("/World"))
