@@ -3,7 +3,7 @@
 import warp as wp
 
 from .particles import Boundary, Neighbours
-from .pressure import density_rate
+from .pressure import density_rate, pressure_source, relaxed_stiffness
 
 wp.set_module_options({"enable_backward": False})
 
@@ -16,27 +16,21 @@ def compute_density_source(
     boundary: Boundary,
     density: wp.array(dtype=float),
     factor: wp.array(dtype=float),
+    surface: wp.array(dtype=wp.int32),
     fluid_volume: float,
     rest_density: float,
     support_radius: float,
     dt: wp.array(dtype=float),
-    clamp: int,
-    density_weight: float,
     error: wp.array(dtype=float),
     stiffness: wp.array(dtype=float),
 ):
-    """Predicted density rho*_i/rho0 = 1 + w (rho_i/rho0 - 1) + dt D(rho_i/rho0)/Dt (``density_weight``
-    w: 1, or less with the confined mode's transport velocity); source
-    s_i = max(rho*_i/rho0 - 1, 0) (pressure clamped at >= 0; ``clamp`` 0: the signed
-    rho*_i/rho0 - 1, for confined flows) and k_i = s_i factor_i / dt^2."""
+    """Predicted density rho*_i/rho0 = rho_i/rho0 + dt D(rho_i/rho0)/Dt (Bender & Koschier 2017, eq 11);
+    source s_i = rho*_i/rho0 - 1, clamped at >= 0 at the free surface and signed in the bulk
+    (:func:`pressure_source`), and k_i from :func:`relaxed_stiffness`."""
     i = wp.tid()
     h = dt[0]
-    relative = density[i] / rest_density
-    if density_weight != 1.0:  # (so that the default stays bit-identical)
-        relative = 1.0 + density_weight * (relative - 1.0)
-    predicted = relative + h * density_rate(i, x, v, nb, boundary, fluid_volume, support_radius)
-    s = predicted - 1.0
-    if clamp != 0:
-        s = wp.max(s, 0.0)
+    flag = surface[i]
+    predicted = density[i] / rest_density + h * density_rate(i, x, v, nb, boundary, fluid_volume, support_radius)
+    s = pressure_source(predicted - 1.0, flag)
     error[i] = s
-    stiffness[i] = s * factor[i] / (h * h)
+    stiffness[i] = relaxed_stiffness(s, flag, factor[i], h * h)

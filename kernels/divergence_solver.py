@@ -3,7 +3,7 @@
 import warp as wp
 
 from .particles import Boundary, Neighbours
-from .pressure import density_rate
+from .pressure import density_rate, pressure_source, relaxed_stiffness
 
 wp.set_module_options({"enable_backward": False})
 
@@ -19,21 +19,20 @@ def compute_divergence_source(
     nb: Neighbours,
     boundary: Boundary,
     factor: wp.array(dtype=float),
+    surface: wp.array(dtype=wp.int32),
     fluid_volume: float,
     support_radius: float,
     dt: wp.array(dtype=float),
-    clamp: int,
     error: wp.array(dtype=float),
     stiffness: wp.array(dtype=float),
 ):
-    """Source s_i = max(D(rho_i/rho0)/Dt, 0) (compression only; ``clamp`` 0: the signed
-    D(rho_i/rho0)/Dt, for confined flows) and k_i = s_i factor_i / dt."""
+    """Source s_i = D(rho_i/rho0)/Dt (Bender & Koschier 2017, eq 9), clamped at >= 0 at the free
+    surface and signed in the bulk (:func:`pressure_source`), and k_i from :func:`relaxed_stiffness`."""
     i = wp.tid()
     count = nb.fluid_offsets[i + 1] - nb.fluid_offsets[i] + nb.boundary_offsets[i + 1] - nb.boundary_offsets[i]
     s = float(0.0)
+    flag = surface[i]
     if count >= MIN_NEIGHBOURS:
-        s = density_rate(i, x, v, nb, boundary, fluid_volume, support_radius)
-        if clamp != 0:
-            s = wp.max(s, 0.0)
+        s = pressure_source(density_rate(i, x, v, nb, boundary, fluid_volume, support_radius), flag)
     error[i] = s
-    stiffness[i] = s * factor[i] / dt[0]
+    stiffness[i] = relaxed_stiffness(s, flag, factor[i], dt[0])

@@ -8,6 +8,7 @@ value accumulated over a step is a physical pressure that warm-starts the next s
 
 import warp as wp
 
+from .free_surface import BULK
 from .particles import Boundary, Neighbours, boundary_velocity, separation
 from .sph_kernel import cubic_kernel_gradient
 
@@ -77,19 +78,43 @@ def apply_pressure_acceleration(
 # 4096 left most of an H100 idle (0.09 ms for 1M values, five times a step).
 REDUCE_THREADS = wp.constant(16384)
 
+# Free-surface particles and their neighbours (``surface`` flag != 0) keep p >= 0; the bulk is signed
+# and its Jacobi step relaxed by this factor (the signed solve diverged at 0.6 and above on Taylor-Green,
+# docs/notes/solver.md).
+BULK_RELAXATION = wp.constant(0.5)
+
+
+@wp.func
+def pressure_source(s: float, surface: int):
+    """The solver's source for particle i from its raw source s: max(s, 0) at the free surface and in its
+    band (SPlisHSPlasH's clamping, ``surface`` != 0), the signed s in the bulk."""
+    if surface != 0:
+        return wp.max(s, 0.0)
+    return s
+
+
+@wp.func
+def relaxed_stiffness(source: float, surface: int, factor: float, scale: float):
+    """Jacobi step k_i = omega s_i factor_i / scale (omega 1 at the free surface, BULK_RELAXATION in the
+    bulk; scale dt^2 for the density solver, dt for the divergence solver)."""
+    omega = float(1.0)
+    if surface == 0:
+        omega = BULK_RELAXATION
+    return omega * source * factor / scale
+
 
 @wp.kernel
 def reduce_error(error: wp.array(dtype=float), count: int, error_stats: wp.array(dtype=float)):
-    """error_stats[0] += sum of error, error_stats[1] = max(error_stats[1], max of error)
-    (update_solver_status resets both after reading). Grid-stride partial results, one
-    atomic per thread; unlike ``wp.utils.array_sum`` it allocates nothing, so it can sit
-    inside a captured ``wp.capture_while`` body."""
+    """error_stats[0] += sum |e|, error_stats[1] = max(error_stats[1], max |e|) (update_solver_status
+    resets both after reading). Grid-stride partial results, one atomic per
+    thread; unlike ``wp.utils.array_sum`` it allocates nothing, so it can sit inside a captured
+    ``wp.capture_while`` body."""
     t = wp.tid()
     threads = wp.min(count, REDUCE_THREADS)
     s = float(0.0)
     m = float(0.0)
     for i in range(t, count, threads):
-        e = error[i]
+        e = wp.abs(error[i])
         s += e
         m = wp.max(m, e)
     wp.atomic_add(error_stats, 0, s)
@@ -97,9 +122,12 @@ def reduce_error(error: wp.array(dtype=float), count: int, error_stats: wp.array
 
 
 @wp.kernel
-def reduce_source_sum(source: wp.array(dtype=float), count: int, error_stats: wp.array(dtype=float)):
-    """error_stats[2] += sum of the signed source (update_solver_status resets it after
-    reading). Grid-stride like :func:`reduce_error`; allocates nothing."""
+def reduce_source_sum(source: wp.array(dtype=float), count: int, surface_count: wp.array(dtype=wp.int32),
+                      error_stats: wp.array(dtype=float)):
+    """error_stats[2] += sum of the signed source, in a box without free surface (``surface_count[0]`` 0;
+    update_solver_status resets it). Grid-stride like :func:`reduce_error`; allocates nothing."""
+    if surface_count[0] != 0:
+        return
     t = wp.tid()
     threads = wp.min(count, REDUCE_THREADS)
     s = float(0.0)
@@ -112,47 +140,62 @@ def reduce_source_sum(source: wp.array(dtype=float), count: int, error_stats: wp
 def remove_mean_source(
     error_stats: wp.array(dtype=float),
     count: int,
+    surface_count: wp.array(dtype=wp.int32),
     factor: wp.array(dtype=float),
     dt: wp.array(dtype=float),
     per_unit_time: int,
-    relaxation: float,
     error: wp.array(dtype=float),
     stiffness: wp.array(dtype=float),
 ):
-    """Compatibility condition of the periodic / pure-Neumann pressure Poisson problem: a
-    constant pressure moves nothing, so a source with a non-zero sum has no solution and
-    Jacobi drifts; s_i := s_i - mean(s) (mean = error_stats[2] / count, from
-    :func:`reduce_source_sum`). Then k_i = relaxation s_i factor_i / dt^2 (per_unit_time:
-    / dt), relaxed Jacobi (the signed solve diverges at 0.6 and above), and error_i = |s_i|,
-    whose average decides convergence."""
+    """Compatibility condition of a box without free surface (``surface_count[0]`` 0; periodic or walled
+    all round): the pressure problem is pure Neumann, a constant pressure moves nothing, so a source with
+    a non-zero sum has no solution and Jacobi drifts. s_i := s_i - mean(s) (mean = error_stats[2] / count,
+    from :func:`reduce_source_sum`), and k_i again from :func:`relaxed_stiffness`."""
+    if surface_count[0] != 0:
+        return
     i = wp.tid()
     s = error[i] - error_stats[2] / float(wp.max(count, 1))
     h = dt[0]
     scale = h * h
     if per_unit_time != 0:
         scale = h
-    error[i] = wp.abs(s)
-    stiffness[i] = relaxation * s * factor[i] / scale
+    error[i] = s
+    stiffness[i] = relaxed_stiffness(s, BULK, factor[i], scale)
+
+
+# The warm start keeps at most this much of last step's pressure, in units of the density error it
+# corrects (k dt^2 / factor for the density solver, k dt / factor per second for the divergence solver).
+WARM_START_FACTOR = wp.constant(0.5)
+WARM_START_CAP = wp.constant(0.01)
 
 
 @wp.kernel
-def scale_warm_start(
-    pressure_sum: wp.array(dtype=float),
+def warm_start_pressure(
+    error: wp.array(dtype=float),
+    factor: wp.array(dtype=float),
     dt: wp.array(dtype=float),
     dt_previous: wp.array(dtype=float),
     per_unit_time: int,
-    warm_start_factor: float,
+    pressure_sum: wp.array(dtype=float),
     stiffness: wp.array(dtype=float),
 ):
-    """Warm start: k_i = factor * last step's accumulated k_i (factor < 1: the solvers only
-    add pressure, so a full warm start cannot release pressure that is no longer needed).
-    The divergence solver's k is a rate (k ~ 1/dt for the same velocity correction), so
-    it is rescaled by dt_prev / dt. The value also restarts this step's sum."""
+    """Warm start as SPlisHSPlasH's DFSPH does it: k_i = 0.5 x last step's accumulated k_i (rescaled from
+    dt_prev to dt: dt^2 for the density solver, dt for the rate of the divergence solver), capped, and only
+    where this step's source still has the sign of that pressure (still compressed, still diverging; or
+    still expanded in the signed bulk). Elsewhere it starts at 0: the iterations cannot take back a
+    pressure that is no longer needed. ``error`` holds this step's source before the warm start."""
     i = wp.tid()
-    scale = warm_start_factor
+    h = dt[0]
+    hp = dt_previous[0]
+    scale = h * h
+    previous_scale = hp * hp
     if per_unit_time != 0:
-        scale = scale * dt_previous[0] / dt[0]
-    k = pressure_sum[i] * scale
+        scale = h
+        previous_scale = hp
+    limit = WARM_START_CAP * factor[i]
+    k = wp.clamp(pressure_sum[i] * previous_scale, -limit, limit) * WARM_START_FACTOR / scale
+    if k * error[i] <= 0.0:
+        k = 0.0
     stiffness[i] = k
     pressure_sum[i] = k
 
@@ -192,7 +235,7 @@ def update_solver_status(
     peak = error_stats[1]
     error_stats[0] = 0.0  # ready for the next reduce_error, without a memset in the loop body
     error_stats[1] = 0.0
-    error_stats[2] = 0.0  # and for the next reduce_source_sum (confined mode)
+    error_stats[2] = 0.0  # and for the next reduce_source_sum
     average_error[0] = avg
     eta = max_error
     eta_peak = max_peak_error

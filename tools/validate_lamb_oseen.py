@@ -173,7 +173,7 @@ def build(models, resolution=24, nu=0.01, T=0.5, core=3.0, u_peak=0.5, depth=6, 
     p = setup(resolution, nu, core, u_peak, depth)
     d = p["spacing"]
     data = {"name": "lamb_oseen", "particle_radius": d / 2, "gravity": [0, 0, 0],
-            "domain": {"min": [0, 0, 0], "max": [L, L, p["depth"]]},
+            "domain": {"min": [0, 0, 0], "max": [L, L, p["depth"]], "periodic": ["z"]},
             "fluid_blocks": [{"start": [0, 0, 0], "end": [L, L, p["depth"]]}],
             "fluid": {"viscosity": nu}, "models": list(models), "output": {"fps": frames / T}}
     if solver:

@@ -413,8 +413,9 @@ class Simulation:
 
     def _solve_step(self):
         f, n, t = self.fluid, self.num_fluid, self.timer
-        with t("density"):  # rho^n and the DFSPH factor at x^n
+        with t("density"):  # rho^n, the DFSPH factor and the free surface at x^n
             self._compute_density()
+            self.pressure_solver.detect_free_surface()
         with t("time_step"):  # CFL condition on |v^n|
             self.max_speed_sq.zero_()
             self.launch(compute_max_speed, min(n, REDUCE_THREADS), [f.v, n, self.max_speed_sq])
@@ -436,9 +437,8 @@ class Simulation:
         with t("density_solve"):  # projection: rho*(x + dt v_adv) -> rho0
             self.pressure_solver.correct_density()
         with t("integration"):  # x^{n+1} = x^n + dt v
-            self.pressure_solver.transport_velocity()  # confined mode, transport velocity (no-op otherwise)
             self.launch(advect_positions, n, [f.v, self.dt, self.neighbours.lower, self.neighbours.period, f.x])
-            self.pressure_solver.shift_particles()  # confined mode: particle shifting (no-op otherwise)
+            self.pressure_solver.shift_particles()  # particle shifting (no-op when off)
             self.launch(advance_clock, 1, [self.dt, self.time_device, self.steps_device])
         with t("health"):  # NaN/inf, escaped particles, runaway density: counted on the device
             self.health_counts.zero_()
@@ -453,7 +453,7 @@ class Simulation:
         f = self.fluid
         self.launch(compute_density_and_factor, self.num_fluid,
                     [f.x, self.neighbours.lists, self.boundary.samples, self.fluid_volume, self.rest_density,
-                     self.support_radius, f.density, f.factor])
+                     self.support_radius, f.density, f.factor, *self.pressure_solver.density_pass_outputs()])
 
     # -- host views -------------------------------------------------------------------------------------
     @property

@@ -6,10 +6,13 @@ tolerance and the minimum iterations are done, or the maximum is reached. The de
 is made on the device (:func:`update_solver_status`) and the loop is a
 ``wp.capture_while``: on CUDA inside a captured graph no iteration waits on the host.
 
-With ``solver.clamp_pressure`` false (confined flows: a closed or fully periodic box filled
-with fluid) the sources are signed, less their mean, and the Jacobi step is relaxed (see
-:func:`remove_mean_source`); particle shifting (``solver.shifting``, :func:`compute_shift`)
-after the position update keeps the particles from pairing up under the negative pressure.
+One solver serves free-surface and confined flow. Each step the free surface is detected per
+particle (:func:`classify_free_surface`, from the divergence of position of the density pass):
+the surface and the band within one support radius of it keep p >= 0 as in SPlisHSPlasH, the bulk
+has signed pressure (relaxed Jacobi), so a vortex keeps its low-pressure core. A box without
+free surface (periodic or walled all round) removes the mean of its source. Particle shifting
+(:func:`compute_shift`, Lind et al. 2012) after the position update keeps the bulk from pairing up
+under negative pressure; at the surface it is tangential or off, so surfaces stay sharp.
 """
 
 from __future__ import annotations
@@ -18,70 +21,30 @@ import warp as wp
 
 from warpsph.kernels.density_solver import compute_density_source
 from warpsph.kernels.divergence_solver import compute_divergence_source
+from warpsph.kernels.free_surface import classify_free_surface
 from warpsph.kernels.pressure import (
     REDUCE_THREADS,
     apply_pressure_acceleration,
-    scale_warm_start,
     reduce_error,
     reduce_source_sum,
     remove_mean_source,
     update_solver_status,
+    warm_start_pressure,
 )
-from warpsph.kernels.shifting import apply_shift, compute_shift, compute_transport_shift, transport_velocity_correction
+from warpsph.kernels.shifting import apply_shift, compute_shift
 
 DIVERGENCE, DENSITY = 0, 1
 # The largest per-particle error may be this many times the average tolerance (density:
 # 0.01 % average, 1 % peak). Without it a 1M-particle dam break converged in 2 iterations on
 # the average while its bottom layer was crushed to 2.2 rho0 within 5 steps and exploded.
 PEAK_ERROR_RATIO = 100.0
-# share of the last step's pressure that warm-starts each solver
-# Share of the last step's pressure that warm-starts each solver. In a resting 10-layer tank
-# (r = 0.02 m) the density solver takes 34 iterations a step cold, 23.5 at 0.5 and 6.8 at 0.9,
-# and 1.0 lets the pressure ping-pong until the tank boils. But in a decaying vortex (dt 4 ms)
-# 0.9 and 0.7 injected energy (KE rose to 122 % and 56 % where a cold start has 48 %); 0.5
-# follows the cold-start decay within 1 %, so trust wins over speed here.
-WARM_START_FACTOR = {DIVERGENCE: 0.5, DENSITY: 0.5}
-# Confined mode (solver.clamp_pressure false): signed sources less their mean (see
-# remove_mean_source), Jacobi relaxed by this factor (the clamped solve is plain Jacobi). Measured
-# on Taylor-Green at 16 across (branch confined-solver, tools/results/CONFINED_NOTES.md): 1.0 and
-# 0.6-0.8 blew up, 0.5: KE ratio 0.603 and 24.4 density iterations a step, 0.4: 0.589 and 28.5.
-CONFINED_RELAXATION = 0.5
-# Default solver.shifting (coefficient A of D = A h max|v| dt) in the confined mode. Taylor-Green
-# (nu = 0.01, T = 0.3 s, dt = dt_max so max|v| dt = 0.1 spacing) at 16 across, mean rho/rho0 and KE
-# ratio (analytic 0.623): A = 0 (no shifting) 1.364 / 0.603, 0.5: 1.134 / 0.655, 1: 1.063 / 0.678,
-# 2: 1.014 / 0.646, 3: 1.021 / 1.14 (energy injected), 4: 1.010 / 0.725. At 24 across, A = 2: 1.0055 /
-# 0.614. Lind et al.'s anti-pairing term (R = 0.2) and the Taylor velocity correction both injected
-# energy (KE above 1 mid-run), so neither is used (tools/results/CONFINED_NOTES.md).
-DEFAULT_SHIFTING = 2.0
-# largest shift a step, in particle spacings (0.02: mean rho/rho0 1.149 at A = 2; 0.2: as 0.1)
+# Divergence of position below which a particle is on the free surface: DualSPHysics' 3D value
+# (2.75 between the bulk's 3 and a flat surface's 2.2 for the cubic spline at support 4r).
+FREE_SURFACE_THRESHOLD = 2.75
+# ... and density (rho / rho0) below which (kernels/free_surface.py says why both)
+FREE_SURFACE_DENSITY = 0.95
+# largest shift a step, in particle spacings
 MAX_SHIFT = 0.1
-
-
-# Transport velocity (solver.transport_velocity = B, Adami, Hu & Adams 2013): particles move by
-# dt v + dt^2 a_b, a_b the acceleration of a background pressure p_b = B rho0 max|v|^2, used for the
-# position only; v is moved with them ((shift . grad) v, first order), and the density solver
-# corrects only this share of the density error rho/rho0 - 1 a step (its velocity-divergence part is
-# whole): with the full error it turned each displacement back into velocity (Taylor-Green KE rose
-# above 1 mid-run at B >= 20, as with shifting). Measured at 16 across (tools/results/CONFINED_NOTES.md):
-# weight 1: B = 5 KE fine, mean rho 1.10; B = 20: KE +33 % at 0.15 s; 0.05 with B = 40 and the velocity
-# correction: KE within 6 % of analytic at 0.09, 0.15 and 0.3 s, mean rho 1.009; weight 0 lets the
-# mean rise (B = 20: 1.038) and loses 7-16 %.
-TRANSPORT_DENSITY_WEIGHT = 0.05
-
-
-def transport_coefficient(solver):
-    """The scene's transport-velocity coefficient B: 0 (off) unless set in the confined mode."""
-    if solver.clamp_pressure or solver.transport_velocity is None:
-        return 0.0
-    return solver.transport_velocity
-
-
-def shifting_coefficient(solver):
-    """The scene's particle-shifting coefficient: 0 in the clamped (free-surface) mode and with the
-    transport velocity (which replaces it)."""
-    if solver.clamp_pressure or transport_coefficient(solver) > 0.0:
-        return 0.0
-    return DEFAULT_SHIFTING if solver.shifting is None else solver.shifting
 
 
 class DFSPHSolver:
@@ -89,29 +52,25 @@ class DFSPHSolver:
 
     @staticmethod
     def columns(scene):
-        """Scratch columns this scene's solver needs: shifting holds a vector after the solves, the
-        transport velocity two (the displacement and the corrected velocity)."""
-        if transport_coefficient(scene.solver) > 0.0:
-            return 6
-        return 3 if shifting_coefficient(scene.solver) > 0.0 else DFSPHSolver.scratch_columns
+        """Scratch columns this scene's solver needs: shifting holds a vector after the solves."""
+        return 3 if scene.solver.shifting > 0.0 else DFSPHSolver.scratch_columns
 
     def __init__(self, sim):
         self.sim = sim
         z = sim.zeros
         self.stiffness = sim.scratch(float, 0)
         self.error = sim.scratch(float, 1)
-        self.clamp = int(sim.scene.solver.clamp_pressure)
-        self.shifting = shifting_coefficient(sim.scene.solver)
-        self.transport = transport_coefficient(sim.scene.solver)
-        if self.shifting > 0.0 or self.transport > 0.0:  # after the solves: the pool is free again
+        self.position_divergence = self.error  # written by the density pass, read before the solves
+        self.shifting = sim.scene.solver.shifting
+        self.concentration_gradient = sim.zeros("pressure", 0, dtype=wp.vec3)
+        if self.shifting > 0.0:  # grad C from the density pass; the shift after the solves (the pool is free again)
+            self.concentration_gradient = sim.per_particle("pressure", wp.vec3)
             self.shift = sim.scratch(wp.vec3, 0)
-        if self.transport > 0.0:
-            self.moved_velocity = sim.scratch(wp.vec3, 3)
-        # share of the density error rho/rho0 - 1 in the density source
-        self.density_weight = TRANSPORT_DENSITY_WEIGHT if self.transport > 0.0 else 1.0
+        self.surface = sim.per_particle("pressure", wp.int32)  # BULK / BAND / SURFACE
+        self.surface_count = z("pressure", 1, dtype=wp.int32)
         # accumulated stiffness of the last solve of each kind, for the warm start
         self.pressure_sum = [sim.per_particle("pressure"), sim.per_particle("pressure")]
-        self.error_stats = z("pressure", 3)  # sum |error|, max |error|, sum of the signed source (confined)
+        self.error_stats = z("pressure", 3)  # sum |error|, max |error|, sum of the signed source
         self.average_error = [z("pressure", 1), z("pressure", 1)]
         self.condition = z("pressure", 1, dtype=wp.int32)  # read by wp.capture_while
         self.iterations = z("pressure", 1, dtype=wp.int32)
@@ -119,9 +78,21 @@ class DFSPHSolver:
         self.totals = z("pressure", 4, dtype=wp.int64)
         self.max_iteration_streak = z("pressure", 2, dtype=wp.int32)
 
+    def density_pass_outputs(self):
+        """What the density pass writes for the solver besides density and factor."""
+        return [self.position_divergence, self.concentration_gradient]
+
     def reorder(self, sim, order):
         for a in self.pressure_sum:
             sim.permute(a, order)
+
+    def detect_free_surface(self):
+        """Flags the surface, its band and the bulk from the density pass's divergence of position."""
+        sim = self.sim
+        self.surface_count.zero_()
+        sim.launch(classify_free_surface, sim.num_fluid,
+                   [self.position_divergence, sim.fluid.density, sim.neighbours.lists, FREE_SURFACE_THRESHOLD,
+                    FREE_SURFACE_DENSITY * sim.rest_density, self.surface, self.surface_count])
 
     # -- Algorithm 1: the two projection loops -------------------------------------------
     def correct_divergence(self):
@@ -145,12 +116,13 @@ class DFSPHSolver:
 
     def _divergence_inputs(self):
         sim = self.sim
-        return self._common() + [sim.fluid.factor, sim.fluid_volume, sim.support_radius, sim.dt, self.clamp]
+        return self._common() + [sim.fluid.factor, self.surface, sim.fluid_volume,
+                                 sim.support_radius, sim.dt]
 
     def _density_inputs(self):
         sim = self.sim
-        return self._common() + [sim.fluid.density, sim.fluid.factor, sim.fluid_volume, sim.rest_density,
-                                 sim.support_radius, sim.dt, self.clamp, self.density_weight]
+        return self._common() + [sim.fluid.density, sim.fluid.factor, self.surface,
+                                 sim.fluid_volume, sim.rest_density, sim.support_radius, sim.dt]
 
     def _apply(self, kind, accumulate):
         sim = self.sim
@@ -161,23 +133,25 @@ class DFSPHSolver:
     def _measure(self, kind, source_kernel, inputs, max_error, min_it, max_it, first):
         sim = self.sim
         sim.launch(source_kernel, sim.num_fluid, inputs + [self.error, self.stiffness])
-        if not self.clamp:  # confined: signed source less its mean (compatibility condition), relaxed
-            sim.launch(reduce_source_sum, min(sim.num_fluid, REDUCE_THREADS), [self.error, sim.num_fluid, self.error_stats])
-            sim.launch(remove_mean_source, sim.num_fluid,
-                       [self.error_stats, sim.num_fluid, sim.fluid.factor, sim.dt, int(kind == DIVERGENCE),
-                        CONFINED_RELAXATION, self.error, self.stiffness])
+        # a box without free surface: the source less its mean (no-ops otherwise)
+        sim.launch(reduce_source_sum, min(sim.num_fluid, REDUCE_THREADS),
+                   [self.error, sim.num_fluid, self.surface_count, self.error_stats])
+        sim.launch(remove_mean_source, sim.num_fluid,
+                   [self.error_stats, sim.num_fluid, self.surface_count, sim.fluid.factor, sim.dt,
+                    int(kind == DIVERGENCE), self.error, self.stiffness])
         sim.launch(reduce_error, min(sim.num_fluid, REDUCE_THREADS), [self.error, sim.num_fluid, self.error_stats])
         sim.launch(update_solver_status, 1,
                    [self.error_stats, sim.num_fluid, max_error, max_error * PEAK_ERROR_RATIO, int(kind == DIVERGENCE), sim.dt, min_it, max_it,
-                    int(first), kind, self.average_error[kind], self.condition, self.iterations, self.totals,
-                    self.max_iteration_streak])
+                    int(first), kind, self.average_error[kind], self.condition,
+                    self.iterations, self.totals, self.max_iteration_streak])
 
     def _solve(self, kind, source_kernel, inputs, max_error, min_it, max_it):
         sim = self.sim
-        if sim.scene.solver.warm_start:
-            sim.launch(scale_warm_start, sim.num_fluid,
-                       [self.pressure_sum[kind], sim.dt, sim.dt_previous, int(kind == DIVERGENCE),
-                        WARM_START_FACTOR[kind], self.stiffness])
+        if sim.scene.solver.warm_start:  # last step's pressure where this step's source still asks for it
+            sim.launch(source_kernel, sim.num_fluid, inputs + [self.error, self.stiffness])
+            sim.launch(warm_start_pressure, sim.num_fluid,
+                       [self.error, sim.fluid.factor, sim.dt, sim.dt_previous, int(kind == DIVERGENCE),
+                        self.pressure_sum[kind], self.stiffness])
             self._apply(kind, 0)
         else:
             self.pressure_sum[kind].zero_()
@@ -189,36 +163,15 @@ class DFSPHSolver:
 
         wp.capture_while(self.condition, iteration)
 
-    def transport_velocity(self):
-        """Transport velocity, before the position update: the displacement dt^2 a_b at x^n (neighbour
-        lists of the step) and v_i := v_i + (shift_i . grad) v_i; :meth:`shift_particles` then moves
-        the particles by it. No-op when it is off."""
-        if self.transport <= 0.0:
-            return
-        sim, f = self.sim, self.sim.fluid
-        sim.launch(compute_transport_shift, sim.num_fluid,
-                   [f.x, sim.neighbours.lists, sim.boundary.samples, f.density, sim.fluid_volume, sim.rest_density,
-                    sim.support_radius, sim.dt, sim.max_speed_sq, self.transport,
-                    MAX_SHIFT * sim.scene.particle_diameter, self.shift])
-        sim.launch(transport_velocity_correction, sim.num_fluid,
-                   [f.x, f.v, self.shift, sim.neighbours.lists, sim.fluid_volume, sim.support_radius,
-                    self.moved_velocity])
-        wp.copy(f.v, self.moved_velocity, count=sim.num_fluid)
-
     def shift_particles(self):
-        """Confined mode: particle shifting after the position update (two passes: the shifts
-        from the neighbour lists of this step, then the move), or the transport velocity's
-        displacement; no-op when both are off."""
-        sim, f = self.sim, self.sim.fluid
-        if self.transport > 0.0:
-            sim.launch(apply_shift, sim.num_fluid, [self.shift, sim.neighbours.lower, sim.neighbours.period, f.x])
-            return
+        """Particle shifting after the position update, down the concentration gradient of the step's
+        density pass; no-op when ``solver.shifting`` is 0."""
         if self.shifting <= 0.0:
             return
+        sim, f = self.sim, self.sim.fluid
         sim.launch(compute_shift, sim.num_fluid,
-                   [f.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume, sim.support_radius,
-                    sim.dt, sim.max_speed_sq, self.shifting,
-                    MAX_SHIFT * sim.scene.particle_diameter, self.shift])
+                   [self.concentration_gradient, self.surface, sim.support_radius, sim.dt, sim.max_speed_sq,
+                    self.shifting, MAX_SHIFT * sim.scene.particle_diameter, self.shift])
         sim.launch(apply_shift, sim.num_fluid, [self.shift, sim.neighbours.lower, sim.neighbours.period, f.x])
 
     # -- statistics (host reads, outside the step) -----------------------------------------
@@ -228,3 +181,7 @@ class DFSPHSolver:
 
     def last_errors(self):
         return float(self.average_error[DIVERGENCE].numpy()[0]), float(self.average_error[DENSITY].numpy()[0])
+
+    def free_surface_count(self):
+        """Fluid particles on the free surface at the last step (host read)."""
+        return int(self.surface_count.numpy()[0])
