@@ -13,6 +13,7 @@ import difflib
 import json
 import math
 import typing
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -211,35 +212,22 @@ class Solver:
     divergence_min_iterations: int = field(default=1, metadata=_check("an integer >= 0", lambda v: v >= 0))
     divergence_max_iterations: int = field(default=100, metadata=_check("an integer >= 1", lambda v: v >= 1))
     warm_start: bool = True
-    # true: pressure >= 0 (sources max(rho*/rho0 - 1, 0) and max(D rho/Dt, 0)), for free surfaces.
-    # false: confined flow (a closed or fully periodic box filled with fluid, no free surface):
-    # signed sources less their mean (the compatibility condition of a periodic / pure-Neumann
-    # Poisson problem), relaxed Jacobi, and particle shifting, so the solver holds the low pressure
-    # of a vortex core without the particles pairing up
-    clamp_pressure: bool = True
-    # particle shifting of the confined mode (Lind et al. 2012): x += -D grad C after the position
-    # update, D = shifting x h max|v| dt. null: 2 with clamp_pressure false; 0: off. Only valid
-    # with clamp_pressure false (it would pull a free surface apart)
-    shifting: typing.Optional[float] = field(default=None, metadata=_check("null or a number >= 0",
-                                                                          lambda v: v is None or v >= 0))
-    # transport velocity of the confined mode (Adami, Hu & Adams 2013), replacing shifting: B of the
-    # background pressure p_b = B rho0 max|v|^2 whose acceleration moves the particles (not their
-    # velocity); null or 0: off. Only valid with clamp_pressure false and shifting null or 0
-    transport_velocity: typing.Optional[float] = field(default=None, metadata=_check(
-        "null or a number >= 0", lambda v: v is None or v >= 0))
+    # particle shifting (Lind et al. 2012): x += -D grad C after the position update in the bulk
+    # (tangential near the free surface, off on it), D = shifting x h max|v| dt; 0: off
+    shifting: float = field(default=2.0, metadata=_check("a number >= 0", lambda v: v >= 0))
     sort_interval: int = field(default=16, metadata=_check("an integer >= 0 (0: never)", lambda v: v >= 0))
+
+    # keys of earlier versions: a scene that has them loads with a warning naming the key
+    OBSOLETE = {
+        "clamp_pressure": "the solver now finds the free surface per particle (p >= 0 there, signed in the "
+                          "bulk) in every scene; the key is ignored",
+        "transport_velocity": "the solver regularises the particles by shifting (solver.shifting) in every "
+                              "scene; the key is ignored",
+    }
 
     def validate(self, file, key):
         if self.min_iterations > self.max_iterations:
             raise SceneError(file, f"{key}.min_iterations", "must not exceed max_iterations")
-        if self.clamp_pressure and self.shifting:
-            raise SceneError(file, f"{key}.shifting", "particle shifting needs clamp_pressure false (confined flow, "
-                                                      "no free surface)")
-        if self.transport_velocity and self.clamp_pressure:
-            raise SceneError(file, f"{key}.transport_velocity", "the transport velocity needs clamp_pressure false "
-                                                                "(confined flow, no free surface)")
-        if self.transport_velocity and self.shifting:
-            raise SceneError(file, f"{key}.transport_velocity", "replaces particle shifting: set shifting to 0 or null")
 
 
 @dataclass(frozen=True)
@@ -433,6 +421,10 @@ def parse_dataclass(cls, data, file=None, key=""):
         raise SceneError(file, where, f"expected an object, got {json.dumps(data)}")
     hints = typing.get_type_hints(cls)
     fields = {f.name: f for f in dataclasses.fields(cls) if f.name != "source"}
+    obsolete = getattr(cls, "OBSOLETE", {})
+    for name in [n for n in data if n in obsolete and n not in fields]:
+        warnings.warn(f"{file}: {key}.{name}: obsolete key: {obsolete[name]}" if key else f"{file}: {name}: obsolete key: {obsolete[name]}")
+        data = {n: v for n, v in data.items() if n != name}
     for name in data:
         if name not in fields:
             close = difflib.get_close_matches(name, fields, n=1)
