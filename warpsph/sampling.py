@@ -98,8 +98,11 @@ def load_mesh(path):
                                    f"(damaged, or another format; {type(exc).__name__})") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise SceneError(path, "", "the mesh has no triangles")
-    if not np.isfinite(mesh.vertices).all():
-        raise SceneError(path, "", "the mesh has vertices that are not finite numbers")
+    vertices, faces = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or faces.ndim != 2 or faces.shape[1] != 3:
+        raise SceneError(path, "", "not a 3D triangle mesh (damaged file?)")
+    if not np.isfinite(vertices).all() or faces.min() < 0 or faces.max() >= len(vertices):
+        raise SceneError(path, "", "the mesh has vertices that are not finite numbers or faces that name missing vertices")
     return mesh
 
 
