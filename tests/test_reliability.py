@@ -275,3 +275,37 @@ def test_model_parameters_outside_their_range_are_refused(tmp_path, capsys, mode
     err = capsys.readouterr().err
     assert f"models[0].{key}: expected" in err and "a number in" in err
     assert not list(tmp_path.glob("o*"))
+
+
+def test_sigkill_leaves_a_readable_cache_and_a_recent_checkpoint(tmp_path):
+    import h5py
+
+    data = tank_scene(radius=0.03, domain=(0.6, 0.4, 0.2), block=(0.2, 0.3, 0.2), output={"fps": 50, "frames": 400})
+    scene = write_scene(tmp_path, data)
+    out = tmp_path / "long.usdc"
+    proc = subprocess.Popen([sys.executable, "-m", "warpsph.cli", "run", str(scene), "--device", "cpu", "--out", str(out),
+                             "--checkpoint-every", "2", "--quiet"], stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    stats = out.with_suffix(".stats.csv")
+    deadline = time.time() + 120
+    while time.time() < deadline and (not stats.exists() or len(stats.read_text().splitlines()) < 7):
+        time.sleep(0.05)
+    proc.kill()
+    proc.communicate(timeout=60)
+    assert proc.returncode == -signal.SIGKILL
+    done = time_samples(tmp_path / "long.partial.usdc")  # saved after every frame
+    assert done == [float(f) for f in range(len(done))] and len(done) >= 6
+    checkpoint = out.with_suffix(".checkpoint.h5")
+    with h5py.File(checkpoint, "r") as f:
+        assert len(done) - 1 - 2 <= f.attrs["frame"] <= len(done) - 1
+    last = len(done) + 1
+    assert main(["resume", str(checkpoint), "--device", "cpu", "--frames", str(last), "--quiet"]) == 0
+    assert time_samples(out) == [float(f) for f in range(last + 1)]
+    assert stats_frames(stats) == list(range(last + 1))
+
+
+def test_no_cuda_driver_warning_on_a_machine_without_a_gpu(tmp_path):
+    scene = write_scene(tmp_path, tank_scene(radius=0.05))
+    result = subprocess.run([sys.executable, "-m", "warpsph.cli", "run", str(scene), "--device", "auto", "--dry-run"],
+                            capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert "CUDA driver" not in result.stderr and "fluid" in result.stdout
