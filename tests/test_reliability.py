@@ -309,3 +309,29 @@ def test_no_cuda_driver_warning_on_a_machine_without_a_gpu(tmp_path):
                             capture_output=True, text=True, cwd=tmp_path, timeout=300)
     assert result.returncode == 0, result.stderr
     assert "CUDA driver" not in result.stderr and "fluid" in result.stdout
+
+
+@pytest.mark.parametrize("clips", [False, True])
+def test_a_write_error_is_a_clear_error_and_keeps_the_frames_written(tmp_path, monkeypatch, capsys, clips):
+    import errno
+
+    from warpsph.io import usd
+
+    cls = usd.UsdClipCache if clips else usd.UsdPointCache
+    original = cls.write_frame
+
+    def disk_full_at_frame_3(self, frame, *args, **kwargs):
+        if frame == 3:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return original(self, frame, *args, **kwargs)
+
+    monkeypatch.setattr(cls, "write_frame", disk_full_at_frame_3)
+    scene = write_scene(tmp_path, tank_scene(radius=0.05, output={"frames": 5}))
+    out = tmp_path / "o.usdc"
+    assert run_cli("run", scene, "--out", out, "--checkpoint-every", 2, *(["--clips"] if clips else [])) == 2
+    err = capsys.readouterr().err
+    assert "warpsph: error: cannot write frame 3: No space left on device" in err and "keeps the frames" in err
+    assert time_samples(out) == [0.0, 1.0, 2.0] and stats_frames(out.with_suffix(".stats.csv")) == [0, 1, 2]
+    monkeypatch.setattr(cls, "write_frame", original)  # space again: the run goes on from its checkpoint
+    assert run_cli("resume", out.with_suffix(".checkpoint.h5")) == 0
+    assert time_samples(out) == [float(f) for f in range(6)] and stats_frames(out.with_suffix(".stats.csv")) == list(range(6))

@@ -15,6 +15,7 @@ Exit codes: 0 done, 2 bad input (scene, mesh, device, option, existing output, m
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import re
 
@@ -170,6 +171,36 @@ class Outputs:
             path.unlink()
 
 
+class WriteError(Exception):
+    """Writing an output failed (disk full, permissions): the frames written before stay readable."""
+
+
+def _write_failure(exc):
+    return isinstance(exc, OSError) or type(exc).__name__ == "ErrorException"  # pxr.Tf.ErrorException
+
+
+@contextlib.contextmanager
+def _writing(what):
+    try:
+        yield
+    except Exception as exc:
+        if not _write_failure(exc):
+            raise
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc).strip().splitlines()[-1]
+        raise WriteError(f"{what}: {reason}") from exc
+
+
+def _close(close):
+    """Runs ``close``; the reason it failed writing, or None (the run's own error goes first)."""
+    try:
+        close()
+    except Exception as exc:
+        if not _write_failure(exc):
+            raise
+        return str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+    return None
+
+
 class StopRequest(Exception):
     def __init__(self, signum):
         self.signum = signum
@@ -210,13 +241,16 @@ def _simulate(sim, outputs, frames, args, options, append):
         stop["signum"] = signum
 
     def checkpoint():
-        save_checkpoint(sim, outputs.checkpoint, extra={**options, "output": os.path.abspath(outputs.out), "frames": frames})
+        with _writing(f"cannot write the checkpoint {outputs.checkpoint}"):
+            save_checkpoint(sim, outputs.checkpoint,
+                            extra={**options, "output": os.path.abspath(outputs.out), "frames": frames})
 
     def on_frame(sim, frame):
-        write(sim, frame)
-        diagnostics(sim, frame)
-        if particles is not None:
-            particles(sim, frame)
+        with _writing(f"cannot write frame {frame}"):
+            write(sim, frame)
+            diagnostics(sim, frame)
+            if particles is not None:
+                particles(sim, frame)
         if progress is not None:
             progress(sim, frame)
         if "signum" in stop:
@@ -236,29 +270,36 @@ def _simulate(sim, outputs, frames, args, options, append):
     previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
     start = time.perf_counter()
     steps0 = sim.step_count
+    code = None
     try:
         sim.run(frames=frames, on_frame=on_frame)
     except StopRequest as stopped:
         name = signal.Signals(stopped.signum).name
-        print(f"\nwarpsph: {name}: stopped after frame {sim.frame}; the cache {outputs.out} holds frames 0..{sim.frame}; "
-              f"continue with: warpsph resume {outputs.checkpoint}", file=sys.stderr)
-        return 128 + stopped.signum
+        code, message = 128 + stopped.signum, (
+            f"\nwarpsph: {name}: stopped after frame {sim.frame}; the cache {outputs.out} holds frames 0..{sim.frame}; "
+            f"continue with: warpsph resume {outputs.checkpoint}")
+    except WriteError as exc:
+        hint = "" if not outputs.checkpoint.exists() else f"; last checkpoint: {outputs.checkpoint}"
+        code, message = 2, f"\nwarpsph: error: {exc}; the cache {outputs.out} keeps the frames before it{hint}"
     except Exception as exc:
         from .simulation import InstabilityError
 
         if not isinstance(exc, InstabilityError):
             raise
         hint = "" if not outputs.checkpoint.exists() else f"; last checkpoint: {outputs.checkpoint}"
-        print(f"\nwarpsph: {exc}. The cache {outputs.out} keeps frames 0..{sim.frame}{hint}. "
-              f"Try a smaller time step (time.dt_max, time.cfl) or --on-instability reduce-dt.", file=sys.stderr)
-        return EXIT_UNSTABLE
+        code, message = EXIT_UNSTABLE, (
+            f"\nwarpsph: {exc}. The cache {outputs.out} keeps frames 0..{sim.frame}{hint}. "
+            f"Try a smaller time step (time.dt_max, time.cfl) or --on-instability reduce-dt.")
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
-        diagnostics.close()
-        if particles is not None:
-            particles.close()
-        cache.finish(outputs.out)
+        closing = [_close(diagnostics.close), particles is not None and _close(particles.close),
+                   _close(lambda: cache.finish(outputs.out))]
+    if code is None and any(closing):
+        code, message = 2, f"warpsph: error: cannot finish the outputs: {next(c for c in closing if c)}"
+    if code is not None:
+        print(message, file=sys.stderr)
+        return code
     wall = time.perf_counter() - start
     stats = sim.statistics()
     steps = sim.step_count - steps0
@@ -405,6 +446,21 @@ def plot_slice_command(args):
     return 0
 
 
+def validate_command(args):
+    from .validation.cases import check_arguments, table, validate
+
+    case, resolutions, out = check_arguments(args.case, args.resolutions, args.json)
+    device = _pick_device(args.device)
+    report = validate(case, resolutions, args.methods, device, out, log=lambda line: print(line, file=sys.stderr, flush=True),
+                      command=" ".join(["warpsph", "validate", case, "--resolutions", *map(str, resolutions),
+                                        "--methods", *args.methods, "--device", args.device]
+                                       + (["--json", str(args.json)] if args.json else [])))
+    print(table(report["rows"]))
+    if out is not None:
+        print(f"wrote {out}")
+    return EXIT_UNSTABLE if any(r.get("unstable") for r in report["rows"]) else 0
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog="warpsph", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -443,6 +499,19 @@ def build_parser():
     slab.add_argument("--axis", choices=["x", "y", "z"], default="z")
     slab.add_argument("--out", default="slice.png")
     slab.set_defaults(func=plot_slice_command)
+    from .validation.taylor_green import METHODS
+
+    check = sub.add_parser("validate", help="validation cases with the default solver: error, particles, steps and "
+                                            "wall time per method and resolution (JSON and a table)")
+    check.add_argument("case", metavar="CASE", help="taylor-green, lamb-oseen, hydrostatic or dam-front")
+    check.add_argument("--resolutions", nargs="+", required=True, metavar="N",
+                       help="integers >= 4: particles across L (vortices), across the water cube (hydrostatic) or "
+                            "across the column width a (dam-front)")
+    check.add_argument("--methods", nargs="+", default=["dfsph"], choices=list(METHODS),
+                       help="dfsph (the solver alone, default), vr, rankine, micropolar")
+    check.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
+    check.add_argument("--json", metavar="OUT.json", help="write the rows and metadata here (atomically, after every row)")
+    check.set_defaults(func=validate_command)
     for p in (run, resume):
         p.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
         p.add_argument("--frames", type=int, help="last frame to simulate (default: the scene's output.frames)")

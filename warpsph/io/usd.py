@@ -153,7 +153,8 @@ class UsdPointCache:
         _write_points(self.points, frame, points, velocities, ids, radius, fields)
         _write_body_poses(self.stage, frame, body_poses)
         self.stage.SetEndTimeCode(max(frame, self.stage.GetEndTimeCode()))
-        self.stage.GetRootLayer().Save()
+        if not self.stage.GetRootLayer().Save():
+            raise OSError(f"{self.path}: USD could not save the layer")
         self.frames += 1
 
     def finish(self, final_path):
@@ -202,7 +203,8 @@ class UsdClipCache:
         UsdGeom.Xform.Define(stage, "/World")
         _write_points(UsdGeom.Points.Define(stage, "/World/Fluid"), frame, points, velocities, ids, radius, fields)
         _write_body_poses(stage, frame, body_poses)
-        stage.GetRootLayer().Save()
+        if not stage.GetRootLayer().Save():
+            raise OSError(f"{self.frame_path(frame)}: USD could not save the layer")
         del stage
         self.frames += 1
 
