@@ -4,15 +4,10 @@ Taylor-Green in a full periodic box, 16 x 16 x 6 particles, plain DFSPH, T = 0.3
 exp(-16 pi^2 nu T) = 0.62 at nu = 0.01); about 20 s on one CPU core for the six runs. Numbers:
 tools/results/CONFINED_NOTES.md."""
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
-
-from validate_taylor_green import PACK_STEPS, taylor_green  # noqa: E402
+from warpsph.validation.taylor_green import PACK_STEPS, taylor_green
 
 T = 0.3
 SOLVERS = {"clamped": None, "confined": {"clamp_pressure": False},
@@ -110,7 +105,7 @@ def test_packing_evens_out_a_jittered_lattice():
     """The packing jitters the lattice by up to 0.1 spacing (one packing step leaves the summation density
     0.88-1.12 rho0 at 16 across) and relaxes it at rest: after 40 steps 0.984-1.021 rho0, and the positions
     are no longer a lattice."""
-    from validate_taylor_green import build
+    from warpsph.validation.taylor_green import build
 
     one, _ = build([], resolution=16, T=T, device="cpu", solver=SOLVERS["transport"], pack_steps=1)
     sim, ke0 = build([], resolution=16, T=T, device="cpu", solver=SOLVERS["transport"], pack_steps=PACK_STEPS)

@@ -1,13 +1,8 @@
 """Validation against experiment, small enough for CI: the Martin & Moyce (1952) dam-break front."""
 
-import sys
-from pathlib import Path
-
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
-
-from validate_dam_front import MARTIN_MOYCE, compare, dam_front  # noqa: E402
+from warpsph.validation.dam_front import MARTIN_MOYCE, compare, dam_front
 
 
 def test_dam_front_follows_martin_and_moyce():
@@ -28,7 +23,7 @@ def test_lamb_oseen_vortex_decays_like_the_analytic_solution():
     0.84 of the analytic, its decay 0.45 (exact 0.53), L1 error of u_theta 13 % of the peak speed, u_theta
     peaking 0.14 spacings from the analytic radius. A simulation with nu = 0.02 (or 0.001) instead of 0.01
     fails the vorticity bounds (0.55, 1.56)."""
-    from validate_lamb_oseen import lamb_oseen, summary
+    from warpsph.validation.lamb_oseen import lamb_oseen, summary
 
     rows, sim, p = lamb_oseen([], resolution=20, nu=0.01, T=0.5, frames=10, device="cpu")
     d, s = p["spacing"], summary(rows, 0.01)

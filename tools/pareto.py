@@ -7,21 +7,21 @@ resolution and solver tolerance, and the Pareto front of those points.
 
 The question it answers: for a given error budget, which method and resolution is cheapest?
 
-Error (``--case``): ``lamb-oseen`` (default), the Lamb-Oseen vortex of tools/validate_lamb_oseen.py (its set-up, measurements and summary; the
-functions are imported, not copied). The physical problem is the same at every resolution: box
-L = 1 m, initial core radius sqrt(4 nu t0) = ``--core-radius`` metres (0.125 m: the validation tool's
-default of 3 spacings at 24 particles across), peak speed 0.5 m/s, nu = 0.01, T = 0.5 s. Only the box
+Error (``--case``): ``lamb-oseen`` (default), the Lamb-Oseen vortex of warpsph/validation/lamb_oseen.py (its set-up,
+measurements and summary; the functions are imported, not copied). The physical problem is the same at every
+resolution: box L = 1 m, initial core radius sqrt(4 nu t0) = ``--core-radius`` metres (0.125 m, as
+``warpsph validate lamb-oseen``: 3 spacings at 24 particles across), peak speed 0.5 m/s, nu = 0.01, T = 0.5 s. Only the box
 depth is counted in spacings (6, quasi-2D: the flow does not depend on z). The primary error is the L1
 error of u_theta at T, in % of the analytic peak speed at T; the peak-vorticity ratio (against the same
 fit of the analytic field), the effective viscosity and the kinetic energy ratio are recorded too.
-``taylor-green``: the Taylor-Green vortex of tools/validate_taylor_green.py (L = 1, U = 1, nu = 0.01, T = 0.3 s,
-6 spacings deep, periodic) in the confined pressure mode (``solver.clamp_pressure`` false, transport velocity
-``TG_TRANSPORT_VELOCITY``), started from its particle packing (``--pack-steps``, set-up, not timed): the error
+``taylor-green``: the Taylor-Green vortex of warpsph/validation/taylor_green.py (L = 1, U = 1, nu = 0.01, T = 0.3 s,
+6 spacings deep, periodic) with the default solver, started from its particle packing (``--pack-steps``, set-up,
+not timed): the error
 is the L1 error of the velocity magnitude at T in % of the analytic peak speed at T; the kinetic energy error
 KE(T)/KE_exact(T) - 1 is recorded too.
 
 Optionally (``--dam-front R ...``, R in particles across the column width a) the Martin & Moyce dam-break
-front of tools/validate_dam_front.py per method and tolerance: the RMS of Z/a after the best time shift,
+front of warpsph/validation/dam_front.py per method and tolerance: the RMS of Z/a after the best time shift,
 with its own time per simulated second.
 
 Timing: ``wall_per_sim_s`` = seconds of wall time per simulated second, around ``Simulation.run`` with
@@ -56,7 +56,9 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench_dam_break (the commit)
+
+from warpsph.validation.lamb_oseen import CORE_RADIUS as LAMB_OSEEN_CORE_RADIUS  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -70,9 +72,7 @@ METHODS = {
 }
 
 CASES = ("lamb-oseen", "taylor-green")
-# Taylor-Green: the confined mode's transport velocity B (tools/results/CONFINED_NOTES.md)
-TG_TRANSPORT_VELOCITY = 40.0
-CORE_RADIUS = 0.125  # m: validate_lamb_oseen's 3 spacings at 24 particles across L = 1 m
+CORE_RADIUS = LAMB_OSEEN_CORE_RADIUS  # m: 3 spacings at 24 particles across L = 1 m
 ERROR_KEY, TIME_KEY = "error_percent", "wall_per_sim_s"
 DAM_ERROR_KEY, DAM_TIME_KEY = "dam_rms", "dam_wall_per_sim_s"
 
@@ -141,14 +141,14 @@ def warm_up(models, device, case="lamb-oseen"):
     """Loads (compiles) every kernel module a method uses, outside the timed runs: a tiny vortex, a few
     steps (the second captures the CUDA graph) and one measurement."""
     if case == "taylor-green":
-        import validate_taylor_green as tg
+        from warpsph.validation import taylor_green as tg
 
         sim, ke0 = tg.build(models, resolution=8, device=device, solver=taylor_green_solver(0.05), pack_steps=2)
         for _ in range(3):
             sim.step()
         tg.measure(sim, ke0, 0.01)
     else:
-        from validate_lamb_oseen import build, measure
+        from warpsph.validation.lamb_oseen import build, measure
 
         sim, p, edges = build(models, resolution=8, core=1.0, device=device, frames=10)
         for _ in range(3):
@@ -169,7 +169,7 @@ def solver_stats(sim):
 def lamb_oseen_point(models, resolution, tolerance, device, core_radius=CORE_RADIUS, nu=0.01, T=0.5, u_peak=0.5,
                      depth=6, frames=10, on_instability="stop"):
     """One vortex run: error, timing and solver statistics (a dict; ``unstable`` when it blew up)."""
-    from validate_lamb_oseen import L, build, kinetic_ratios, measure, summary
+    from warpsph.validation.lamb_oseen import L, build, kinetic_ratios, measure, summary
     from warpsph.simulation import InstabilityError
 
     core = core_radius * resolution / L  # the validation tool takes the core in spacings
@@ -206,13 +206,14 @@ def lamb_oseen_point(models, resolution, tolerance, device, core_radius=CORE_RAD
 
 
 def taylor_green_solver(tolerance):
-    return {"density_max_error": tolerance, "clamp_pressure": False, "transport_velocity": TG_TRANSPORT_VELOCITY}
+    """The Taylor-Green scene's "solver" keys: the default solver at the point's tolerance."""
+    return {"density_max_error": tolerance}
 
 
 def taylor_green_point(models, resolution, tolerance, device, nu=0.01, T=0.3, frames=10, on_instability="stop",
                        pack_steps=None):
-    """One Taylor-Green run (confined mode, packed start): error, timing and solver statistics."""
-    import validate_taylor_green as tg
+    """One Taylor-Green run (default solver, packed start): error, timing and solver statistics."""
+    from warpsph.validation import taylor_green as tg
     from warpsph.simulation import InstabilityError
 
     pack_steps = tg.PACK_STEPS if pack_steps is None else pack_steps
@@ -245,7 +246,7 @@ def taylor_green_point(models, resolution, tolerance, device, nu=0.01, T=0.3, fr
 
 @contextlib.contextmanager
 def _dam_front_hooks(tolerance, log):
-    """validate_dam_front.dam_front builds its scene and runs it inside; this injects the solver tolerance
+    """warpsph.validation.dam_front.dam_front builds its scene and runs it inside; this injects the solver tolerance
     into its scene dict and times its ``run`` like :func:`timed_run` (patched for the call only)."""
     import warpsph.scene as scene_module
     from warpsph.simulation import Simulation
@@ -269,7 +270,7 @@ def _dam_front_hooks(tolerance, log):
 
 
 def dam_front_point(models, resolution, tolerance, device, T_end=6.0, depth=4):
-    from validate_dam_front import compare, dam_front
+    from warpsph.validation.dam_front import compare, dam_front
     from warpsph.simulation import InstabilityError
 
     log = {}
@@ -297,9 +298,8 @@ def commit():
         return {"commit": os.environ["PARETO_COMMIT"], "commit_from": "PARETO_COMMIT"}
     out = {"commit": head() or "unknown"}
     try:  # uncommitted changes in the simulator make the commit alone not enough to reproduce
-        status = subprocess.run(["git", "status", "--porcelain", "--", "warpsph", "kernels", "tools/validate_lamb_oseen.py",
-                                 "tools/validate_taylor_green.py", "tools/validate_dam_front.py", "tools/pareto.py"], cwd=ROOT, capture_output=True,
-                                text=True).stdout
+        status = subprocess.run(["git", "status", "--porcelain", "--", "warpsph", "kernels", "tools/pareto.py"], cwd=ROOT,
+                                capture_output=True, text=True).stdout
         out["uncommitted"] = [line[3:] for line in status.splitlines() if line[:2].strip()]
     except OSError:
         pass
@@ -331,8 +331,10 @@ def markdown(report):
     s = report["setup"]
     tg = report.get("case_key") == "taylor-green"
     if tg:
+        mode = (f"confined mode, transport velocity {s['transport_velocity']:g}" if s.get("transport_velocity")
+                else "default solver")  # older reports ran the confined mode
         flow = (f"Taylor-Green vortex (L = 1 m, U = 1 m/s, nu = {s['nu']:g}, T = {s['T']:g} s, periodic, depth 6 spacings; "
-                f"confined mode, transport velocity {s['transport_velocity']:g}, packed start of {s['pack_steps']} steps)")
+                f"{mode}, packed start of {s['pack_steps']} steps)")
         legend = ("error = L1 error of |u| at T in % of the analytic peak speed at T; KE error = KE(T)/KE_exact(T) - 1 "
                   "(above 0: the method kept more energy than the analytic decay); mean ρ = mean density / ρ0 at T; ")
     else:
@@ -387,7 +389,7 @@ def plot(report, out):
     dam = [p for p in report["points"] if p.get(DAM_TIME_KEY) is not None]
     if report.get("case_key") == "taylor-green":
         panels = [(TIME_KEY, ERROR_KEY, "pareto", "L1 error of |u| at T [% of peak speed]",
-                   "Taylor–Green vortex (confined mode, packed start)", points)]
+                   "Taylor–Green vortex (packed start)", points)]
     else:
         panels = [(TIME_KEY, ERROR_KEY, "pareto", "L1 error of u_θ at T [% of peak speed]",
                    "Lamb–Oseen vortex", points)]
@@ -468,28 +470,28 @@ def study(methods, resolutions, tolerances, device="cpu", out=None, core_radius=
     ``u_peak`` and ``depth`` do not apply; ``T`` None means 0.3 s there, 0.5 s for Lamb-Oseen)."""
     import warp as wp
 
-    from validate_lamb_oseen import L
+    from warpsph.validation.lamb_oseen import L
 
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
     say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
     tg = case == "taylor-green"
     if tg:
-        import validate_taylor_green
+        from warpsph.validation import taylor_green
 
-        T = 0.3 if T is None else T
+        T = taylor_green.T_END if T is None else T
         depth = 6
-        pack_steps = validate_taylor_green.PACK_STEPS if pack_steps is None else pack_steps
+        pack_steps = taylor_green.PACK_STEPS if pack_steps is None else pack_steps
         setup = {"L": L, "u_peak": 1.0, "nu": nu, "T": T, "depth_spacings": depth, "frames": frames,
-                 "solver": taylor_green_solver("per point"), "transport_velocity": TG_TRANSPORT_VELOCITY,
-                 "pack_steps": pack_steps, "pack_jitter_spacings": validate_taylor_green.PACK_JITTER}
-        description = "Taylor-Green vortex, periodic box, quasi-2D, confined mode (validate_taylor_green.py)"
+                 "solver": taylor_green_solver("per point"),
+                 "pack_steps": pack_steps, "pack_jitter_spacings": taylor_green.PACK_JITTER}
+        description = "Taylor-Green vortex, periodic box, quasi-2D, default solver (warpsph/validation/taylor_green.py)"
         error = "L1 error of |u| at T, % of the analytic peak speed at T"
     else:
         T = 0.5 if T is None else T
         setup = {"L": L, "core_radius_m": core_radius, "nu": nu, "T": T, "u_peak": u_peak, "depth_spacings": depth,
                  "frames": frames}
-        description = "Lamb-Oseen vortex, closed box, quasi-2D, no gravity (validate_lamb_oseen.py)"
+        description = "Lamb-Oseen vortex, box periodic in z, quasi-2D, no gravity (warpsph/validation/lamb_oseen.py)"
         error = "L1 error of u_theta at T, % of the analytic peak speed at T"
     setup.update(dam_resolutions=list(dam_resolutions), dam_T_end=dam_T_end, on_instability=on_instability)
     report = {"benchmark": "pareto", "case": description, "case_key": case,
@@ -582,7 +584,7 @@ def main(argv=None):
     parser.add_argument("--case", choices=CASES, default="lamb-oseen", help="the flow whose error is measured")
     parser.add_argument("--T", type=float, help="simulated time [s] (default: 0.5 Lamb-Oseen, 0.3 Taylor-Green)")
     parser.add_argument("--pack-steps", type=int, help="Taylor-Green: steps of the particle packing (default "
-                                                      "validate_taylor_green.PACK_STEPS)")
+                                                      "warpsph.validation.taylor_green.PACK_STEPS)")
     parser.add_argument("--u-peak", type=float, default=0.5, help="initial peak speed [m/s]")
     parser.add_argument("--depth", type=int, default=6, help="box depth in particle spacings")
     parser.add_argument("--frames", type=int, default=10)

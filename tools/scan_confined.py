@@ -1,34 +1,28 @@
-"""Scan of the confined mode's knobs on Taylor-Green (diagnostic): KE/KE_exact - 1, mean and max density at 10
-frames, per variant (keys: res, B (0: shifting A), w (density weight), max_shift, relax, tol, dt_max, jitter
-(spacings), pre (packing steps at rest in the same simulation), method, T, max_wall). It overrides the solver's
-module constants for a variant, so it is a diagnostic, not a supported interface; the packing used by the
-tools is validate_taylor_green.packed_positions. Results: tools/results/CONFINED_NOTES.md ("Packed start").
+"""Scan of the solver's knobs on Taylor-Green (diagnostic): KE/KE_exact - 1, mean and max density at 10
+frames, per variant (keys: res, A (solver.shifting, default 2), max_shift, tol, dt_max, jitter (spacings), pre
+(packing steps at rest in the same simulation), method, T, max_wall). It overrides the solver's module constant
+MAX_SHIFT for a variant, so it is a diagnostic, not a supported interface; the packing used by the validation
+cases is warpsph.validation.taylor_green.packed_positions. Results of the earlier confined mode (its keys B, w
+and relax are gone with it): tools/results/CONFINED_NOTES.md ("Packed start").
 
-    python tools/scan_confined.py --device cuda --variants '[{"res": 128, "B": 40}]' --out /tmp/scan.json
+    python tools/scan_confined.py --device cuda --variants '[{"res": 128, "pre": 40, "jitter": 0.1}]' --out /tmp/scan.json
 """
-import argparse, json, sys, time
+import argparse, json, time
 import numpy as np
 import warp as wp
 
-sys.path.insert(0, __file__.rsplit("/", 1)[0])
-from validate_taylor_green import analytic_velocity, scene_data
+from warpsph.validation.taylor_green import analytic_velocity, scene_data
 
 
 def run(v, device):
     import warpsph.solver as S
     from warpsph.scene import scene_from_dict
     from warpsph.simulation import Simulation, InstabilityError
-    S.TRANSPORT_DENSITY_WEIGHT = v.get("w", 0.05)
     S.MAX_SHIFT = v.get("max_shift", 0.1)
-    S.CONFINED_RELAXATION = v.get("relax", 0.5)
     res, nu, T = v["res"], v.get("nu", 0.01), v.get("T", 0.3)
     d = 1.0 / res
     depth = 6 * d
-    solver = {"clamp_pressure": False, "density_max_error": v.get("tol", 0.05)}
-    if v.get("B", 40) > 0:
-        solver["transport_velocity"] = v.get("B", 40)
-    else:
-        solver["shifting"] = v.get("A", 2.0)
+    solver = {"density_max_error": v.get("tol", 0.05), "shifting": v.get("A", 2.0)}
     models = {"dfsph": [], "vr": [{"type": "vorticity_refinement", "alpha": 1.0}]}[v.get("method", "dfsph")]
     data = scene_data(models, res, nu, T, 10, solver)
     if v.get("dt_max"):

@@ -446,6 +446,21 @@ def plot_slice_command(args):
     return 0
 
 
+def validate_command(args):
+    from .validation.cases import check_arguments, table, validate
+
+    case, resolutions, out = check_arguments(args.case, args.resolutions, args.json)
+    device = _pick_device(args.device)
+    report = validate(case, resolutions, args.methods, device, out, log=lambda line: print(line, file=sys.stderr, flush=True),
+                      command=" ".join(["warpsph", "validate", case, "--resolutions", *map(str, resolutions),
+                                        "--methods", *args.methods, "--device", args.device]
+                                       + (["--json", str(args.json)] if args.json else [])))
+    print(table(report["rows"]))
+    if out is not None:
+        print(f"wrote {out}")
+    return EXIT_UNSTABLE if any(r.get("unstable") for r in report["rows"]) else 0
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog="warpsph", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -484,6 +499,19 @@ def build_parser():
     slab.add_argument("--axis", choices=["x", "y", "z"], default="z")
     slab.add_argument("--out", default="slice.png")
     slab.set_defaults(func=plot_slice_command)
+    from .validation.taylor_green import METHODS
+
+    check = sub.add_parser("validate", help="validation cases with the default solver: error, particles, steps and "
+                                            "wall time per method and resolution (JSON and a table)")
+    check.add_argument("case", metavar="CASE", help="taylor-green, lamb-oseen, hydrostatic or dam-front")
+    check.add_argument("--resolutions", nargs="+", required=True, metavar="N",
+                       help="integers >= 4: particles across L (vortices), across the water cube (hydrostatic) or "
+                            "across the column width a (dam-front)")
+    check.add_argument("--methods", nargs="+", default=["dfsph"], choices=list(METHODS),
+                       help="dfsph (the solver alone, default), vr, rankine, micropolar")
+    check.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
+    check.add_argument("--json", metavar="OUT.json", help="write the rows and metadata here (atomically, after every row)")
+    check.set_defaults(func=validate_command)
     for p in (run, resume):
         p.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
         p.add_argument("--frames", type=int, help="last frame to simulate (default: the scene's output.frames)")

@@ -1,5 +1,6 @@
 """Dam-break front against Martin & Moyce (1952), column height / width = 2 (n^2 = 2).
 
+    warpsph validate dam-front --resolutions 8 10 --device cpu --json dam_front.json
     python tools/validate_dam_front.py --resolution 10 --device cpu --out tools/results/dam_front_cpu.json
 
 A column of width a and height 2a (a = 2.25 in = 0.05715 m) collapses along a long, quasi-2D tank
@@ -13,6 +14,7 @@ Writes JSON and, with matplotlib, a PNG of Z/a against T.
 """
 
 import argparse
+import time
 
 import numpy as np
 
@@ -22,10 +24,13 @@ MARTIN_MOYCE = np.array([(0.832, 1.217), (1.219, 1.474), (1.997, 2.292), (2.547,
                          (6.822, 9.986), (7.439, 10.963)])
 A = 0.05715  # m
 G = 9.81
+T_END = 6.0  # the run's end in T = t sqrt(2 g / a)
+DEPTH = 4  # tank depth in particles
 
 
-def dam_front(resolution=10, device="cpu", T_end=6.0, samples_per_T=8, models=(), depth=4):
-    """Runs the dam break; returns arrays T and Z/a."""
+def dam_front(resolution=10, device="cpu", T_end=T_END, samples_per_T=8, models=(), depth=DEPTH, timing=None):
+    """Runs the dam break; returns arrays T and Z/a, and the simulation. ``timing`` (a dict) receives
+    ``wall_s``: the run alone, device synchronised, the per-frame front measurement subtracted."""
     from warpsph.scene import scene_from_dict
     from warpsph.simulation import Simulation
 
@@ -41,15 +46,26 @@ def dam_front(resolution=10, device="cpu", T_end=6.0, samples_per_T=8, models=()
         "output": {"fps": fps}, "models": list(models),
     }
     sim = Simulation(scene_from_dict(data), device=device)
+    import warp as wp
+
     T, Z = [], []
+    measuring = [0.0]
 
     def on_frame(sim, frame):
+        wp.synchronize_device(sim.device)  # the run's own work ends here
+        start = time.perf_counter()
         x = sim.fluid.x.numpy()
         low = x[:, 1] < A
         T.append(sim.time * scale_T)
         Z.append(np.percentile(x[low, 0], 99.5) / A if low.any() else 0.0)
+        measuring[0] += time.perf_counter() - start
 
+    wp.synchronize_device(sim.device)
+    start = time.perf_counter()
     sim.run(until_time=T_end / scale_T, on_frame=on_frame)
+    wp.synchronize_device(sim.device)
+    if timing is not None:
+        timing["wall_s"] = time.perf_counter() - start - measuring[0]
     return np.array(T), np.array(Z), sim
 
 
@@ -73,14 +89,14 @@ def compare(T, Z, reference=MARTIN_MOYCE):
     }
 
 
-def main():
+def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--resolution", type=int, default=10, help="particles across the column width a")
     parser.add_argument("--device", default="cpu")
-    parser.add_argument("--T-end", type=float, default=6.0)
-    parser.add_argument("--depth", type=int, default=4, help="tank depth in particles (quasi-2D)")
+    parser.add_argument("--T-end", type=float, default=T_END)
+    parser.add_argument("--depth", type=int, default=DEPTH, help="tank depth in particles (quasi-2D)")
     parser.add_argument("--out", help="JSON file (a PNG is written beside it when matplotlib is present)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING

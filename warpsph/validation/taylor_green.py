@@ -1,5 +1,6 @@
 """Taylor-Green vortex in a periodic box: kinetic energy against its analytic decay, per method.
 
+    warpsph validate taylor-green --resolutions 16 24 32 --device cpu --json taylor_green.json
     python tools/validate_taylor_green.py --resolution 20 --device cpu --out tools/results/taylor_green_cpu.json
 
 The 2D field u = -U cos(2 pi x) sin(2 pi y), v = U sin(2 pi x) cos(2 pi y) (L = 1, U = 1), extruded in z,
@@ -22,9 +23,12 @@ METHODS = {
 }
 
 
-# particle packing of the confined runs (--pack-steps): jitter in spacings, steps at rest
+# particle packing (--pack-steps): jitter in spacings, steps at rest
 PACK_JITTER = 0.1
 PACK_STEPS = 40
+# the validation case (``warpsph validate taylor-green``): simulated time [s], viscosity [m^2/s]
+T_END = 0.3
+NU = 0.01
 
 
 def peak_speed(t, nu):
@@ -103,50 +107,36 @@ def measure(sim, ke0, nu):
 
 def taylor_green(models, resolution=20, nu=0.01, T=0.5, device="cpu", frames=10, solver=None, pack_steps=0):
     """Runs the vortex; returns (rows per frame, the simulation). ``solver``: scene "solver" keys (e.g.
-    {"clamp_pressure": False}); None: the defaults."""
+    {"density_max_error": 0.05}); None: the defaults."""
     sim, ke0 = build(models, resolution, nu, T, device, frames, solver, pack_steps)
     rows = []
     sim.run(frames=frames, on_frame=lambda s, frame: rows.append(measure(s, ke0, nu)))
     return rows, sim
 
 
-def confined_solver(args):
-    """The "solver" keys of --confined / --transport-velocity (None: the defaults)."""
-    if not args.confined:
-        return None
-    if args.transport_velocity is None:
-        return {"clamp_pressure": False}
-    return {"clamp_pressure": False, "transport_velocity": args.transport_velocity}
-
-
-def main():
+def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--resolution", type=int, default=20, help="particles across L")
     parser.add_argument("--nu", type=float, default=0.01, help="kinematic viscosity [m^2/s]")
-    parser.add_argument("--T", type=float, default=0.5, help="simulated time [s]")
+    parser.add_argument("--T", type=float, default=T_END, help="simulated time [s]")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
-    parser.add_argument("--confined", action="store_true",
-                        help="the confined pressure mode (solver.clamp_pressure false, particle shifting): the box is "
-                             "full and periodic; the default free-surface solver loses almost all the energy here")
-    parser.add_argument("--transport-velocity", type=float, metavar="B",
-                        help="with --confined: solver.transport_velocity B (replaces particle shifting)")
-    parser.add_argument("--pack-steps", type=int, default=0, metavar="N",
-                        help=f"start from a particle packing (lattice jittered by {PACK_JITTER} spacings, N steps at rest, "
-                             f"e.g. {PACK_STEPS}) instead of the cubic lattice, which a confined run shakes apart")
+    parser.add_argument("--pack-steps", type=int, default=PACK_STEPS, metavar="N",
+                        help=f"start from a particle packing (lattice jittered by {PACK_JITTER} spacings, N steps at rest; "
+                             f"0: the cubic lattice, which a full periodic box shakes apart)")
     parser.add_argument("--out")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING
     report = {"case": "Taylor-Green, periodic, L = 1, U = 1", "resolution": args.resolution, "nu": args.nu,
-              "T": args.T, "confined": args.confined, "pack_steps": args.pack_steps, "warp": wp.__version__, "methods": {}}
+              "T": args.T, "pack_steps": args.pack_steps, "warp": wp.__version__, "methods": {}}
     from warpsph.simulation import InstabilityError
 
     for name in args.methods:
         try:
             rows, sim = taylor_green(METHODS[name], args.resolution, args.nu, args.T, args.device,
-                                     solver=confined_solver(args), pack_steps=args.pack_steps)
+                                     pack_steps=args.pack_steps)
         except InstabilityError as exc:
             report["methods"][name] = {"unstable": str(exc)}
             print(f"{name:11s} {exc}")

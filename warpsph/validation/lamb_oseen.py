@@ -1,15 +1,17 @@
-"""Lamb-Oseen vortex in a closed box without gravity: u_theta(r, t) and the peak vorticity against the
+"""Lamb-Oseen vortex in a box without gravity: u_theta(r, t) and the peak vorticity against the
 analytic viscous decay, per method.
 
+    warpsph validate lamb-oseen --resolutions 16 24 32 --device cpu --json lamb_oseen.json
     python tools/validate_lamb_oseen.py --resolution 24 --device cpu --out tools/results/lamb_oseen_cpu_res24.json
 
-Set-up: a box L x L (L = 1 m) x ``depth`` particle spacings, walls on every face (quasi-2D: the vortex axis
-is z), filled with fluid on the lattice of spacing d = L / resolution, no gravity. The initial velocity is
+Set-up: a box L x L (L = 1 m) x ``depth`` particle spacings, walls on the four side faces and periodic in z
+(quasi-2D: the vortex axis is z), filled with fluid on the lattice of spacing d = L / resolution, no gravity. The initial velocity is
 the Lamb-Oseen vortex about the box centre,
 
     u_theta(r, t) = Gamma / (2 pi r) (1 - exp(-r^2 / (4 nu (t0 + t)))),
 
-with t0 chosen so that the core radius r_c = sqrt(4 nu t0) is ``--core`` spacings and Gamma so that the
+with t0 chosen so that the core radius r_c = sqrt(4 nu t0) is ``--core`` spacings (``warpsph validate``: the
+physical CORE_RADIUS = 0.125 m at every resolution, i.e. 0.125 * resolution spacings) and Gamma so that the
 peak speed is ``--u-peak``. The analytic solution (unbounded plane) keeps that form with t0 + t; its peak
 vorticity is omega_max(t) = Gamma / (4 pi nu (t0 + t)) and its speed peaks at r = 1.1209 r_c(t).
 The walls are not in the analytic solution: a potential vortex does not fit a square, so we compare
@@ -34,11 +36,12 @@ Measured per output frame, from positions and velocities only:
   analytic peak itself: 0.90 at t = 0, the kernel's smoothing of the core);
 - the kinetic energy relative to frame 0.
 
-Methods as in validate_taylor_green.py: plain DFSPH, VR alpha = 1, Rankine beta = 1, micropolar
+Methods as in taylor_green.py: plain DFSPH, VR alpha = 1, Rankine beta = 1, micropolar
 nu_t = 0.05. Writes JSON, a PNG of the final u_theta profiles (beside it) and ``*_vorticity.png``
 (peak vorticity over time).
 
-What it shows (3,456 particles, cpu, tools/results/lamb_oseen_cpu_res24.json): plain DFSPH, Rankine and
+What it showed with the earlier clamped solver in a box walled in z (3,456 particles, cpu,
+tools/results/lamb_oseen_cpu_res24.json): plain DFSPH, Rankine and
 micropolar follow the analytic decay with an effective viscosity 1.2-1.25 nu. Most of the excess comes
 between t = 0.1 and 0.3 s: DFSPH clamps pressure at >= 0, so the box (at rest density, no background
 pressure) cannot hold the low pressure of the core; the core thins (mean density 0.89 rho0 at r < 2
@@ -46,17 +49,21 @@ spacings at t = 0.15 s), then collapses again, and the kinetic energy drops fast
 """
 
 import argparse
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-from validate_taylor_green import METHODS, confined_solver  # noqa: E402  (the same four methods and parameters)
+from .taylor_green import METHODS  # the same four methods and parameters
 
 R_PEAK = 1.1209  # u_theta peaks at r = 1.1209 r_c (root of 1 + 2 s = exp(s), s = r^2 / r_c^2)
 L = 1.0  # box side [m]
+# the validation case (``warpsph validate lamb-oseen``): initial core radius sqrt(4 nu t0) [m] (3 spacings at
+# 24 particles across), simulated time [s], viscosity [m^2/s], initial peak speed [m/s], depth [spacings]
+CORE_RADIUS = 0.125
+T_END = 0.5
+NU = 0.01
+U_PEAK = 0.5
+DEPTH = 6
 
 
 def analytic_u_theta(r, t, gamma, nu, t0):
@@ -227,7 +234,7 @@ def summary(rows, nu):
             "ke_ratio_end": last["ke_ratio"], "centre_offset_end": last["centre_offset"]}
 
 
-def main():
+def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--resolution", type=int, default=24, help="particles across L = 1 m")
     parser.add_argument("--nu", type=float, default=0.01, help="kinematic viscosity [m^2/s]")
@@ -238,25 +245,20 @@ def main():
     parser.add_argument("--frames", type=int, default=10)
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
-    parser.add_argument("--confined", action="store_true",
-                        help="the confined pressure mode (solver.clamp_pressure false, particle shifting)")
-    parser.add_argument("--transport-velocity", type=float, metavar="B",
-                        help="with --confined: solver.transport_velocity B (replaces particle shifting)")
     parser.add_argument("--out", help="JSON file (PNGs beside it when matplotlib is present)")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING
     from warpsph.simulation import InstabilityError
 
     p = setup(args.resolution, args.nu, args.core, args.u_peak, args.depth)
-    report = {"case": "Lamb-Oseen vortex, closed box L = 1 m, quasi-2D, no gravity", "resolution": args.resolution,
-              "T": args.T, "confined": args.confined, "warp": wp.__version__, **p, "methods": {}}
+    report = {"case": "Lamb-Oseen vortex, box L = 1 m periodic in z, quasi-2D, no gravity", "resolution": args.resolution,
+              "T": args.T, "warp": wp.__version__, **p, "methods": {}}
     for name in args.methods:
         try:
             rows, sim, p = lamb_oseen(METHODS[name], args.resolution, args.nu, args.T, args.core, args.u_peak,
-                                      args.depth, args.device, args.frames,
-                                      solver=confined_solver(args))
+                                      args.depth, args.device, args.frames)
         except InstabilityError as exc:
             report["methods"][name] = {"unstable": str(exc), "step": exc.step, "time": exc.time, "check": exc.check}
             print(f"{name:11s} {exc}")
