@@ -16,6 +16,7 @@ wp.set_module_options({"enable_backward": False})
 BULK = wp.constant(0)
 BAND = wp.constant(1)
 SURFACE = wp.constant(2)
+WALL = wp.constant(3)  # bulk particle with boundary samples in its support: signed pressure, tangential shift
 
 
 @wp.func
@@ -36,7 +37,7 @@ def classify_free_surface(
     surface_count: wp.array(dtype=wp.int32),
 ):
     """surface_i = SURFACE where :func:`on_free_surface` (counted in ``surface_count[0]``), BAND where a fluid
-    neighbour is, else BULK."""
+    neighbour is, WALL where boundary samples are in the support, else BULK."""
     i = wp.tid()
     flag = int(BULK)
     if on_free_surface(i, position_divergence, density, threshold, density_threshold):
@@ -47,4 +48,6 @@ def classify_free_surface(
             if on_free_surface(nb.fluid[k], position_divergence, density, threshold, density_threshold):
                 flag = BAND
                 break
+    if flag == BULK and nb.boundary_offsets[i + 1] > nb.boundary_offsets[i]:
+        flag = WALL
     surface[i] = flag

@@ -8,7 +8,7 @@ value accumulated over a step is a physical pressure that warm-starts the next s
 
 import warp as wp
 
-from .free_surface import BULK
+from .free_surface import BAND, BULK, SURFACE
 from .particles import Boundary, Neighbours, boundary_velocity, separation
 from .sph_kernel import cubic_kernel_gradient
 
@@ -87,8 +87,8 @@ BULK_RELAXATION = wp.constant(0.5)
 @wp.func
 def pressure_source(s: float, surface: int):
     """The solver's source for particle i from its raw source s: max(s, 0) at the free surface and in its
-    band (SPlisHSPlasH's clamping, ``surface`` != 0), the signed s in the bulk."""
-    if surface != 0:
+    band (SPlisHSPlasH's clamping), the signed s in the bulk (WALL included)."""
+    if surface == BAND or surface == SURFACE:
         return wp.max(s, 0.0)
     return s
 
@@ -97,9 +97,9 @@ def pressure_source(s: float, surface: int):
 def relaxed_stiffness(source: float, surface: int, factor: float, scale: float):
     """Jacobi step k_i = omega s_i factor_i / scale (omega 1 at the free surface, BULK_RELAXATION in the
     bulk; scale dt^2 for the density solver, dt for the divergence solver)."""
-    omega = float(1.0)
-    if surface == 0:
-        omega = BULK_RELAXATION
+    omega = BULK_RELAXATION
+    if surface == BAND or surface == SURFACE:
+        omega = 1.0
     return omega * source * factor / scale
 
 

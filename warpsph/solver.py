@@ -170,7 +170,7 @@ class DFSPHSolver:
             return
         sim, f = self.sim, self.sim.fluid
         sim.launch(compute_shift, sim.num_fluid,
-                   [self.concentration_gradient, self.surface, sim.support_radius, sim.dt, sim.max_speed_sq,
+                   [self.concentration_gradient, self.surface, self.surface_count, sim.support_radius, sim.dt, sim.max_speed_sq,
                     self.shifting, MAX_SHIFT * sim.scene.particle_diameter, self.shift])
         sim.launch(apply_shift, sim.num_fluid, [self.shift, sim.neighbours.lower, sim.neighbours.period, f.x])
 
