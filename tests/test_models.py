@@ -205,9 +205,10 @@ def test_refinement_keeps_a_decaying_vortex_alive():
         energies[name] = history[-1] / e0
         if name == "vr":
             assert max(history) <= e0 * 1.0001  # never above the initial energy
-    assert energies["dfsph"] < 0.5  # the vortex does decay
-    assert energies["vr"] > 1.1 * energies["dfsph"]  # measured 0.226 against 0.191
-    assert energies["rankine"] > 1.03 * energies["dfsph"]  # measured 0.203 against 0.191
+    assert energies["dfsph"] < 0.7  # the vortex does decay
+    # measured 0.579 and 0.562 against 0.549 (the clamped solver of earlier versions: 0.226 / 0.203 / 0.191)
+    assert energies["vr"] > 1.03 * energies["dfsph"]
+    assert energies["rankine"] > 1.01 * energies["dfsph"]
 
 
 @pytest.mark.parametrize("waves", [1, 2, 4])
