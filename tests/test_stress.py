@@ -30,7 +30,7 @@ def test_stress_matrix_records_every_cell_and_the_blow_up(tmp_path):
     assert not plain["blew_up"] and "instability" not in plain
     assert plain["time_reached"] >= 0.5 - 1e-6 and plain["steps"] > 50
     assert 0.0 < plain["max_density_error_pct"] < 5.0  # measured 2.1 % at 1 s
-    assert 1.0 <= plain["density_iterations"] < 20
+    assert 1.0 <= plain["density_iterations"] < 40  # signed bulk pressure, relaxed Jacobi: 23 (clamped solver: < 20)
     assert plain["ke_end"] > 0 and plain["ke_end_rel_dfsph"] == 1.0
     assert 0 < report["dt_cfl"] < report["dt_bounds"][1]  # the CFL rule, not dt_max, set the smallest step
 
