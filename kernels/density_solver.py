@@ -3,7 +3,7 @@
 import warp as wp
 
 from .particles import Boundary, Neighbours
-from .pressure import density_rate, pressure_source, relaxed_stiffness
+from .pressure import clamped, density_rate, pressure_source, relaxed_stiffness
 
 wp.set_module_options({"enable_backward": False})
 
@@ -17,6 +17,7 @@ def compute_density_source(
     density: wp.array(dtype=float),
     factor: wp.array(dtype=float),
     surface: wp.array(dtype=wp.int32),
+    surface_count: wp.array(dtype=wp.int32),
     fluid_volume: float,
     rest_density: float,
     support_radius: float,
@@ -29,8 +30,8 @@ def compute_density_source(
     (:func:`pressure_source`), and k_i from :func:`relaxed_stiffness`."""
     i = wp.tid()
     h = dt[0]
-    flag = surface[i]
+    is_clamped = clamped(surface[i], surface_count)
     predicted = density[i] / rest_density + h * density_rate(i, x, v, nb, boundary, fluid_volume, support_radius)
-    s = pressure_source(predicted - 1.0, flag)
+    s = pressure_source(predicted - 1.0, is_clamped)
     error[i] = s
-    stiffness[i] = relaxed_stiffness(s, flag, factor[i], h * h)
+    stiffness[i] = relaxed_stiffness(s, is_clamped, factor[i], h * h)

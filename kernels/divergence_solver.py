@@ -3,7 +3,7 @@
 import warp as wp
 
 from .particles import Boundary, Neighbours
-from .pressure import density_rate, pressure_source, relaxed_stiffness
+from .pressure import clamped, density_rate, pressure_source, relaxed_stiffness
 
 wp.set_module_options({"enable_backward": False})
 
@@ -20,6 +20,7 @@ def compute_divergence_source(
     boundary: Boundary,
     factor: wp.array(dtype=float),
     surface: wp.array(dtype=wp.int32),
+    surface_count: wp.array(dtype=wp.int32),
     fluid_volume: float,
     support_radius: float,
     dt: wp.array(dtype=float),
@@ -31,8 +32,8 @@ def compute_divergence_source(
     i = wp.tid()
     count = nb.fluid_offsets[i + 1] - nb.fluid_offsets[i] + nb.boundary_offsets[i + 1] - nb.boundary_offsets[i]
     s = float(0.0)
-    flag = surface[i]
+    is_clamped = clamped(surface[i], surface_count)
     if count >= MIN_NEIGHBOURS:
-        s = pressure_source(density_rate(i, x, v, nb, boundary, fluid_volume, support_radius), flag)
+        s = pressure_source(density_rate(i, x, v, nb, boundary, fluid_volume, support_radius), is_clamped)
     error[i] = s
-    stiffness[i] = relaxed_stiffness(s, flag, factor[i], dt[0])
+    stiffness[i] = relaxed_stiffness(s, is_clamped, factor[i], dt[0])

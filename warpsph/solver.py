@@ -116,12 +116,12 @@ class DFSPHSolver:
 
     def _divergence_inputs(self):
         sim = self.sim
-        return self._common() + [sim.fluid.factor, self.surface, sim.fluid_volume,
+        return self._common() + [sim.fluid.factor, self.surface, self.surface_count, sim.fluid_volume,
                                  sim.support_radius, sim.dt]
 
     def _density_inputs(self):
         sim = self.sim
-        return self._common() + [sim.fluid.density, sim.fluid.factor, self.surface,
+        return self._common() + [sim.fluid.density, sim.fluid.factor, self.surface, self.surface_count,
                                  sim.fluid_volume, sim.rest_density, sim.support_radius, sim.dt]
 
     def _apply(self, kind, accumulate):
