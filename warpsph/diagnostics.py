@@ -1,6 +1,6 @@
 """Per-frame diagnostics: energies, enstrophy, density error, solver iterations.
 
-Computed at output frames only (host reads), never inside a step. Written as CSV beside
+Computed at output frames only, never inside a step: reduced on the device, a few numbers read. Written as CSV beside
 the USD cache by the CLI, and plotted by ``tools/plot_energy.py`` (like Fig 7 of the VR paper).
 """
 
@@ -19,54 +19,79 @@ COLUMNS = ["frame", "time", "steps", "particles", "dt", "kinetic_energy", "poten
 
 
 class Diagnostics:
-    """Measures a simulation at output frames; ``measure(sim, frame)`` returns one row (dict)."""
+    """Measures a simulation at output frames; ``measure(sim, frame)`` returns one row (dict).
+
+    The sums and maxima are reduced on the device (``kernels/diagnostics.py``): seven float64
+    numbers cross to the host, not the particle arrays. The enstrophy uses the step's own
+    vorticity when a model keeps one; plain DFSPH takes the curl of v over the lists of the last
+    step (built at its start: no rebuild at the frame, pairs that came within the support
+    radius during the step's advection are left out, as they are for the models)."""
 
     def __init__(self):
         self._vorticity = None
+        self._out = None
+        self._empty = None
         self._totals = (0, 0, 0, 0)
 
     def _vorticity_of(self, sim):
         if sim.vorticity_field is not None:
-            return sim.host(sim.vorticity_field.vorticity)
+            return sim.vorticity_field.vorticity
         if self._vorticity is None:  # plain DFSPH: a scratch array owned by the diagnostics
             self._vorticity = sim.zeros("diagnostics", sim.capacity, dtype=wp.vec3)
+        return curl_of(sim, sim.fluid.v, self._vorticity)
+
+    def reduce(self, sim):
+        """The device reductions of :mod:`warpsph.kernels.diagnostics` as a float64 numpy array."""
+        from warpsph.kernels import diagnostics as dk
+        from warpsph.models.micropolar import MicropolarModel
+
+        if self._out is None:
+            self._out = sim.zeros("diagnostics", dk.SLOTS, dtype=wp.float64)
+            self._empty = wp.empty(0, dtype=wp.vec3, device=sim.device)
+            self._init = np.zeros(dk.SLOTS, np.float64)
+            self._init[dk.ERROR_MAX] = -np.inf
+        n = sim.num_fluid
+        if n == 0:
+            return np.zeros(dk.SLOTS, np.float64)
         f = sim.fluid
-        sim.neighbours.update(f.x)  # the lists of the current positions
-        return sim.host(curl_of(sim, f.v, self._vorticity))
+        with wp.ScopedDevice(sim.device):
+            zeta = self._vorticity_of(sim)
+            spin = next((m.omega for m in sim.turbulence_models if isinstance(m, MicropolarModel)), self._empty)
+            self._out.assign(self._init)
+            sim.launch(dk.reduce_frame_diagnostics, min(n, int(dk.REDUCE_THREADS)),
+                       [f.x, f.v, f.density, zeta, spin, n, wp.vec3d(*sim.scene.domain.min), wp.vec3d(*sim.scene.gravity),
+                        wp.float64(sim.particle_mass), wp.float64(sim.rest_density), self._out])
+            return self._out.numpy()
 
     def measure(self, sim, frame):
+        from warpsph.kernels import diagnostics as dk
+        from warpsph.models.micropolar import MicropolarModel
+
         m = sim.particle_mass
-        x = sim.host(sim.fluid.x).astype(np.float64)
-        v = sim.host(sim.fluid.v).astype(np.float64)
-        rho = sim.host(sim.fluid.density).astype(np.float64)
-        g = np.asarray(sim.scene.gravity, np.float64)
-        zeta = self._vorticity_of(sim).astype(np.float64)
-        volume = m / np.maximum(rho, 1e-9)
+        sums = self.reduce(sim)
         rotational = 0.0
-        for model in sim.turbulence_models:
-            if hasattr(model, "rotational_energy"):
-                rotational = model.rotational_energy(sim)
-                break
-        else:
-            if sim.turbulence_models:  # VR / Rankine: particle spin zeta/2, inertia of a sphere 2/5 m r^2
-                inertia = 0.4 * m * sim.scene.particle_radius ** 2
-                rotational = 0.5 * inertia * float((0.25 * zeta**2).sum())
+        micropolar = [model for model in sim.turbulence_models if isinstance(model, MicropolarModel)]
+        if micropolar:  # sum_i 1/2 m I |omega_i|^2 with micro-inertia I = 1 / Theta^-1
+            rotational = 0.5 * m / micropolar[0].params.inverse_inertia * float(sums[dk.SPIN_SQ])
+        elif sim.turbulence_models:  # VR / Rankine: particle spin zeta/2, inertia of a sphere 2/5 m r^2
+            inertia = 0.4 * m * sim.scene.particle_radius ** 2
+            rotational = 0.5 * inertia * 0.25 * float(sums[dk.VORTICITY_SQ])
         totals = sim.pressure_solver.iteration_totals()
         d = [a - b for a, b in zip(totals, self._totals)]
         self._totals = totals
-        error = rho / sim.rest_density - 1.0
+        n = sim.num_fluid
         return {
             "frame": frame,
             "time": sim.time,
             "steps": sim.step_count,
-            "particles": sim.num_fluid,
+            "particles": n,
             "dt": float(sim.dt.numpy()[0]),
-            "kinetic_energy": 0.5 * m * float((v**2).sum()),
-            "potential_energy": -m * float(((x - np.asarray(sim.scene.domain.min)) @ g).sum()),
+            "kinetic_energy": 0.5 * m * float(sums[dk.KINETIC]),
+            "potential_energy": -m * float(sums[dk.POTENTIAL]),
             "rotational_energy": rotational,
-            "enstrophy": 0.5 * float((volume[:, None] * zeta**2).sum()),
-            "density_error_mean": float(np.maximum(error, 0.0).mean()),
-            "density_error_max": float(error.max()),
+            "enstrophy": 0.5 * float(sums[dk.ENSTROPHY]),
+            "density_error_mean": float(sums[dk.ERROR_SUM]) / n if n else 0.0,
+            "density_error_max": float(sums[dk.ERROR_MAX]) if n else 0.0,
             "divergence_iterations": d[0] / d[1] if d[1] else 0.0,
             "density_iterations": d[2] / d[3] if d[3] else 0.0,
         }
@@ -89,7 +114,13 @@ class DiagnosticsWriter:
         self.rows = []
 
     def __call__(self, sim, frame):
-        row = self.diagnostics.measure(sim, frame)
+        self.write_row(self.diagnostics.measure(sim, frame))
+
+    def measure(self, sim, frame):
+        """One row (on the simulation's thread); :meth:`write_row` may then run on a writer thread."""
+        return self.diagnostics.measure(sim, frame)
+
+    def write_row(self, row):
         self._csv.writerow(row)
         self._file.flush()
         self.rows.append(row)

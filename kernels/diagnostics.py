@@ -1,0 +1,78 @@
+"""Per-frame diagnostics reduced on the device: a few float64 sums and maxima cross to the host."""
+
+import warp as wp
+
+from .pressure import REDUCE_THREADS
+
+wp.set_module_options({"enable_backward": False})
+
+# slots of the reduction output (float64)
+KINETIC = 0  # sum |v|^2
+POTENTIAL = 1  # sum (x - origin) . g
+ENSTROPHY = 2  # sum V |zeta|^2, V = m / max(rho, 1e-9)
+VORTICITY_SQ = 3  # sum |zeta|^2
+SPIN_SQ = 4  # sum |omega|^2 (a model's angular velocity)
+ERROR_SUM = 5  # sum max(rho / rho0 - 1, 0)
+ERROR_MAX = 6  # max (rho / rho0 - 1)
+SLOTS = 7
+
+
+@wp.func
+def norm_sq64(a: wp.vec3):
+    x = wp.float64(a[0])
+    y = wp.float64(a[1])
+    z = wp.float64(a[2])
+    return x * x + y * y + z * z
+
+
+@wp.kernel
+def reduce_frame_diagnostics(
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    density: wp.array(dtype=float),
+    vorticity: wp.array(dtype=wp.vec3),
+    spin: wp.array(dtype=wp.vec3),
+    count: int,
+    origin: wp.vec3d,
+    gravity: wp.vec3d,
+    particle_mass: wp.float64,
+    rest_density: wp.float64,
+    out: wp.array(dtype=wp.float64),
+):
+    """Launched on min(count, REDUCE_THREADS) threads, grid-stride, one atomic per slot and thread
+    (``out`` zeroed first, ERROR_MAX at -inf). ``vorticity`` and ``spin`` may be empty."""
+    t = wp.tid()
+    threads = wp.min(count, REDUCE_THREADS)
+    has_vorticity = vorticity.shape[0] > 0
+    has_spin = spin.shape[0] > 0
+    rho0 = rest_density
+    m = particle_mass
+    kinetic = wp.float64(0.0)
+    potential = wp.float64(0.0)
+    enstrophy = wp.float64(0.0)
+    vorticity_sq = wp.float64(0.0)
+    spin_sq = wp.float64(0.0)
+    error_sum = wp.float64(0.0)
+    error_max = wp.float64(-1.0e300)
+    for i in range(t, count, threads):
+        kinetic += norm_sq64(v[i])
+        xi = x[i]
+        potential += ((wp.float64(xi[0]) - origin[0]) * gravity[0] + (wp.float64(xi[1]) - origin[1]) * gravity[1]
+                      + (wp.float64(xi[2]) - origin[2]) * gravity[2])
+        rho = wp.float64(density[i])
+        error = rho / rho0 - wp.float64(1.0)
+        error_sum += wp.max(error, wp.float64(0.0))
+        error_max = wp.max(error_max, error)
+        if has_vorticity:
+            z = norm_sq64(vorticity[i])
+            vorticity_sq += z
+            enstrophy += m / wp.max(rho, wp.float64(1.0e-9)) * z
+        if has_spin:
+            spin_sq += norm_sq64(spin[i])
+    wp.atomic_add(out, 0, kinetic)
+    wp.atomic_add(out, 1, potential)
+    wp.atomic_add(out, 2, enstrophy)
+    wp.atomic_add(out, 3, vorticity_sq)
+    wp.atomic_add(out, 4, spin_sq)
+    wp.atomic_add(out, 5, error_sum)
+    wp.atomic_max(out, 6, error_max)
