@@ -22,12 +22,13 @@ def _density_range(sim):
 
 def test_packing_evens_out_a_jittered_lattice():
     """The packing jitters the lattice by up to 0.1 spacing and relaxes it at rest with the scene's own
-    solver: the summation density's largest deviation falls to under a quarter, and the positions are no
-    longer a lattice."""
+    solver: the summation density's largest deviation after 40 steps is under a quarter of that after one
+    step, and the positions are no longer a lattice."""
     one, _ = build([], resolution=16, T=T, device="cpu", pack_steps=1)
     sim, ke0 = build([], resolution=16, T=T, device="cpu", pack_steps=PACK_STEPS)
     jittered, relaxed = _density_range(one), _density_range(sim)
-    assert jittered > 0.08 and relaxed < 0.04 and relaxed < 0.3 * jittered, (jittered, relaxed)
+    # measured: 0.040 after one step, 0.0018 after 40
+    assert jittered > 0.02 and relaxed < 0.01 and relaxed < 0.25 * jittered, (jittered, relaxed)
     x = sim.host(sim.fluid.x)
     offset = np.mod(x / (2 * sim.scene.particle_radius) - 0.5, 1.0)  # lattice sites sit at half spacings
     assert np.mean(np.minimum(offset, 1 - offset)) > 0.02

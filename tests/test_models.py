@@ -205,8 +205,8 @@ def test_refinement_keeps_a_decaying_vortex_alive():
         energies[name] = history[-1] / e0
         if name == "vr":
             assert max(history) <= e0 * 1.0001  # never above the initial energy
-    assert energies["dfsph"] < 0.7  # the vortex does decay
-    # measured 0.579 and 0.562 against 0.549 (the clamped solver of earlier versions: 0.226 / 0.203 / 0.191)
+    assert energies["dfsph"] < 0.9  # the vortex does decay
+    # measured 0.744 and 0.737 against 0.708 (the clamped solver of earlier versions: 0.226 / 0.203 / 0.191)
     assert energies["vr"] > 1.03 * energies["dfsph"]
     assert energies["rankine"] > 1.01 * energies["dfsph"]
 

@@ -131,6 +131,8 @@ class DFSPHSolver:
                     sim.support_radius, sim.dt, accumulate, self.pressure_sum[kind], sim.fluid.v])
 
     def _measure(self, kind, source_kernel, inputs, max_error, min_it, max_it, first):
+        """Source, stiffness and error of the current velocities, and the loop's decision. The first
+        measure of a solve replaces the stiffness by the warm start (when on): the loop's first apply uses it."""
         sim = self.sim
         sim.launch(source_kernel, sim.num_fluid, inputs + [self.error, self.stiffness])
         # a box without free surface: the source less its mean (no-ops otherwise)
@@ -139,6 +141,10 @@ class DFSPHSolver:
         sim.launch(remove_mean_source, sim.num_fluid,
                    [self.error_stats, sim.num_fluid, self.surface_count, sim.fluid.factor, sim.dt,
                     int(kind == DIVERGENCE), self.error, self.stiffness])
+        if first and sim.scene.solver.warm_start:  # last step's pressure where this step's source still asks for it
+            sim.launch(warm_start_pressure, sim.num_fluid,
+                       [self.error, sim.fluid.factor, sim.dt, sim.dt_previous, int(kind == DIVERGENCE),
+                        self.pressure_sum[kind], self.stiffness])
         sim.launch(reduce_error, min(sim.num_fluid, REDUCE_THREADS), [self.error, sim.num_fluid, self.error_stats])
         sim.launch(update_solver_status, 1,
                    [self.error_stats, sim.num_fluid, max_error, max_error * PEAK_ERROR_RATIO, int(kind == DIVERGENCE), sim.dt, min_it, max_it,
@@ -146,14 +152,7 @@ class DFSPHSolver:
                     self.iterations, self.totals, self.max_iteration_streak])
 
     def _solve(self, kind, source_kernel, inputs, max_error, min_it, max_it):
-        sim = self.sim
-        if sim.scene.solver.warm_start:  # last step's pressure where this step's source still asks for it
-            sim.launch(source_kernel, sim.num_fluid, inputs + [self.error, self.stiffness])
-            sim.launch(warm_start_pressure, sim.num_fluid,
-                       [self.error, sim.fluid.factor, sim.dt, sim.dt_previous, int(kind == DIVERGENCE),
-                        self.pressure_sum[kind], self.stiffness])
-            self._apply(kind, 0)
-        else:
+        if not self.sim.scene.solver.warm_start:
             self.pressure_sum[kind].zero_()
         self._measure(kind, source_kernel, inputs, max_error, min_it, max_it, True)
 
