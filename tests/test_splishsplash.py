@@ -1,71 +1,285 @@
-"""SPlisHSPlasH scene files run as they are; unsupported keys are listed in one warning."""
+"""SPlisHSPlasH scene files run as their authors meant (read as SPlisHSPlasH 2.19 reads them), or are
+refused naming each key; run anyway on request, with the list kept. Scenes written here in the
+format of pysplishsplash 2.19.0's data/Scenes, at tiny scale."""
 
+import copy
 import json
 
+import numpy as np
 import pytest
+import trimesh
 
-from warpsph import SceneError, load_scene
-from warpsph.io.splishsplash import SplishSplashWarning
-from warpsph.simulation import Simulation
+from warpsph import SceneError, load_scene, sampling
+from warpsph.io.splishsplash import RUN_ANYWAY_ENV, SplishSplashWarning, conversion_of, convert, translate
+from warpsph.simulation import Simulation, count_particles, sample_scene
 
+# SPlisHSPlasH 2.16+ form: solver and non-pressure parameters in their blocks
 DAM_BREAK = {
     "Configuration": {
-        "particleRadius": 0.03, "timeStepSize": 0.001, "cflMethod": 1, "cflFactor": 0.4, "cflMaxTimeStepSize": 0.004,
-        "gravitation": [0, -9.81, 0], "simulationMethod": 4, "boundaryHandlingMethod": 0, "stopAt": 0.2,
-        "numberOfStepsPerRenderUpdate": 4, "enablePartioExport": False,
-        "DFSPH": {"maxIterations": 80, "maxError": 0.05, "maxIterationsV": 50, "maxErrorV": 0.1,
+        "particleRadius": 0.03, "numberOfStepsPerRenderUpdate": 4, "simulationMethod": 4, "gravitation": [0, -9.81, 0],
+        "timeStepSize": 0.001, "cflMethod": 1, "cflFactor": 0.4, "cflMaxTimeStepSize": 0.004, "stopAt": 0.2,
+        "boundaryHandlingMethod": 2, "enablePartioExport": False,
+        "DFSPH": {"minIterations": 2, "maxIterations": 80, "maxError": 0.05, "maxIterationsV": 50, "maxErrorV": 0.1,
                   "enableDivergenceSolver": True},
     },
-    "Materials": [{"id": "Fluid", "density0": 1000, "viscosity": 0.01, "vorticityMethod": 1, "vorticity": 0.1,
-                   "viscosityOmega": 0.05, "inertiaInverse": 0.5, "colorMapType": 1}],
+    "Materials": [{"id": "Fluid", "density0": 1000, "viscosityMethod": 1, "Standard viscosity": {"viscosity": 0.01},
+                   "colorMapType": 1}],
     "RigidBodies": [{"geometryFile": "../models/UnitBox.obj", "translation": [0, 0.5, 0], "scale": [1.2, 1, 0.4],
-                     "isDynamic": False, "isWall": True, "mapInvert": True, "color": [0.1, 0.4, 0.6, 1.0]}],
+                     "isDynamic": False, "isWall": True, "mapInvert": True, "color": [0.1, 0.4, 0.6, 1.0],
+                     "mapThickness": 0.0, "mapResolution": [20, 20, 20]}],
     "FluidBlocks": [{"denseMode": 0, "start": [-0.6, 0.0, -0.2], "end": [-0.3, 0.4, 0.2], "translation": [0, 0, 0],
                      "scale": [1, 1, 1]}],
 }
 
 
-def write(tmp_path, data):
-    path = tmp_path / "DamBreak.json"
+@pytest.fixture
+def scenes(tmp_path):
+    """A Scenes/ folder beside models/ with a closed unit box, as pysplishsplash lays them out."""
+    (tmp_path / "models").mkdir()
+    trimesh.creation.box(extents=(1, 1, 1)).export(tmp_path / "models" / "UnitBox.obj")
+    (tmp_path / "Scenes").mkdir()
+    return tmp_path / "Scenes"
+
+
+def write(folder, data, name="DamBreak"):
+    path = folder / f"{name}.json"
     path.write_text(json.dumps(data))
     return path
 
 
-def test_splishsplash_dam_break_converts_and_runs(tmp_path):
-    with pytest.warns(SplishSplashWarning) as record:
-        scene = load_scene(write(tmp_path, DAM_BREAK))
-    message = str(record[0].message)
-    for key in ("numberOfStepsPerRenderUpdate", "enablePartioExport", "colorMapType", "denseMode", "RigidBodies[0].color"):
-        assert key in message
-    assert len(record) == 1
+def edited(**changes):
+    data = copy.deepcopy(DAM_BREAK)
+    for path, value in changes.items():
+        *keys, last = path.split("__")
+        node = data
+        for k in keys:
+            node = node[int(k)] if isinstance(node, list) else node[k]
+        if value is None:
+            node.pop(last, None)
+        else:
+            node[last] = value
+    return data
+
+
+def load_quiet(path):
+    with pytest.warns(SplishSplashWarning):
+        return load_scene(path)
+
+
+# --- 1. parameters, read as SPlisHSPlasH 2.19 reads them ------------------------------------------------
+
+
+def test_nested_blocks_are_read_and_the_scene_runs(scenes):
+    scene = load_quiet(write(scenes, DAM_BREAK))
     assert scene.particle_radius == 0.03 and scene.time.cfl == 0.4 and scene.time.dt_max == 0.004
+    assert scene.time.dt_min == 0.0001  # SPlisHSPlasH's default, not warpsph's
     assert (scene.domain.min, scene.domain.max) == ((-0.6, 0.0, -0.2), (0.6, 1.0, 0.2))
     assert scene.solver.max_iterations == 80 and scene.solver.density_max_error == 0.05
-    assert scene.solver.divergence_max_iterations == 50 and scene.fluid.viscosity == 0.01
-    (model,) = scene.models
-    assert type(model).__name__ == "Micropolar" and model.transfer_coefficient == 0.1 and model.viscosity_omega == 0.05
+    assert scene.solver.divergence_max_iterations == 50
+    assert scene.fluid.viscosity == 0.01  # "Standard viscosity": {"viscosity": 0.01}, not warpsph's 0.05
     assert scene.output.frames == 5  # stopAt 0.2 s at 25 fps
+    c = conversion_of(scene)
+    assert c.refused == [] and any("Standard viscosity.viscosity -> fluid.viscosity = 0.01" in m for m in c.mapped)
+    assert any("boundaryHandlingMethod 2" in n for n in c.notes)
     sim = Simulation(scene, device="cpu").run(frames=1)
-    assert sim.num_fluid == 5 * 6 * 6
+    assert sim.num_fluid == c.splishsplash_particles == 4 * 6 * 6  # round(0.3 / 0.06) - 1, round(0.4 / 0.06) - 1
 
 
-def test_older_flat_solver_keys_and_vorticity_refinement(tmp_path):
-    data = json.loads(json.dumps(DAM_BREAK))
+def test_each_material_block_maps(scenes):
+    data = edited(Materials__0__viscosityMethod=1)
+    data["Materials"][0].update({"Standard viscosity": {"viscosity": 0.02, "viscosityBoundary": 0.3},
+                                 "vorticityMethod": 1,
+                                 "Bender et al. 2017": {"vorticity": 0.15, "viscosityOmega": 0.05, "inertiaInverse": 0.4}})
+    scene = load_quiet(write(scenes, data))
+    assert (scene.fluid.viscosity, scene.fluid.boundary_viscosity) == (0.02, 0.3)
+    (model,) = scene.models
+    assert type(model).__name__ == "Micropolar"
+    assert (model.transfer_coefficient, model.viscosity_omega, model.inverse_inertia) == (0.15, 0.05, 0.4)
+
+    data["Materials"][0].update({"vorticityMethod": 3, "Liu et al. 2021": {"vorticity": 0.7, "kinetmaticViscosity": 0.02}})
+    (model,) = load_quiet(write(scenes, data)).models
+    assert type(model).__name__ == "VorticityRefinement" and (model.alpha, model.viscosity) == (0.7, 0.02)
+
+
+def test_defaults_are_splishsplashs(scenes):
+    """No viscosityMethod: inviscid, as SPlisHSPlasH runs it; an empty method block: its defaults."""
+    scene = load_quiet(write(scenes, edited(Materials__0__viscosityMethod=None)))
+    assert scene.fluid.viscosity == 0.0
+    data = edited(**{"Materials__0__Standard viscosity": None})
+    data["Materials"][0].update({"vorticityMethod": 1})
+    scene = load_quiet(write(scenes, data))
+    assert scene.fluid.viscosity == 0.01  # Viscosity_Standard's default
+    (model,) = scene.models
+    assert (model.transfer_coefficient, model.viscosity_omega, model.inverse_inertia) == (0.01, 0.1, 0.5)
+    data = edited(Configuration__DFSPH=None)
+    scene = load_quiet(write(scenes, data))
+    assert (scene.solver.max_iterations, scene.solver.density_max_error, scene.solver.divergence_max_iterations) == (100, 0.01, 100)
+
+
+def test_flat_pre_216_form_is_read_when_no_block_gives_the_value(scenes):
+    data = copy.deepcopy(DAM_BREAK)
     config = data["Configuration"]
     config.update(config.pop("DFSPH"))
-    data["Materials"][0] = {"id": "Fluid", "density0": 998, "vorticityMethod": 3}
-    with pytest.warns(SplishSplashWarning, match="numberOfStepsPerRenderUpdate"):
-        scene = load_scene(write(tmp_path, data))
-    assert scene.solver.max_iterations == 80 and scene.fluid.density == 998
-    assert type(scene.models[0]).__name__ == "VorticityRefinement"
+    data["Materials"][0] = {"id": "Fluid", "density0": 998, "viscosityMethod": 1, "viscosity": 0.03,
+                            "vorticityMethod": 1, "vorticity": 0.2, "viscosityOmega": 0.07, "inertiaInverse": 0.6}
+    scene = load_quiet(write(scenes, data))
+    assert scene.solver.max_iterations == 80 and scene.solver.density_max_error == 0.05
+    assert scene.fluid.density == 998 and scene.fluid.viscosity == 0.03
+    assert scene.models[0].transfer_coefficient == 0.2 and scene.models[0].inverse_inertia == 0.6
+    mapped = "\n".join(conversion_of(scene).mapped)
+    assert "Materials[0].viscosity -> fluid.viscosity = 0.03 (flat, the pre-2.16 form" in mapped
+    assert "Configuration.maxIterations -> solver.max_iterations = 80 (flat" in mapped
+    # the block wins over the flat key, as in SPlisHSPlasH 2.19
+    data["Materials"][0]["Standard viscosity"] = {"viscosity": 0.004}
+    assert load_quiet(write(scenes, data)).fluid.viscosity == 0.004
 
 
-def test_unsupported_method_and_missing_container_are_errors(tmp_path):
-    data = json.loads(json.dumps(DAM_BREAK))
-    data["Configuration"]["simulationMethod"] = 2
-    with pytest.raises(SceneError, match="simulationMethod.*DFSPH"):
-        load_scene(write(tmp_path, data))
-    data = json.loads(json.dumps(DAM_BREAK))
-    data["RigidBodies"] = []
-    with pytest.raises(SceneError, match="container"):
-        load_scene(write(tmp_path, data))
+def test_material_is_chosen_by_id(scenes):
+    data = copy.deepcopy(DAM_BREAK)
+    data["Materials"].insert(0, {"id": "Other", "density0": 500, "viscosityMethod": 1,
+                                 "Standard viscosity": {"viscosity": 0.3}})
+    scene = load_quiet(write(scenes, data))
+    assert scene.fluid.density == 1000 and scene.fluid.viscosity == 0.01
+    assert any("Materials[0] (id 'Other') belongs to no fluid" in n for n in conversion_of(scene).notes)
+
+
+# --- 2. particle counts by SPlisHSPlasH's rule -------------------------------------------------------------
+
+
+def test_block_rule_reproduces_splishsplash_counts():
+    # DamBreakModel: a unit cube at r = 0.025 -> 19^3 = 6859, as SPlisHSPlasH prints
+    assert len(sampling.splishsplash_block([-1.95, 0.05, -0.5], [-0.95, 1.05, 0.5], 0.025)) == 6859
+    # rounding, not flooring: 0.75 / 0.05 = 15 steps of which the first and last are dropped
+    assert len(sampling.splishsplash_block([-1.5, 0.0, -1.5], [-0.5, 0.75, -0.5], 0.025)) == 19 * 14 * 19
+    x = sampling.splishsplash_block([0, 0, 0], [1, 1, 1], 0.025)
+    assert np.allclose(x.min(axis=0), 0.05) and np.allclose(x.max(axis=0), 0.95)  # 2r inside each face
+    assert len(sampling.splishsplash_block([0, 0, 0], [1, 1, 1], 0.025, sim2d=True)) == 19 * 19
+    assert len(sampling.splishsplash_block([0, 0, 0], [0.1, 1, 1], 0.025)) == 0  # 1 step: SPlisHSPlasH skips it
+    dense = sampling.splishsplash_block([0, 0, 0], [1, 1, 1], 0.025, mode=1)
+    assert len(dense) == np.prod(sampling.splishsplash_block_counts([0, 0, 0], [1, 1, 1], 0.025, 1)) > 6859
+
+
+def test_imported_block_has_splishsplashs_lattice(scenes):
+    data = edited(FluidBlocks__0__start=[-0.5, 0.0, -0.5], FluidBlocks__0__end=[0.5, 1.0, 0.5],
+                  FluidBlocks__0__translation=[0.0, 0.0, 0.0], FluidBlocks__0__scale=[0.5, 0.5, 0.3],
+                  Configuration__particleRadius=0.0125)
+    scene = load_quiet(write(scenes, data))
+    fluid_x = sample_scene(scene)[0]
+    theirs = sampling.splishsplash_block([-0.25, 0.0, -0.15], [0.25, 0.5, 0.15], 0.0125)
+    assert count_particles(scene)[0] == len(fluid_x) == len(theirs) == 19 * 19 * 11
+    key = lambda p: np.round(np.asarray(p, np.float64) / 1e-5).astype(np.int64)  # noqa: E731
+    assert sorted(map(tuple, key(fluid_x))) == sorted(map(tuple, key(theirs)))
+
+
+def test_dense_modes_are_refused_and_run_anyway_on_the_cubic_lattice(scenes, monkeypatch):
+    data = edited(FluidBlocks__0__denseMode=2)
+    with pytest.raises(SceneError, match=r"FluidBlocks\[0\].denseMode: 2 \(a staggered"):
+        load_scene(write(scenes, data))
+    monkeypatch.setenv(RUN_ANYWAY_ENV, "1")
+    with pytest.warns(SplishSplashWarning, match="RUN ANYWAY, left out: FluidBlocks"):
+        scene = load_scene(write(scenes, data))
+    assert count_particles(scene)[0] > 0
+
+
+# --- 3. physics: mapped, or refused by name ---------------------------------------------------------------
+
+
+def test_dynamic_bodies_become_warpsph_dynamic_bodies(scenes):
+    data = copy.deepcopy(DAM_BREAK)
+    data["RigidBodies"].append({"geometryFile": "../models/UnitBox.obj", "translation": [0.3, 0.5, 0],
+                                "scale": [0.15, 0.15, 0.15], "isDynamic": True, "density": 400,
+                                "velocity": [0, -1, 0], "friction": 0.1, "collisionObjectType": 2})
+    data["RigidBodies"].append({"geometryFile": "../models/UnitBox.obj", "translation": [0.3, 0.15, 0],
+                                "scale": [0.1, 0.1, 0.1], "isDynamic": True})
+    scene = load_quiet(write(scenes, data))
+    heavy, light = scene.obstacles
+    assert heavy.dynamics.density == 400 and heavy.dynamics.velocity == (0, -1, 0)
+    assert light.dynamics.density == 1.0  # PositionBasedDynamics' default density
+    assert any("PositionBasedDynamics contact" in n for n in conversion_of(scene).notes)
+    sim = Simulation(scene, device="cpu")
+    assert sum(b.kind == "dynamic" for b in sim.bodies) == 2
+
+
+def test_emitters_map_to_warpsph_emitters(scenes):
+    data = copy.deepcopy(DAM_BREAK)
+    # SPlisHSPlasH's Emitter.json style: 3x2 particles, emitting along the rotated x axis (-x by pi about y)
+    data["Emitters"] = [{"width": 3, "height": 2, "translation": [0.4, 0.5, 0.0], "rotationAxis": [0, 1, 0],
+                         "rotationAngle": 3.141592653589793, "velocity": 1.5, "emitStartTime": 0.05,
+                         "emitEndTime": 10, "type": 0}]
+    data["Materials"][0]["maxEmitterParticles"] = 6 * 3  # three layers
+    scene = load_quiet(write(scenes, data))
+    (e,) = scene.emitters
+    d = 0.06
+    assert e.velocity == pytest.approx((-1.5, 0.0, 0.0)) and e.start == 0.05
+    assert e.min[0] == pytest.approx(0.4 - d / 2) and e.max[0] == pytest.approx(0.4 + d / 2)
+    assert (e.max[2] - e.min[2], e.max[1] - e.min[1]) == (pytest.approx(3 * d), pytest.approx(2 * d))
+    # maxEmitterParticles: three layers, d / v apart, then the emitter stops
+    assert e.end == pytest.approx(0.05 + 2.5 * d / 1.5)
+    from warpsph.inflow import layer_points
+
+    assert len(layer_points(e, d)) == 6
+    sim = Simulation(scene, device="cpu")
+    sim.run(frames=5)  # to 0.2 s
+    assert sim.num_fluid == 144 + 18
+
+
+@pytest.mark.parametrize("change, refused", [
+    ({"Configuration__sim2D": True}, "Configuration.sim2D: a 2D simulation"),
+    ({"Materials__0__elasticityMethod": 2, "Materials__0__Peer et al. 2018": {"youngsModulus": 2e5}},
+     "Materials[0].elasticityMethod: 2 (Peer et al. 2018): an elastic solid"),
+    ({"Materials__0__surfaceTensionMethod": 4}, "Materials[0].surfaceTensionMethod: 4 (Jeske et al. 2023): surface tension"),
+    ({"Materials__0__dragMethod": 2}, "Materials[0].dragMethod: 2 (Gissler et al. 2017)"),
+    ({"Materials__0__viscosityMethod": 6, "Materials__0__Weiler et al. 2018": {"viscosity": 5}},
+     "Materials[0].viscosityMethod: 6 (Weiler et al. 2018, an implicit viscosity solver, viscosity 5)"),
+    ({"Materials__0__vorticityMethod": 2}, "Materials[0].vorticityMethod: 2 (vorticity confinement)"),
+    ({"Materials__0__XSPH": {"xsph": 0.1}}, "Materials[0].XSPH.xsph: 0.1: XSPH"),
+    ({"Configuration__simulationMethod": 0}, "Configuration.simulationMethod: 0 (WCSPH)"),
+    ({"Configuration__scriptFile": "drive.py"}, "Configuration.scriptFile"),
+    ({"FluidBlocks__0__initialAngularVelocity": [0, 1, 0]}, "FluidBlocks[0].initialAngularVelocity"),
+    ({"AnimationFields": [{"particleField": "velocity", "expression_x": "1"}]}, "AnimationFields: 1 fields"),
+    ({"FluidModels": [{"particleFile": "../models/bunny.bgeo"}]}, "FluidModels: fluid read from particle files"),
+    ({"TargetVelocityMotorHingeJoints": [{"bodyID1": 1, "bodyID2": 0}]}, "TargetVelocityMotorHingeJoints: 1 joints"),
+])
+def test_unsupported_physics_is_refused_by_key(scenes, change, refused):
+    path = write(scenes, edited(**change))
+    with pytest.raises(SceneError, match="physics warpsph does not simulate") as info:
+        load_scene(path)
+    assert refused in str(info.value) and "WARPSPH_SPLISHSPLASH_RUN_ANYWAY" in str(info.value)
+
+
+def test_extra_phases_are_refused_and_run_anyway_from_the_file(scenes):
+    data = copy.deepcopy(DAM_BREAK)
+    data["FluidBlocks"].append({"id": "oil", "start": [0.1, 0.0, -0.2], "end": [0.4, 0.3, 0.2]})
+    data["Materials"].append({"id": "oil", "density0": 800})
+    with pytest.raises(SceneError, match=r"2 fluid phases \('Fluid', 'oil'\)"):
+        load_scene(write(scenes, data))
+    data["warpsph"] = {"run_anyway": True}
+    with pytest.warns(SplishSplashWarning, match="RUN ANYWAY, left out: .*2 fluid phases"):
+        scene = load_scene(write(scenes, data))
+    c = conversion_of(scene)
+    assert c.run_anyway and len(c.refused) == 1 and scene.fluid.density == 1000
+    assert len(scene.fluid_blocks) == 2  # both blocks, as the first phase
+
+
+def test_run_anyway_argument_and_no_container_is_an_error(scenes):
+    data = edited(Configuration__sim2D=True)
+    with pytest.warns(SplishSplashWarning, match="sim2D"):
+        out = convert(data, write(scenes, data), run_anyway=True)
+    assert out["fluid_blocks"]
+    data = edited(RigidBodies=[])
+    c = translate(data, write(scenes, data))
+    assert c.errors and "no container" in c.errors[0]
+    with pytest.raises(SceneError, match="(?s)cannot run this scene.*no container"):
+        convert(data, write(scenes, data), run_anyway=True)
+
+
+def test_every_key_is_accounted_for(scenes):
+    """Nothing is dropped silently: each key of the file is mapped, refused or noted."""
+    data = copy.deepcopy(DAM_BREAK)
+    data["Configuration"]["imteStepSize"] = 0.001  # a typo: SPlisHSPlasH does not read it either
+    c = translate(data, write(scenes, data))
+    text = "\n".join(c.mapped + c.refused + c.notes)
+    for key in ("numberOfStepsPerRenderUpdate", "enablePartioExport", "imteStepSize", "colorMapType",
+                "RigidBodies[0].color", "mapResolution", "timeStepSize", "Standard viscosity.viscosity",
+                "DFSPH.maxIterationsV", "density0", "FluidBlocks[0]"):
+        assert key in text, key

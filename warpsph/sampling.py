@@ -5,6 +5,7 @@ Runs once per scene on the host (numpy + trimesh); nothing here runs per step.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,9 @@ from .errors import SceneError
 
 def fill_block(start, end, spacing):
     """Lattice points of spacing ``spacing`` inside the box [start, end], the first one
-    half a spacing from ``start`` (SPlisHSPlasH's fluid-block fill)."""
+    half a spacing from ``start`` (warpsph's fill: floor(size / spacing) points an axis; not
+    SPlisHSPlasH's rule, which :func:`splishsplash_block` reproduces: its blocks are converted
+    into the warpsph block with the same lattice)."""
     start = np.asarray(start, dtype=np.float64)
     end = np.asarray(end, dtype=np.float64)
     counts = np.floor((end - start) / spacing + 1e-6).astype(int)
@@ -24,6 +27,72 @@ def fill_block(start, end, spacing):
     axes = [start[a] + spacing * (0.5 + np.arange(counts[a])) for a in range(3)]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     return grid.astype(np.float32)
+
+
+def _c_round(x):
+    """C's round(): halves away from zero (Python's round() rounds them to even)."""
+    return math.copysign(math.floor(abs(x) + 0.5), x)
+
+
+def _splishsplash_shifts(radius, mode):
+    diam = 2.0 * radius
+    eps = 1.0e-9
+    xshift = yshift = diam
+    if mode == 1:
+        yshift = math.sqrt(3.0) * radius + eps
+    elif mode == 2:
+        xshift = math.sqrt(6.0) * diam / 3.0 + eps
+        yshift = math.sqrt(3.0) * radius + eps
+    return xshift, yshift
+
+
+def splishsplash_block_counts(lo, hi, radius, mode=0):
+    """SPlisHSPlasH's lattice steps (x, y, z) of a fluid block [lo, hi] (after its scale and
+    translation), as SimulatorBase::createFluidBlocks computes them (SPlisHSPlasH 2.x):
+    steps = round(size / shift) - 1 an axis, the shifts 2r (denseMode 0) or the staggered ones
+    (1: y by sqrt(3) r; 2: x by sqrt(6) 2r / 3 too), the sizes of denseMode 1 and 2 reduced by one
+    shift across the staggering. A unit cube at r = 0.025 gives 19^3 = 6859 particles; the
+    points start 2r inside ``lo``, so the block's fluid ends about r short of each face."""
+    diam = 2.0 * radius
+    xshift, yshift = _splishsplash_shifts(radius, mode)
+    diff = np.asarray(hi, np.float64) - np.asarray(lo, np.float64)
+    if mode == 1:
+        diff[0] -= diam
+        diff[2] -= diam
+    elif mode == 2:
+        diff[0] -= xshift
+        diff[2] -= diam
+    return (int(_c_round(diff[0] / xshift)) - 1, int(_c_round(diff[1] / yshift)) - 1,
+            int(_c_round(diff[2] / diam)) - 1)
+
+
+def splishsplash_block(lo, hi, radius, mode=0, sim2d=False):
+    """The particles SPlisHSPlasH puts in a fluid block [lo, hi] (createFluidBlocks): none when a
+    step count is 1 or less (it warns the block is empty), one z layer at z = 0 in 2D."""
+    if mode not in (0, 1, 2):
+        return np.zeros((0, 3), np.float64)
+    lo = np.asarray(lo, np.float64)
+    diam = 2.0 * radius
+    xshift, yshift = _splishsplash_shifts(radius, mode)
+    sx, sy, sz = splishsplash_block_counts(lo, hi, radius, mode)
+    if sx <= 1 or sy <= 1 or sz <= 1:
+        return np.zeros((0, 3), np.float64)
+    start = lo + diam
+    if sim2d:
+        sz = 1
+        start[2] = 0.0
+    j, k, l = (a.ravel() for a in np.meshgrid(np.arange(sx), np.arange(sy), np.arange(sz), indexing="ij"))
+    x = np.stack([j * xshift, k * yshift, l * diam], axis=1) + start
+    if mode == 1:
+        even = (k % 2) == 0
+        x[even, 2] += radius
+        x[~even, 0] += radius
+    elif mode == 2:
+        x[:, 2] += radius
+        if not sim2d:
+            x[:, 2] += np.where(j % 2 == 1, diam / 2.0 * np.where(k % 2 == 1, -1.0, 1.0), 0.0)
+        x[:, 0] += np.where(k % 2 == 0, xshift / 2.0, 0.0)
+    return x
 
 
 def sample_triangles(vertices, faces, spacing):
@@ -103,6 +172,9 @@ def load_mesh(path):
         raise SceneError(path, "", "not a 3D triangle mesh (damaged file?)")
     if not np.isfinite(vertices).all() or faces.min() < 0 or faces.max() >= len(vertices):
         raise SceneError(path, "", "the mesh has vertices that are not finite numbers or faces that name missing vertices")
+    # geometry only: an OBJ with texture coordinates or normals has its vertices split along the
+    # seams, which left closed meshes (SPlisHSPlasH's UnitBox, sphere, torus) open to trimesh
+    mesh = trimesh.Trimesh(vertices=np.asarray(mesh.vertices), faces=np.asarray(mesh.faces), process=True)
     return mesh
 
 

@@ -1,49 +1,172 @@
-"""SPlisHSPlasH scene files (doc/file_format.md) converted into warpsph scenes.
+"""SPlisHSPlasH scene files (its doc/file_format.md) converted into warpsph scenes, read the way
+SPlisHSPlasH 2.19 reads them; physics warpsph cannot reproduce is refused, never silently changed.
 
-Understood: Configuration (particleRadius, timeStepSize, cflMethod, cflFactor, cflMinTimeStepSize,
-cflMaxTimeStepSize, gravitation, simulationMethod 4 = DFSPH, the solver keys flat or in a "DFSPH"
-block: minIterations, maxIterations, maxError, maxIterationsV, maxErrorV, enableDivergenceSolver,
-stopAt, fps/dataExportFPS), Materials (density0, viscosity, vorticityMethod 1 = micropolar with
-vorticity/viscosityOmega/inertiaInverse, 3 = vorticity refinement), FluidBlocks (start, end,
-translation, scale), RigidBodies (geometryFile, translation, rotationAxis, rotationAngle, scale,
-isDynamic, isWall, mapInvert: an inverted wall box is the domain). Every other key is listed in
-one warning; an unsupported simulation method is an error.
+How SPlisHSPlasH 2.19 reads a scene (Simulator/SimulatorBase.cpp, Utilities/SceneLoader.cpp):
+
+* the pressure solver's parameters only from its block in "Configuration" (``"DFSPH": {...}``);
+* a non-pressure method's parameters only from the material's block named after the method
+  (``"Standard viscosity": {"viscosity": 0.01}``, ``"Bender et al. 2017": {...}``,
+  ``"Liu et al. 2021": {...}``), chosen by ``viscosityMethod``, ``vorticityMethod``, ... (default 0:
+  none, so a material without ``viscosityMethod`` is inviscid);
+* a material applies to the fluid blocks, models and emitters with its ``id`` (default "Fluid").
+
+Files written for SPlisHSPlasH before 2.16 have the same parameters flat (in "Configuration" or the
+material); they are read when the block does not give the value (SPlisHSPlasH 2.19 itself would
+ignore them and use its defaults), and each such reading is named in :attr:`Conversion.mapped`.
+
+Every key ends up in one of three lists of a :class:`Conversion`: ``mapped`` (key -> warpsph
+value), ``refused`` (physics warpsph does not simulate: the key and what it would have changed)
+and ``notes`` (approximations, and keys without effect on the simulation: GUI, export, and
+keys SPlisHSPlasH does not read either). A scene with refused keys is a :class:`SceneError`
+listing each one, unless run anyway: ``convert(..., run_anyway=True)``, the environment variable
+``WARPSPH_SPLISHSPLASH_RUN_ANYWAY=1`` or ``"warpsph": {"run_anyway": true}`` in the scene file;
+then the list is printed (one :class:`SplishSplashWarning`) and kept: ``conversion_of(scene)``
+gives the :class:`Conversion` of a loaded scene (``refused`` is what the run leaves out).
+
+Fluid blocks are filled by SPlisHSPlasH's rule (``sampling.splishsplash_block``): a denseMode 0
+block becomes the warpsph block whose lattice is exactly SPlisHSPlasH's (DamBreakModel: 6859
+particles, as SPlisHSPlasH prints); denseMode 1 and 2 (staggered lattices) are refused.
 """
 
 from __future__ import annotations
 
+import json
+import math
+import os
 import warnings
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from warpsph import sampling
 from warpsph.errors import SceneError
 
-SOLVER_KEYS = {"minIterations": "min_iterations", "maxIterations": "max_iterations", "maxError": "density_max_error",
-               "maxIterationsV": "divergence_max_iterations", "maxErrorV": "divergence_max_error",
-               "enableDivergenceSolver": "divergence_solver"}
-CONFIG_KEYS = {"particleRadius", "timeStepSize", "cflMethod", "cflFactor", "cflMinTimeStepSize", "cflMaxTimeStepSize",
-               "gravitation", "simulationMethod", "DFSPH", "stopAt", "fps", "dataExportFPS", "boundaryHandlingMethod",
-               *SOLVER_KEYS}
-MATERIAL_KEYS = {"id", "density0", "viscosity", "vorticityMethod", "vorticity", "viscosityOmega", "inertiaInverse"}
-BLOCK_KEYS = {"id", "start", "end", "translation", "scale"}
-BODY_KEYS = {"geometryFile", "translation", "rotationAxis", "rotationAngle", "scale", "isDynamic", "isWall",
-             "mapInvert", "id"}
+RUN_ANYWAY_ENV = "WARPSPH_SPLISHSPLASH_RUN_ANYWAY"
+REAL_MAX = 1e30  # SPlisHSPlasH's "never" (numeric_limits<Real>::max) for emitEndTime
+
+# pressure solvers (Configuration.simulationMethod) and their blocks
+METHODS = {0: "WCSPH", 1: "PCISPH", 2: "PBF", 3: "IISPH", 4: "DFSPH", 5: "Projective Fluids", 6: "ICSPH"}
+# DFSPH parameter -> (warpsph solver key, SPlisHSPlasH default)
+DFSPH_KEYS = {"minIterations": ("min_iterations", 2), "maxIterations": ("max_iterations", 100),
+              "maxError": ("density_max_error", 0.01), "maxIterationsV": ("divergence_max_iterations", 100),
+              "maxErrorV": ("divergence_max_error", 0.1), "enableDivergenceSolver": ("divergence_solver", True)}
+# Configuration keys without effect on what is simulated (GUI, export, performance, scripting aside)
+CONFIG_NO_EFFECT = {"pause", "pauseAt", "cameraPosition", "cameraLookat", "numberOfStepsPerRenderUpdate",
+                    "renderWalls", "enablePartioExport", "enableVTKExport", "enableRigidBodyExport",
+                    "enableRigidBodyVTKExport", "particleAttributes", "enableStateExport", "stateExportFPS",
+                    "enableAsyncExport", "enableObjectSplitting", "enableZSort", "stepsPerZSort",
+                    "determineThreadIds", "determineNumNeighbors", "determineVelocityChanges", "colorMapType"}
+CONFIG_READ = {"particleRadius", "sim2D", "gravitation", "cflMethod", "cflFactor", "cflMinTimeStepSize",
+               "cflMaxTimeStepSize", "timeStepSize", "kernel", "gradKernel", "simulationMethod",
+               "boundaryHandlingMethod", "stopAt", "dataExportFPS", "scriptFile", *METHODS.values(), *DFSPH_KEYS}
+# every parameter of every pressure solver block (flat in files before 2.16)
+SOLVER_PARAMS = {"minIterations", "maxIterations", "maxError", "maxIterationsV", "maxErrorV", "enableDivergenceSolver",
+                 "stiffness", "exponent", "velocityUpdateMethod", "lambda", "pressureClamping"}
+
+# non-pressure methods: material key -> {number: block name}
+VISCOSITY = {1: "Standard viscosity", 2: "Bender and Koschier 2017", 3: "Peer et al. 2015", 4: "Peer et al. 2016",
+             5: "Takahashi et al. 2015 (improved)", 6: "Weiler et al. 2018"}
+VORTICITY = {1: "Bender et al. 2017", 2: "Vorticity confinement", 3: "Liu et al. 2021"}
+DRAG = {1: "Macklin et al. 2014", 2: "Gissler et al. 2017"}
+SURFACE_TENSION = {1: "Becker & Teschner 2007", 2: "Akinci et al. 2013", 3: "He et al. 2014", 4: "Jeske et al. 2023",
+                   5: "Zorilla, Ritter, et al. 2020"}
+ELASTICITY = {1: "Becker et al. 2009", 2: "Peer et al. 2018", 3: "Kugelstadt et al. 2021", 4: "Kee et al. 2023"}
+METHOD_BLOCKS = {name for table in (VISCOSITY, VORTICITY, DRAG, SURFACE_TENSION, ELASTICITY) for name in table.values()}
+# parameters of the non-pressure methods (flat in files before 2.16); what SPlisHSPlasH reads, per method
+METHOD_PARAMS = {
+    "XSPH": {"xsph": 0.0, "xsphBoundary": 0.0},
+    "Standard viscosity": {"viscosity": 0.01, "viscosityBoundary": 0.0},
+    "Bender et al. 2017": {"vorticity": 0.01, "viscosityOmega": 0.1, "inertiaInverse": 0.5},
+    "Liu et al. 2021": {"vorticity": 1.0, "kinetmaticViscosity": 0.05},
+}
+FLAT_METHOD_PARAMS = {"viscosity", "viscosityBoundary", "viscoMaxIter", "viscoMaxError", "viscoMaxIterOmega",
+                      "viscoMaxErrorOmega", "vorticity", "viscosityOmega", "inertiaInverse", "kinetmaticViscosity",
+                      "drag", "surfaceTension", "surfaceTensionBoundary", "youngsModulus", "poissonsRatio", "alpha",
+                      "fixedBoxMin", "fixedBoxMax", "xsph", "xsphBoundary"}
+MATERIAL_NO_EFFECT = {"id", "colorField", "colorMapType", "renderMinValue", "renderMaxValue", "visible"}
+MATERIAL_EMITTER = {"maxEmitterParticles", "emitterReuseParticles", "emitterBoxMin", "emitterBoxMax"}
+
+BLOCK_KEYS = {"id", "start", "end", "translation", "scale", "denseMode", "initialVelocity", "initialAngularVelocity",
+              "visMesh"}
+EMITTER_KEYS = {"id", "width", "height", "translation", "velocity", "rotationAxis", "rotationAngle", "emitStartTime",
+                "emitEndTime", "type"}
+BODY_READ = {"geometryFile", "particleFile", "translation", "scale", "rotationAxis", "rotationAngle", "isDynamic",
+             "isAnimated", "isWall", "mapInvert", "mapThickness", "density", "velocity", "angularVelocity"}
+BODY_NO_EFFECT = {"color", "mapFile", "mapResolution", "samplingMode", "id", "tag", "comment"}
+# read by PositionBasedDynamics, SPlisHSPlasH's rigid-body solver: contact between bodies and with the walls
+BODY_PBD_CONTACT = {"friction", "restitution", "collisionObjectType", "collisionObjectScale", "collisionObjectFileName",
+                    "testMesh", "invertSDF", "resolutionSDF", "thicknessSDF", "boundingBoxMin", "boundingBoxMax",
+                    "tubeMapOrder"}
+TOP_KNOWN = {"Configuration", "Materials", "FluidBlocks", "FluidModels", "Emitters", "RigidBodies", "AnimationFields",
+             "Simulation", "warpsph"}
 
 
 class SplishSplashWarning(UserWarning):
-    """Keys of a SPlisHSPlasH scene that warpsph does not support (listed, never silently dropped)."""
+    """A SPlisHSPlasH scene runs with approximations, or anyway with physics left out (listed)."""
+
+
+@dataclass
+class Conversion:
+    """What became of each key of a SPlisHSPlasH scene."""
+
+    file: str
+    scene: dict = field(default_factory=dict)  # the warpsph scene (a dict for parse_dataclass)
+    mapped: list = field(default_factory=list)  # "key -> warpsph key = value"
+    refused: list = field(default_factory=list)  # "key: what it would have changed"
+    errors: list = field(default_factory=list)  # what keeps the scene from running at all (even anyway)
+    notes: list = field(default_factory=list)  # approximations; keys without effect
+    splishsplash_particles: int | None = None  # fluid particles at t = 0 by SPlisHSPlasH's rules (None: unknown)
+    run_anyway: bool = False
+
+    def refusal_text(self):
+        return "; ".join(self.refused)
+
+
+_CONVERSIONS: dict = {}
+
+
+def conversion_of(scene):
+    """The :class:`Conversion` of a scene loaded from a SPlisHSPlasH file (None for other scenes):
+    ``refused`` lists what a run-anyway scene leaves out, for the run's metadata."""
+    source = getattr(scene, "source", scene)
+    return _CONVERSIONS.get(str(source)) if source is not None else None
 
 
 def is_splishsplash(data) -> bool:
     return isinstance(data, dict) and "Configuration" in data
 
 
-def _unknown(section, keys, known, where, out):
-    out += [f"{where}.{k}" for k in keys if k not in known]
+def _num(value, default):
+    return default if value is None else value
 
 
-def _box_bounds(body, base):
+def _fmt(value):
+    return json.dumps(value) if not isinstance(value, float) else f"{value:g}"
+
+
+def _vec(value, default, file, key):
+    if value is None:
+        return np.asarray(default, np.float64)
+    if not isinstance(value, list) or len(value) != 3 or not all(isinstance(v, (int, float)) for v in value):
+        raise SceneError(file, key, f"expected a list of 3 numbers, got {json.dumps(value)}")
+    return np.asarray(value, np.float64)
+
+
+def rotation(axis, angle):
+    """SPlisHSPlasH's AngleAxis rotation matrix (columns: the rotated x, y, z axes)."""
+    return sampling.rotation_matrix(axis, angle)
+
+
+def _axis_of(vector):
+    """(axis index, sign) when ``vector`` is a coordinate axis, else None."""
+    k = int(np.argmax(np.abs(vector)))
+    if abs(abs(vector[k]) - 1.0) > 1e-6 or np.sum(np.abs(vector)) - abs(vector[k]) > 1e-6:
+        return None
+    return k, (1.0 if vector[k] > 0 else -1.0)
+
+
+def _box_bounds(body, base, file, key):
     """World bounds of a (wall) body: its mesh's bounds, or SPlisHSPlasH's UnitBox when the file is absent."""
     path = base / body.get("geometryFile", "")
     if path.is_file():
@@ -53,93 +176,530 @@ def _box_bounds(body, base):
     elif Path(body.get("geometryFile", "")).name == "UnitBox.obj":
         lo, hi = np.full(3, -0.5), np.full(3, 0.5)
     else:
-        raise SceneError(path, "RigidBodies.geometryFile", "mesh file not found")
-    scale = np.asarray(body.get("scale", [1, 1, 1]), float)
-    translation = np.asarray(body.get("translation", [0, 0, 0]), float)
+        raise SceneError(path, f"{key}.geometryFile", "mesh file not found")
+    scale = _vec(body.get("scale"), [1, 1, 1], file, f"{key}.scale")
+    translation = _vec(body.get("translation"), [0, 0, 0], file, f"{key}.translation")
     return (lo * scale + translation).tolist(), (hi * scale + translation).tolist()
 
 
-def convert(data, file) -> dict:
-    """A warpsph scene dict from a SPlisHSPlasH scene dict (paths stay relative to ``file``)."""
-    file = Path(file)
-    base = file.parent
-    ignored = []
-    config = data.get("Configuration", {})
-    _unknown("Configuration", config, CONFIG_KEYS, "Configuration", ignored)
-    method = config.get("simulationMethod", 4)
-    if method != 4:
-        raise SceneError(file, "Configuration.simulationMethod",
-                         f"method {method} is not supported: warpsph runs DFSPH (simulationMethod 4)")
-    if config.get("boundaryHandlingMethod", 0) != 0:
-        ignored.append("Configuration.boundaryHandlingMethod (warpsph uses Akinci particles, method 0)")
-    solver_block = dict(config.get("DFSPH", {}))
-    _unknown("DFSPH", solver_block, SOLVER_KEYS, "Configuration.DFSPH", ignored)
-    solver = {ours: solver_block.get(theirs, config.get(theirs)) for theirs, ours in SOLVER_KEYS.items()}
-    solver = {k: v for k, v in solver.items() if v is not None}
-    if "divergence_solver" in solver:
-        solver["divergence_solver"] = bool(solver["divergence_solver"])
-    scene = {"name": file.stem, "particle_radius": config.get("particleRadius", 0.025), "solver": solver}
-    if "gravitation" in config:
-        scene["gravity"] = config["gravitation"]
-    time = {}
-    if config.get("cflMethod", 1) == 0:
-        time["fixed_dt"] = config.get("timeStepSize", 0.001)
-    for theirs, ours in (("cflFactor", "cfl"), ("cflMinTimeStepSize", "dt_min"), ("cflMaxTimeStepSize", "dt_max")):
-        if theirs in config:
-            time[ours] = config[theirs]
-    scene["time"] = time
-    fps = config.get("dataExportFPS", config.get("fps", 25))
-    output = {"fps": fps}
-    if "stopAt" in config and config["stopAt"] > 0:
-        output["frames"] = max(1, int(round(config["stopAt"] * fps)))
-    scene["output"] = output
+class _Reader:
+    def __init__(self, data, file):
+        self.data, self.file, self.base = data, Path(file), Path(file).parent
+        self.c = Conversion(file=str(file))
 
-    materials = data.get("Materials", [])
-    if len(materials) > 1:
-        ignored.append(f"Materials[1:] ({len(materials) - 1} more materials: one fluid phase is supported)")
-    if materials:
-        m = materials[0]
-        _unknown("Materials", m, MATERIAL_KEYS, "Materials[0]", ignored)
-        scene["fluid"] = {k: m[theirs] for theirs, k in (("density0", "density"), ("viscosity", "viscosity")) if theirs in m}
+    # bookkeeping
+    def mapped(self, key, ours, value, flat=False, default=False):
+        how = " (flat, the pre-2.16 form: SPlisHSPlasH 2.19 ignores it)" if flat else (
+            " (SPlisHSPlasH's default)" if default else "")
+        self.c.mapped.append(f"{key} -> {ours} = {_fmt(value)}{how}")
+
+    def refuse(self, key, what):
+        self.c.refused.append(f"{key}: {what}")
+
+    def note(self, text):
+        self.c.notes.append(text)
+
+    def no_effect(self, where, keys, why):
+        if keys:
+            self.note(f"{why}: " + ", ".join(f"{where}.{k}" for k in keys))
+
+    # ---------------------------------------------------------------------------------------------
+    def run(self):
+        d, c = self.data, self.c
+        config = d.get("Configuration") or {}
+        if not isinstance(config, dict):
+            raise SceneError(self.file, "Configuration", "expected an object")
+        scene = c.scene
+        scene["name"] = self.file.stem
+        self.radius = float(_num(config.get("particleRadius"), 0.025))
+        scene["particle_radius"] = self.radius
+        self.mapped("Configuration.particleRadius", "particle_radius", self.radius, default="particleRadius" not in config)
+        self.sim2d = bool(config.get("sim2D", False))
+        self.configuration(config)
+        phases = self.phases()
+        self.materials(phases)
+        self.fluid_blocks()
+        self.bodies()
+        self.emitters()
+        for key in ("FluidModels", "AnimationFields"):
+            if d.get(key):
+                n = len(d[key])
+                what = ("fluid read from particle files or filled into meshes: warpsph fills only fluid blocks, "
+                        f"so these {n} bodies of fluid would be missing") if key == "FluidModels" else (
+                        f"{n} fields that set the particles' velocity (or other quantities) by expressions over time: "
+                        "the fluid would not be driven")
+                self.refuse(key, what)
+        joints = [k for k in d if "Joint" in k]
+        for k in joints:
+            self.refuse(k, f"{len(d[k]) if isinstance(d[k], list) else ''} joints between rigid bodies (PositionBasedDynamics): "
+                           "warpsph has no joints, the bodies would move freely")
+        pbd_models = [k for k in d if k in ("TriangleModels", "TetModels")]
+        for k in pbd_models:
+            self.refuse(k, "cloth/deformable solids (PositionBasedDynamics): warpsph has none")
+        if "Simulation" in d:
+            self.note("Simulation (PositionBasedDynamics' solver settings for the rigid bodies: contact stiffness, "
+                      "iterations) is not mapped: warpsph integrates its bodies itself")
+        other = [k for k in d if k not in TOP_KNOWN and k not in joints and k not in pbd_models]
+        self.no_effect("", other, "not read by SPlisHSPlasH either")
+        return c
+
+    # ---------------------------------------------------------------------------------------------
+    def configuration(self, config):
+        scene = self.c.scene
+        method = config.get("simulationMethod", 4)
+        if method != 4:
+            name = METHODS.get(method, f"method {method}")
+            self.refuse("Configuration.simulationMethod",
+                        f"{method} ({name}): warpsph runs DFSPH (4); run anyway, DFSPH with SPlisHSPlasH's DFSPH defaults")
+        block = config.get("DFSPH") if method == 4 else None
+        block = block if isinstance(block, dict) else {}
+        solver = {}
+        for theirs, (ours, default) in DFSPH_KEYS.items():
+            if theirs in block:
+                value, flat, dflt = block[theirs], False, False
+            elif method == 4 and theirs in config:
+                value, flat, dflt = config[theirs], True, False
+            else:
+                value, flat, dflt = default, False, True
+            if ours == "divergence_solver":
+                value = bool(value)
+            solver[ours] = value
+            self.mapped(f"Configuration.DFSPH.{theirs}" if not flat else f"Configuration.{theirs}", f"solver.{ours}",
+                        value, flat=flat, default=dflt)
+        if solver["min_iterations"] > solver["max_iterations"]:
+            solver["min_iterations"] = solver["max_iterations"]
+        scene["solver"] = solver
+        self.no_effect("Configuration.DFSPH", [k for k in block if k not in DFSPH_KEYS], "not read by SPlisHSPlasH either")
+        unused = [k for k in METHODS.values() if k in config and not (k == "DFSPH" and method == 4)
+                  and k != METHODS.get(method)]
+        self.no_effect("Configuration", unused, "blocks of pressure solvers the scene does not use (SPlisHSPlasH ignores them too)")
+        if method != 4 and METHODS.get(method) in config:
+            self.note(f"Configuration.{METHODS[method]}: the parameters of the refused solver are not used")
+        if method != 4:
+            self.no_effect("Configuration", [k for k in config if k in SOLVER_PARAMS and k not in DFSPH_KEYS],
+                           "flat solver parameters of the refused solver")
+        else:
+            self.no_effect("Configuration", [k for k in config if k in SOLVER_PARAMS and k not in DFSPH_KEYS],
+                           "flat parameters of other pressure solvers")
+
+        if self.sim2d:
+            self.refuse("Configuration.sim2D", "a 2D simulation (one particle layer, 2D kernels): warpsph runs 3D, "
+                                               "the blocks would fill their full depth in z")
+        if "gravitation" in config:
+            scene["gravity"] = list(_vec(config["gravitation"], [0, -9.81, 0], self.file, "Configuration.gravitation"))
+        else:
+            scene["gravity"] = [0.0, -9.81, 0.0]
+        self.mapped("Configuration.gravitation", "gravity", scene["gravity"], default="gravitation" not in config)
+        time = {}
+        cfl_method = config.get("cflMethod", 1)
+        if cfl_method == 0:
+            time["fixed_dt"] = float(_num(config.get("timeStepSize"), 0.001))
+            self.mapped("Configuration.timeStepSize", "time.fixed_dt", time["fixed_dt"], default="timeStepSize" not in config)
+        else:
+            if cfl_method == 2:
+                self.note("Configuration.cflMethod 2 (CFL and pressure-solver iterations): warpsph adapts dt by the "
+                          "CFL condition only")
+            if cfl_method not in (1, 2):
+                self.refuse("Configuration.cflMethod", f"{cfl_method}: not a SPlisHSPlasH CFL method")
+            for theirs, ours, default in (("cflFactor", "cfl", 0.5), ("cflMinTimeStepSize", "dt_min", 0.0001),
+                                          ("cflMaxTimeStepSize", "dt_max", 0.005)):
+                time[ours] = float(_num(config.get(theirs), default))
+                self.mapped(f"Configuration.{theirs}", f"time.{ours}", time[ours], default=theirs not in config)
+            if time["dt_min"] > time["dt_max"]:
+                time["dt_min"] = time["dt_max"]
+            if "timeStepSize" in config:
+                self.note("Configuration.timeStepSize is only SPlisHSPlasH's first step with adaptive time stepping")
+        scene["time"] = time
+        fps = float(_num(config.get("dataExportFPS"), 25.0))
+        output = {"fps": fps}
+        self.mapped("Configuration.dataExportFPS", "output.fps", fps, default="dataExportFPS" not in config)
+        self.duration = None
+        stop = config.get("stopAt")
+        if stop is not None and stop > 0:
+            output["frames"] = max(1, int(round(stop * fps)))
+            self.duration = output["frames"] / fps
+            self.mapped("Configuration.stopAt", "output.frames", output["frames"])
+        else:
+            self.note("no Configuration.stopAt: SPlisHSPlasH runs until stopped, warpsph its default frame count")
+        scene["output"] = output
+        boundary = config.get("boundaryHandlingMethod", 2)
+        if boundary != 0:
+            self.note(f"Configuration.boundaryHandlingMethod {boundary} (volume/density maps): warpsph samples walls and "
+                      "bodies with boundary particles (Akinci et al. 2012, SPlisHSPlasH's method 0)")
+        for key in ("kernel", "gradKernel"):
+            if config.get(key, 0) not in (0, 4, -1):
+                self.note(f"Configuration.{key} {config[key]}: warpsph uses the cubic spline kernel (0)")
+        if config.get("scriptFile"):
+            self.refuse("Configuration.scriptFile", f"{config['scriptFile']!r}: a Python script that changes the "
+                                                    "simulation while it runs: it would not run")
+        self.no_effect("Configuration", [k for k in config if k in CONFIG_NO_EFFECT], "GUI, export and performance settings")
+        known = CONFIG_READ | CONFIG_NO_EFFECT | SOLVER_PARAMS
+        self.no_effect("Configuration", [k for k in config if k not in known], "not read by SPlisHSPlasH either")
+
+    # ---------------------------------------------------------------------------------------------
+    def phases(self):
+        """The fluid ids in use (blocks, models, emitters; default "Fluid"), in SPlisHSPlasH's order."""
+        ids = []
+        for key in ("FluidBlocks", "FluidModels", "Emitters"):
+            for item in self.data.get(key) or []:
+                if isinstance(item, dict):
+                    name = item.get("id", "Fluid")
+                    if name not in ids:
+                        ids.append(name)
+        if len(ids) > 1:
+            self.refuse("FluidBlocks/FluidModels/Emitters.id", f"{len(ids)} fluid phases ({', '.join(map(repr, ids))}), "
+                        "each with its own material: warpsph has one fluid; run anyway, all are the first phase's")
+        self.phase = ids[0] if ids else "Fluid"
+        return ids
+
+    def materials(self, phases):
+        materials = self.data.get("Materials") or []
+        fluid = {}
+        models = []
+        self.c.scene["fluid"] = fluid
+        self.c.scene["models"] = models
+        self.material = {}
+        for n, m in enumerate(materials):
+            name = m.get("id", "Fluid") if isinstance(m, dict) else None
+            if name == self.phase and not self.material:
+                self.material, self.material_key = m, f"Materials[{n}]"
+            elif name not in phases:
+                self.note(f"Materials[{n}] (id {name!r}) belongs to no fluid of the scene: SPlisHSPlasH does not use it either")
+            elif name != self.phase:
+                self.note(f"Materials[{n}] (id {name!r}): the material of a refused extra phase")
+        m = self.material
+        where = getattr(self, "material_key", "Materials")
+        if not m:
+            self.note(f"no material with id {self.phase!r}: SPlisHSPlasH's defaults (density 1000, no viscosity)")
+        fluid["density"] = float(_num(m.get("density0"), 1000.0))
+        self.mapped(f"{where}.density0", "fluid.density", fluid["density"], default="density0" not in m)
+        used = {"density0"} | MATERIAL_NO_EFFECT | MATERIAL_EMITTER
+
+        def params(block, defaults, methodkey):
+            """A method's parameters: its block (2.16+), else flat (pre-2.16), else SPlisHSPlasH's defaults."""
+            section = m.get(block) if isinstance(m.get(block), dict) else {}
+            out = {}
+            for p, default in defaults.items():
+                if p in section:
+                    out[p] = (section[p], f"{where}.{block}.{p}", False, False)
+                elif p in m:
+                    out[p] = (m[p], f"{where}.{p}", True, False)
+                    used.add(p)
+                else:
+                    out[p] = (default, f"{where}.{block}.{p}", False, True)
+            self.no_effect(f"{where}.{block}", [k for k in section if k not in defaults], "not read by SPlisHSPlasH either")
+            return out
+
+        # XSPH is always on in SPlisHSPlasH (coefficients 0 by default)
+        xsph = params("XSPH", METHOD_PARAMS["XSPH"], None)
+        used.add("XSPH")
+        for p, (value, key, flat, dflt) in xsph.items():
+            if value:
+                self.refuse(key, f"{_fmt(value)}: XSPH velocity smoothing, which warpsph does not have")
+
+        method = m.get("viscosityMethod", 0)
+        used.add("viscosityMethod")
+        fluid["viscosity"], fluid["boundary_viscosity"] = 0.0, 0.0
+        if method == 0:
+            self.mapped(f"{where}.viscosityMethod", "fluid.viscosity", 0.0, default="viscosityMethod" not in m)
+            if "viscosity" in m:
+                used.add("viscosity")
+                self.note(f"{where}.viscosity {_fmt(m['viscosity'])} with no viscosityMethod: SPlisHSPlasH (2.8 on) "
+                          "runs this fluid without viscosity, and so does warpsph")
+        elif method == 1:
+            used.add("Standard viscosity")
+            p = params("Standard viscosity", METHOD_PARAMS["Standard viscosity"], "viscosityMethod")
+            for theirs, ours in (("viscosity", "viscosity"), ("viscosityBoundary", "boundary_viscosity")):
+                value, key, flat, dflt = p[theirs]
+                fluid[ours] = float(value)
+                self.mapped(key, f"fluid.{ours}", fluid[ours], flat=flat, default=dflt)
+        elif method in VISCOSITY:
+            block = VISCOSITY[method]
+            used.add(block)
+            section = m.get(block) if isinstance(m.get(block), dict) else {}
+            value = section.get("viscosity", m.get("viscosity"))
+            self.refuse(f"{where}.viscosityMethod", f"{method} ({block}, an implicit viscosity solver"
+                        + (f", viscosity {_fmt(value)}" if value is not None else "")
+                        + "): warpsph has the standard explicit viscosity only; run anyway, the fluid is inviscid")
+        else:
+            self.refuse(f"{where}.viscosityMethod", f"{method}: not a SPlisHSPlasH viscosity method")
+
         method = m.get("vorticityMethod", 0)
+        used.add("vorticityMethod")
         if method == 1:
-            scene["models"] = [{"type": "micropolar", **{ours: m[theirs] for theirs, ours in (
-                ("vorticity", "transfer_coefficient"), ("viscosityOmega", "viscosity_omega"),
-                ("inertiaInverse", "inverse_inertia")) if theirs in m}}]
+            used.add("Bender et al. 2017")
+            p = params("Bender et al. 2017", METHOD_PARAMS["Bender et al. 2017"], "vorticityMethod")
+            model = {"type": "micropolar"}
+            for theirs, ours in (("vorticity", "transfer_coefficient"), ("viscosityOmega", "viscosity_omega"),
+                                 ("inertiaInverse", "inverse_inertia")):
+                value, key, flat, dflt = p[theirs]
+                model[ours] = float(value)
+                self.mapped(key, f"models.micropolar.{ours}", model[ours], flat=flat, default=dflt)
+            models.append(model)
         elif method == 3:
-            scene["models"] = [{"type": "vorticity_refinement"}]
-        elif method not in (0,):
-            ignored.append(f"Materials[0].vorticityMethod {method} (supported: 1 micropolar, 3 vorticity refinement)")
+            used.add("Liu et al. 2021")
+            p = params("Liu et al. 2021", METHOD_PARAMS["Liu et al. 2021"], "vorticityMethod")
+            model = {"type": "vorticity_refinement"}
+            for theirs, ours in (("vorticity", "alpha"), ("kinetmaticViscosity", "viscosity")):
+                value, key, flat, dflt = p[theirs]
+                model[ours] = float(value)
+                self.mapped(key, f"models.vorticity_refinement.{ours}", model[ours], flat=flat, default=dflt)
+            models.append(model)
+        elif method == 2:
+            used.add(VORTICITY[2])
+            self.refuse(f"{where}.vorticityMethod", "2 (vorticity confinement): warpsph does not have it; run anyway, "
+                                                    "no vorticity model")
+        elif method != 0:
+            self.refuse(f"{where}.vorticityMethod", f"{method}: not a SPlisHSPlasH vorticity method")
 
-    blocks = []
-    for n, b in enumerate(data.get("FluidBlocks", [])):
-        _unknown("FluidBlocks", b, BLOCK_KEYS, f"FluidBlocks[{n}]", ignored)
-        scale = np.asarray(b.get("scale", [1, 1, 1]), float)
-        translation = np.asarray(b.get("translation", [0, 0, 0]), float)
-        ends = [np.asarray(b.get(k, [0, 0, 0]), float) * scale + translation for k in ("start", "end")]
-        blocks.append({"start": np.minimum(*ends).tolist(), "end": np.maximum(*ends).tolist()})
-    scene["fluid_blocks"] = blocks
+        for key, table, what in (("dragMethod", DRAG, "drag by the surrounding air"),
+                                 ("surfaceTensionMethod", SURFACE_TENSION, "surface tension"),
+                                 ("elasticityMethod", ELASTICITY, "an elastic solid, not a liquid")):
+            used.add(key)
+            method = m.get(key, 0)
+            if method:
+                name = table.get(method, f"method {method}")
+                used.add(name)
+                self.refuse(f"{where}.{key}", f"{method} ({name}): {what}; warpsph does not simulate it"
+                            + ("; run anyway, the solid flows as a liquid" if key == "elasticityMethod" else ""))
+        # blocks and flat parameters of methods that are not selected
+        unused = [k for k in m if k not in used and (k in METHOD_BLOCKS or k in FLAT_METHOD_PARAMS)]
+        self.no_effect(where, unused, "parameters of methods the material does not select (SPlisHSPlasH ignores them too)")
+        self.no_effect(where, [k for k in m if k in MATERIAL_NO_EFFECT - {"id"}], "colouring")
+        self.no_effect(where, [k for k in m if k not in used and k not in METHOD_BLOCKS and k not in FLAT_METHOD_PARAMS],
+                       "not read by SPlisHSPlasH either")
+        if m.get("emitterReuseParticles") and self.data.get("Emitters"):
+            self.refuse(f"{where}.emitterReuseParticles", "emitted particles leaving the box emitterBoxMin..Max are "
+                        "re-emitted: warpsph keeps them where they are")
 
-    obstacles, domain = [], None
-    for n, body in enumerate(data.get("RigidBodies", [])):
-        _unknown("RigidBodies", body, BODY_KEYS, f"RigidBodies[{n}]", ignored)
-        if body.get("isWall") and body.get("mapInvert"):
-            if domain is None:
-                lo, hi = _box_bounds(body, base)
-                domain = {"min": lo, "max": hi}
+    # ---------------------------------------------------------------------------------------------
+    def fluid_blocks(self):
+        blocks = []
+        total = 0
+        for n, b in enumerate(self.data.get("FluidBlocks") or []):
+            key = f"FluidBlocks[{n}]"
+            scale = _vec(b.get("scale"), [1, 1, 1], self.file, f"{key}.scale")
+            translation = _vec(b.get("translation"), [0, 0, 0], self.file, f"{key}.translation")
+            lo = scale * _vec(b.get("start"), [0, 0, 0], self.file, f"{key}.start") + translation
+            hi = scale * _vec(b.get("end"), [0, 0, 0], self.file, f"{key}.end") + translation
+            mode = b.get("denseMode", 0)
+            points = sampling.splishsplash_block(lo, hi, self.radius, mode, self.sim2d)
+            total += len(points)
+            if mode not in (0, 1, 2):
+                raise SceneError(self.file, f"{key}.denseMode", f"expected 0, 1 or 2, got {json.dumps(mode)}")
+            if not len(points):
+                self.note(f"{key} holds no particle by SPlisHSPlasH's rule (it skips the block too)")
                 continue
-        if body.get("isDynamic"):
-            ignored.append(f"RigidBodies[{n}].isDynamic (dynamic bodies are not supported yet: treated as static)")
-        obstacles.append({"mesh": body.get("geometryFile", ""), "translation": body.get("translation", [0, 0, 0]),
-                          "scale": body.get("scale", [1, 1, 1]), "rotation_axis": body.get("rotationAxis", [0, 1, 0]),
-                          "rotation_angle": body.get("rotationAngle", 0.0)})
-    if domain is None:
-        raise SceneError(file, "RigidBodies", "no container: warpsph needs a wall box (isWall and mapInvert) as its domain")
-    scene["domain"] = domain
-    scene["obstacles"] = obstacles
-    other = [k for k in data if k not in ("Configuration", "Materials", "FluidBlocks", "RigidBodies")]
-    ignored += other
-    if ignored:
-        warnings.warn(f"{file}: SPlisHSPlasH keys not supported, ignored: {', '.join(ignored)}", SplishSplashWarning,
-                      stacklevel=3)
-    return scene
+            if mode != 0:
+                self.refuse(f"{key}.denseMode", f"{mode} (a staggered, denser lattice: {len(points)} particles): warpsph "
+                            "fills blocks on the cubic lattice (denseMode 0); run anyway, the cubic lattice")
+                start, end = lo, hi
+            else:
+                # the warpsph block whose lattice (first point half a spacing in) is SPlisHSPlasH's
+                counts = sampling.splishsplash_block_counts(lo, hi, self.radius, 0)
+                start = lo + self.radius
+                end = start + 2.0 * self.radius * np.asarray(counts, np.float64)
+                if self.sim2d:  # run anyway: the full depth in 3D
+                    start[2], end[2] = lo[2] + self.radius, lo[2] + self.radius + 2 * self.radius * counts[2]
+            block = {"start": start.tolist(), "end": end.tolist()}
+            self.mapped(f"{key}.start/end/translation/scale", "fluid_blocks", f"{len(points)} particles")
+            velocity = b.get("initialVelocity")
+            if velocity is not None:
+                block["velocity"] = list(_vec(velocity, [0, 0, 0], self.file, f"{key}.initialVelocity"))
+                self.mapped(f"{key}.initialVelocity", f"fluid_blocks[{len(blocks)}].velocity", block["velocity"])
+            omega = _vec(b.get("initialAngularVelocity"), [0, 0, 0], self.file, f"{key}.initialAngularVelocity")
+            if np.any(omega != 0):
+                self.refuse(f"{key}.initialAngularVelocity", f"{omega.tolist()}: the block would start spinning; "
+                                                             "warpsph blocks start with one velocity")
+            self.no_effect(key, [k for k in b if k == "visMesh"], "meshes for rendering")
+            self.no_effect(key, [k for k in b if k not in BLOCK_KEYS], "not read by SPlisHSPlasH either")
+            blocks.append(block)
+        self.c.scene["fluid_blocks"] = blocks
+        self.block_particles = total
+
+    # ---------------------------------------------------------------------------------------------
+    def bodies(self):
+        obstacles, domain = [], None
+        for n, body in enumerate(self.data.get("RigidBodies") or []):
+            key = f"RigidBodies[{n}]"
+            if not body.get("geometryFile"):
+                if body.get("particleFile"):
+                    self.refuse(f"{key}.particleFile", "a body given only as boundary particles (no geometryFile): "
+                                                       "warpsph samples bodies from meshes; it would be missing")
+                else:
+                    self.note(f"{key} has neither geometryFile nor particleFile: SPlisHSPlasH skips it too")
+                continue
+            angle = float(body.get("rotationAngle", 0.0))
+            if body.get("mapInvert") and domain is None and not body.get("isDynamic"):
+                if angle != 0.0:
+                    self.c.errors.append(f"{key}.rotationAngle: the container (mapInvert) is rotated: warpsph's "
+                                         "domain is an axis-aligned box")
+                    continue
+                lo, hi = _box_bounds(body, self.base, self.file, key)
+                domain = {"min": lo, "max": hi}
+                self.mapped(f"{key} (mapInvert)", "domain", {"min": lo, "max": hi})
+            else:
+                obstacle = {"mesh": body["geometryFile"],
+                            "translation": list(_vec(body.get("translation"), [0, 0, 0], self.file, f"{key}.translation")),
+                            "scale": list(_vec(body.get("scale"), [1, 1, 1], self.file, f"{key}.scale")),
+                            "rotation_axis": list(_vec(body.get("rotationAxis"), [1, 0, 0], self.file, f"{key}.rotationAxis")),
+                            "rotation_angle": angle}
+                kind = "static"
+                if body.get("isDynamic"):
+                    kind = "dynamic"
+                    density = float(_num(body.get("density"), 1.0))  # PositionBasedDynamics' default
+                    dynamics = {"density": density}
+                    for theirs, ours in (("velocity", "velocity"), ("angularVelocity", "angular_velocity")):
+                        if theirs in body:
+                            dynamics[ours] = list(_vec(body[theirs], [0, 0, 0], self.file, f"{key}.{theirs}"))
+                    obstacle["dynamics"] = dynamics
+                    self.mapped(f"{key}.density", f"obstacles[{len(obstacles)}].dynamics.density", density,
+                                default="density" not in body)
+                    self.no_effect(key, [k for k in body if k in BODY_PBD_CONTACT],
+                                   "PositionBasedDynamics contact parameters (warpsph's dynamic bodies have their own "
+                                   "wall contact)")
+                if body.get("isAnimated"):
+                    self.refuse(f"{key}.isAnimated", "a body moved by a script or animation: it would stand still")
+                obstacles.append(obstacle)
+                self.mapped(key, f"obstacles[{len(obstacles) - 1}]", f"{kind} {body['geometryFile']}")
+                if body.get("mapInvert"):
+                    self.note(f"{key}.mapInvert: a second container; warpsph samples it as an obstacle's surface")
+            if body.get("particleFile"):
+                self.note(f"{key}.particleFile: warpsph samples the body from geometryFile instead")
+            if body.get("mapThickness"):
+                self.note(f"{key}.mapThickness {_fmt(body['mapThickness'])}: volume-map thickness is not modelled")
+            if not body.get("isDynamic"):
+                self.no_effect(key, [k for k in body if k in BODY_PBD_CONTACT or k in ("density", "velocity", "angularVelocity")],
+                               "rigid-body settings of a static body")
+            self.no_effect(key, [k for k in body if k in BODY_NO_EFFECT], "rendering and boundary-map settings")
+            self.no_effect(key, [k for k in body if k not in BODY_READ | BODY_NO_EFFECT | BODY_PBD_CONTACT],
+                           "not read by SPlisHSPlasH either")
+        if domain is None:
+            self.c.errors.append("RigidBodies: no container: warpsph needs a wall box (a body with mapInvert) as its "
+                                 "domain (open domains are not supported yet)")
+        else:
+            self.c.scene["domain"] = domain
+        self.c.scene["obstacles"] = obstacles
+
+    # ---------------------------------------------------------------------------------------------
+    def emitters(self):
+        emitters = self.data.get("Emitters") or []
+        out = []
+        d = 2.0 * self.radius
+        cap = int(_num(self.material.get("maxEmitterParticles"), 10000))
+        events = []
+        for n, e in enumerate(emitters):
+            key = f"Emitters[{n}]"
+            if e.get("id", "Fluid") != self.phase:
+                continue  # the refused extra phase
+            etype = e.get("type", 0)
+            width, height = int(e.get("width", 5)), int(e.get("height", 5))
+            velocity = float(e.get("velocity", 1.0))
+            rot = rotation(_vec(e.get("rotationAxis"), [0, 0, 1], self.file, f"{key}.rotationAxis"),
+                           float(e.get("rotationAngle", 0.0)))
+            axes = [_axis_of(rot[:, k]) for k in range(3)]
+            if etype != 0:
+                self.refuse(f"{key}.type", f"{etype} (a circular emitter of diameter {width} particles): warpsph emits "
+                                           "rectangular layers only")
+                continue
+            if any(a is None for a in axes):
+                self.refuse(f"{key}.rotationAxis/rotationAngle", "an emitter not aligned with the coordinate axes: warpsph "
+                                                                 "emits along x, y or z only")
+                continue
+            if velocity <= 0:
+                self.refuse(f"{key}.velocity", f"{_fmt(velocity)}: an emitter that emits nothing forward")
+                continue
+            x = _vec(e.get("translation"), [0, 0, 0], self.file, f"{key}.translation")
+            (k, sign), (b, _), (a, _) = axes  # emission along rotation.col(0), height col(1), width col(2)
+            lo, hi = x.copy(), x.copy()
+            if sign > 0:  # warpsph puts the first layer half a spacing inside the box's upstream face
+                lo[k], hi[k] = x[k] - 0.5 * d, x[k] + 0.5 * d
+            else:
+                lo[k], hi[k] = x[k] - 0.5 * d, x[k] + 0.5 * d
+            lo[a], hi[a] = x[a] - 0.5 * width * d, x[a] + 0.5 * width * d
+            lo[b], hi[b] = x[b] - 0.5 * height * d, x[b] + 0.5 * height * d
+            vel = [0.0, 0.0, 0.0]
+            vel[k] = sign * velocity
+            start = float(e.get("emitStartTime", 0.0))
+            end = e.get("emitEndTime")
+            end = None if end is None or end >= REAL_MAX else float(end)
+            emitter = {"min": lo.tolist(), "max": hi.tolist(), "velocity": vel, "start": start}
+            if end is not None:
+                emitter["end"] = end
+            self.mapped(key, f"emitters[{len(out)}]", f"{width}x{height} particles at {_fmt(velocity)} m/s along "
+                        f"{'+' if sign > 0 else '-'}{'xyz'[k]}")
+            self.note(f"{key}: the emitter housing SPlisHSPlasH adds (resources/emitter_boundary) is not modelled")
+            stop = self.duration if self.duration is not None else 2.0
+            last = min(end if end is not None else stop, stop)
+            t, m = start, 0
+            while t <= last + 1e-12 and m < 100000:
+                events.append((t, len(out), width * height))
+                t, m = start + (m + 1) * d / velocity, m + 1
+            out.append(emitter)
+        # maxEmitterParticles: SPlisHSPlasH stops emitting when the material's count is reached
+        events.sort()
+        emitted, layers = 0, [0] * len(out)
+        for t, i, count in events:
+            if emitted + count > cap:
+                if emitted < cap:
+                    self.note(f"maxEmitterParticles {cap}: SPlisHSPlasH's last, partial layer is not emitted")
+                e = out[i]
+                cutoff = t - 0.5 * d / abs(sum(e["velocity"]))
+                for j, f in enumerate(out):
+                    if f.get("end") is None or f["end"] > cutoff:
+                        if cutoff > f["start"]:
+                            f["end"] = cutoff
+                self.mapped(f"{getattr(self, 'material_key', 'Materials')}.maxEmitterParticles", "emitters[*].end",
+                            round(cutoff, 6), default="maxEmitterParticles" not in self.material)
+                break
+            emitted += count
+        self.c.scene["emitters"] = [e for e in out if e.get("end") is None or e["end"] > e["start"]]
+        self.emitted = emitted
+
+
+def translate(data, file) -> Conversion:
+    """The :class:`Conversion` of a SPlisHSPlasH scene dict (raises nothing for refused keys)."""
+    reader = _Reader(data, file)
+    conversion = reader.run()
+    if not conversion.scene.get("fluid_blocks") and not conversion.scene.get("emitters"):
+        if not any("FluidModels" in r for r in conversion.refused):
+            conversion.refused.append("FluidBlocks: no fluid block holds a particle by SPlisHSPlasH's rule")
+    conversion.splishsplash_particles = None if data.get("FluidModels") else reader.block_particles
+    return conversion
+
+
+def _wants_run_anyway(data, run_anyway):
+    if run_anyway is not None:
+        return bool(run_anyway)
+    own = data.get("warpsph")
+    if isinstance(own, dict) and own.get("run_anyway"):
+        return True
+    return os.environ.get(RUN_ANYWAY_ENV, "").strip().lower() in ("1", "true", "yes")
+
+
+def convert(data, file, run_anyway=None) -> dict:
+    """A warpsph scene dict from a SPlisHSPlasH scene dict (paths stay relative to ``file``).
+
+    Refused keys raise one :class:`SceneError` naming each, unless ``run_anyway`` (or the
+    environment variable or the file's ``"warpsph": {"run_anyway": true}``); then they are listed
+    in a :class:`SplishSplashWarning` and kept in :func:`conversion_of`."""
+    conversion = translate(data, file)
+    conversion.run_anyway = _wants_run_anyway(data, run_anyway)
+    _CONVERSIONS[str(file)] = conversion
+    if conversion.errors:
+        items = "\n  - ".join(conversion.errors + conversion.refused)
+        raise SceneError(file, "SPlisHSPlasH scene", f"warpsph cannot run this scene:\n  - {items}")
+    if conversion.refused and not conversion.run_anyway:
+        items = "\n  - ".join(conversion.refused)
+        raise SceneError(file, "SPlisHSPlasH scene",
+                         f"{len(conversion.refused)} part(s) of this scene are physics warpsph does not simulate:\n  - "
+                         f"{items}\nTo run it anyway without them, set {RUN_ANYWAY_ENV}=1 or add "
+                         '"warpsph": {"run_anyway": true} to the scene file (the list is then printed and kept)')
+    lines = []
+    if conversion.refused:
+        lines.append("RUN ANYWAY, left out: " + "; ".join(conversion.refused))
+    if conversion.notes:
+        lines.append("approximations and keys without effect: " + "; ".join(conversion.notes))
+    if lines:
+        warnings.warn(f"{file}: " + "\n".join(lines), SplishSplashWarning, stacklevel=3)
+    return conversion.scene
