@@ -48,3 +48,21 @@ def test_default_solver_keeps_the_vortex(packed):
     assert all(b < a for a, b in zip(ke, ke[1:]))
     assert rows[-1]["l1_speed_error"] < 0.12 * np.exp(-8 * np.pi**2 * 0.01 * T)
     assert abs(sim.host(sim.fluid.density).mean() / sim.rest_density - 1) < 0.01
+
+
+def test_initial_packing_is_a_scene_key(device):
+    """Any scene can ask for the packing: a walled tank with a free surface keeps its particle count, its
+    particles inside the walls and off the lattice, and an out-of-range key is an error naming it."""
+    from conftest import make_sim, tank_scene
+    from warpsph.errors import SceneError
+
+    plain = make_sim(tank_scene(radius=0.025, domain=(0.3, 0.5, 0.3), block=(0.3, 0.3, 0.3)), device=device)
+    packed = make_sim(tank_scene(radius=0.025, domain=(0.3, 0.5, 0.3), block=(0.3, 0.3, 0.3),
+                                 initial_packing={"steps": 10}), device=device)
+    assert packed.num_fluid == plain.num_fluid
+    x, x0 = packed.host(packed.fluid.x), plain.host(plain.fluid.x)
+    assert np.abs(x - x0).max() > 0.01 * packed.scene.particle_diameter
+    assert (x >= 0).all() and (x <= [0.3, 0.5, 0.3]).all()
+    assert abs(packed.time) == 0.0 and packed.step_count == 0
+    with pytest.raises(SceneError, match="initial_packing.steps"):
+        make_sim(tank_scene(initial_packing={"steps": 0}), device=device)

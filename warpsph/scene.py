@@ -284,6 +284,19 @@ class ModelConfig:
 
 
 @dataclass(frozen=True)
+class InitialPacking:
+    """A particle packing before t = 0 (set-up, not simulated time): the sampled lattice jittered by up to
+    ``jitter`` particle spacings, then ``steps`` steps of the scene's own pressure solver at rest (no gravity,
+    models, emitters or body motion; velocities zeroed before each step). A periodic box started on the cubic
+    lattice collapses to a disordered state after ~20 steps and the released noise pumps energy into the
+    flow (Taylor-Green, 128 across: KE 12-30 % above the analytic curve); from the packing it does not."""
+
+    steps: int = field(default=40, metadata=_check("an integer >= 1", lambda v: v >= 1))
+    jitter: float = field(default=0.1, metadata=_check("a number in [0, 0.5] (particle spacings)", lambda v: 0 <= v <= 0.5))
+    seed: int = 1
+
+
+@dataclass(frozen=True)
 class Scene:
     particle_radius: float = field(metadata=_positive())  # [m]; support radius is 4r
     domain: Box
@@ -298,6 +311,7 @@ class Scene:
     solver: Solver = Solver()
     output: Output = Output()
     models: typing.Tuple[ModelConfig, ...] = ()  # turbulence models, e.g. [{"type": "rankine", "beta": 0.6}]
+    initial_packing: typing.Optional[InitialPacking] = None  # e.g. {"steps": 40}; null: start on the lattice
     source: typing.Optional[str] = None  # the file it was read from (set by load_scene)
 
     @property

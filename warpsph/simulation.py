@@ -252,6 +252,11 @@ class Simulation:
             self.max_speed_sq = z("clock", 1)
             self.health_counts = z("health", 4, dtype=wp.int32)
             self.health_first = z("health", 4, dtype=wp.int32)
+            if scene.initial_packing is not None:  # the blocks' particles relaxed before t = 0
+                from warpsph.packing import packed_positions
+
+                packed = packed_positions(scene, self.device)
+                wp.copy(self.fluid.x, wp.array(packed, dtype=wp.vec3, device=self.device), count=len(packed))
             if self.inflow is not None:  # the layers due at t = 0
                 self.inflow.emit(self, 0.0)
             # densities of the initial state, so that frame 0 has them

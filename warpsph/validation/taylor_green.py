@@ -56,41 +56,16 @@ def scene_data(models, resolution, nu, T, frames, solver=None):
     return data
 
 
-def packed_positions(data, device, steps=PACK_STEPS, jitter=PACK_JITTER, seed=1):
-    """A particle packing of the box (set-up, not part of the run): the lattice jittered by up to
-    ``jitter`` spacings, then ``steps`` steps of the scene's own pressure solver at rest (velocity zeroed
-    before each step, so the solver only evens out the density). A full periodic box started on the
-    cubic lattice collapses to a disordered state after ~20 steps (128 across: max density 1.065 rho0 at
-    step 20) and the released noise pumped energy into the flow (KE 12-30 % above the analytic curve at
-    t = 0.03-0.06 s from 128 across up, then lost again); from this packing the error stays within a few
-    per cent throughout (tools/results/CONFINED_NOTES.md)."""
-    from warpsph.scene import scene_from_dict
-    from warpsph.simulation import Simulation
-
-    packing = dict(data, models=[])
-    sim = Simulation(scene_from_dict(packing), device=device)
-    spacing = 2.0 * sim.scene.particle_radius
-    x = sim.host(sim.fluid.x).astype(np.float64)
-    x += np.random.default_rng(seed).uniform(-jitter * spacing, jitter * spacing, x.shape)
-    lo, hi = np.asarray(sim.scene.domain.min), np.asarray(sim.scene.domain.max)
-    sim.active(sim.fluid.x).assign(np.asarray(lo + np.mod(x - lo, hi - lo), dtype=np.float32))
-    for _ in range(steps):
-        sim.fluid.v.zero_()
-        sim.step()
-    return sim.host(sim.fluid.x)
-
-
 def build(models, resolution=20, nu=0.01, T=0.5, device="cpu", frames=10, solver=None, pack_steps=0):
-    """The vortex at t = 0: (simulation, KE(0)). ``pack_steps`` > 0 starts from :func:`packed_positions`
-    instead of the cubic lattice; the velocity is the analytic field at the particles."""
+    """The vortex at t = 0: (simulation, KE(0)). ``pack_steps`` > 0 starts from the scene's
+    ``initial_packing`` of that many steps instead of the cubic lattice; the velocity is the analytic field at the particles."""
     from warpsph.scene import scene_from_dict
     from warpsph.simulation import Simulation
 
     data = scene_data(models, resolution, nu, T, frames, solver)
-    x0 = packed_positions(data, device, pack_steps) if pack_steps else None
+    if pack_steps:
+        data["initial_packing"] = {"steps": pack_steps, "jitter": PACK_JITTER}
     sim = Simulation(scene_from_dict(data), device=device)
-    if x0 is not None:
-        sim.active(sim.fluid.x).assign(x0)
     x0 = sim.host(sim.fluid.x)  # float32 arithmetic, as the recorded runs (tests/test_confined.py) had it
     sim.active(sim.fluid.v).assign(analytic_velocity(x0, 0.0, nu).astype(np.float32))
     return sim, float((sim.host(sim.fluid.v).astype(np.float64) ** 2).sum())
