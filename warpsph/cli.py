@@ -2,6 +2,7 @@
 
     warpsph run SCENE.json [--device auto|cpu|cuda] [--out FILE.usdc] [--frames N] [--scale S]
                            [--overwrite] [--checkpoint-every N] [--on-instability stop|reduce-dt] [--dry-run]
+                           [--fields points,velocities,...] [--sync-output]
     warpsph resume CHECKPOINT.h5 [--device ...] [--frames N]
 
 --overwrite replaces only files warpsph wrote (a directory or anyone else's file is refused). A
@@ -206,14 +207,43 @@ class StopRequest(Exception):
         self.signum = signum
 
 
+def _write_error(failed):
+    """The :class:`WriteError` of a failed frame writer (:class:`~warpsph.io.frames.WriterFailed`)."""
+    exc = failed.cause
+    if isinstance(exc, OSError) and exc.strerror:
+        reason = exc.strerror
+    elif _write_failure(exc):
+        reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+    else:  # not a disk problem: name the exception
+        reason = f"{type(exc).__name__}: {exc}"
+    error = WriteError(f"cannot write frame {failed.frame}: {reason}")
+    error.__cause__ = exc
+    return error
+
+
+def _disk_usage(outputs, clips):
+    """Bytes of the USD cache on disk (the frame layers and the stitched files of a --clips run)."""
+    paths = [outputs.out] + ([*outputs.clips.glob("frame.*.usdc"), *outputs.stitched] if clips else [])
+    return sum(p.stat().st_size for p in paths if p.is_file())
+
+
+last_run = {}  # timings and sizes of the last _simulate (tools/bench_job.py reads them)
+
+
 def _simulate(sim, outputs, frames, args, options, append):
     """Runs to ``frames``, writing every frame; ``append`` (a frame number) continues the outputs
-    after that frame (a resumed run: later frames are dropped and written again, each once)."""
+    after that frame (a resumed run: later frames are dropped and written again, each once).
+
+    Each frame's arrays are copied off the device and written by a background thread
+    (:class:`~warpsph.io.frames.FrameWriter`; ``--sync-output`` writes on this thread); a
+    checkpoint waits for the writer, so it never claims a frame the cache does not hold."""
     from .diagnostics import DiagnosticsWriter
     from .io.checkpoint import save_checkpoint
-    from .io.usd import UsdClipCache, UsdPointCache, body_meshes, frame_writer
+    from .io.frames import FrameWriter, WriterFailed, parse_fields
+    from .io.usd import UsdClipCache, UsdPointCache, body_meshes, write_host_frame
 
     scene = sim.scene
+    fields = parse_fields(options.get("fields") or None, sim)
     static = sim.num_boundary if sim.moving_bodies is None else sim.moving_bodies.first_sample
     boundary = None if append is not None else sim.boundary.x.numpy()[:static]
     meshes = None if append is not None else body_meshes(sim)
@@ -225,13 +255,30 @@ def _simulate(sim, outputs, frames, args, options, append):
             os.replace(outputs.out, outputs.partial)
         cache = UsdPointCache(outputs.partial, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
                               boundary_radius=scene.particle_radius, append=append, bodies=meshes)
-    write = frame_writer(cache)
     diagnostics = DiagnosticsWriter(outputs.stats, append=append)
     particles = None
     if options.get("particles_h5"):
         from .io.particles_h5 import ParticleFrames
 
         particles = ParticleFrames(outputs.particles, append=append)
+    published = list(sim.fields())
+    if particles is not None:  # the HDF5 frames hold every array
+        copy = ["v", *published]
+    else:
+        copy = (["v"] if "velocities" in fields else []) + [n for n in published if n in fields]
+        if "vorticity_magnitude" in fields and "vorticity" not in copy:
+            copy.append("vorticity")
+    radius = scene.particle_radius
+    payload = {"bytes": 0, "particle_frames": 0}
+
+    def write(item):  # on the writer's thread: the USD frame, the HDF5 frame, then the CSV row
+        payload["bytes"] += write_host_frame(cache, item, radius, fields)
+        payload["particle_frames"] += item.count
+        if particles is not None:
+            particles.write(item.frame, item.time, item.step, item.arrays)
+        diagnostics.write_row(item.row)
+
+    writer = FrameWriter(sim, write, copy=copy, background=not getattr(args, "sync_output", False))
     progress = None if args.quiet else Progress(frames)
     every = options.get("checkpoint_every", 0)
     preview = options.get("preview", 0)
@@ -240,17 +287,24 @@ def _simulate(sim, outputs, frames, args, options, append):
     def request_stop(signum, _frame):
         stop["signum"] = signum
 
+    def drain():
+        try:
+            writer.flush()
+        except WriterFailed as failed:
+            raise _write_error(failed) from failed.cause
+
     def checkpoint():
+        drain()  # the checkpoint claims only frames the cache holds
         with _writing(f"cannot write the checkpoint {outputs.checkpoint}"):
             save_checkpoint(sim, outputs.checkpoint,
                             extra={**options, "output": os.path.abspath(outputs.out), "frames": frames})
 
     def on_frame(sim, frame):
-        with _writing(f"cannot write frame {frame}"):
-            write(sim, frame)
-            diagnostics(sim, frame)
-            if particles is not None:
-                particles(sim, frame)
+        row = diagnostics.measure(sim, frame)  # a few numbers reduced on the device
+        try:
+            writer.submit(sim, frame, row)
+        except WriterFailed as failed:
+            raise _write_error(failed) from failed.cause
         if progress is not None:
             progress(sim, frame)
         if "signum" in stop:
@@ -261,8 +315,8 @@ def _simulate(sim, outputs, frames, args, options, append):
         if preview and frame % preview == 0:
             from .plots import plot_slice
 
-            fields = sim.fields()
-            values = (np.linalg.norm(sim.host(fields["vorticity"]), axis=1) if "vorticity" in fields
+            fields_now = sim.fields()
+            values = (np.linalg.norm(sim.host(fields_now["vorticity"]), axis=1) if "vorticity" in fields_now
                       else np.linalg.norm(sim.host(sim.fluid.v), axis=1))
             plot_slice(sim.host(sim.fluid.x), values, outputs.out.with_name(f"{outputs.out.stem}.preview.{frame:05d}.png"),
                        "z", thickness=2.0 * scene.particle_diameter, title=f"{scene.name}, frame {frame}, t = {sim.time:.3f} s")
@@ -271,44 +325,66 @@ def _simulate(sim, outputs, frames, args, options, append):
     start = time.perf_counter()
     steps0 = sim.step_count
     code = None
+    outcome = None
     try:
         sim.run(frames=frames, on_frame=on_frame)
-    except StopRequest as stopped:
-        name = signal.Signals(stopped.signum).name
-        code, message = 128 + stopped.signum, (
-            f"\nwarpsph: {name}: stopped after frame {sim.frame}; the cache {outputs.out} holds frames 0..{sim.frame}; "
-            f"continue with: warpsph resume {outputs.checkpoint}")
-    except WriteError as exc:
-        hint = "" if not outputs.checkpoint.exists() else f"; last checkpoint: {outputs.checkpoint}"
-        code, message = 2, f"\nwarpsph: error: {exc}; the cache {outputs.out} keeps the frames before it{hint}"
+        drain()
+    except (StopRequest, WriteError) as exc:
+        outcome = exc
     except Exception as exc:
         from .simulation import InstabilityError
 
         if not isinstance(exc, InstabilityError):
             raise
-        hint = "" if not outputs.checkpoint.exists() else f"; last checkpoint: {outputs.checkpoint}"
-        code, message = EXIT_UNSTABLE, (
-            f"\nwarpsph: {exc}. The cache {outputs.out} keeps frames 0..{sim.frame}{hint}. "
-            f"Try a smaller time step (time.dt_max, time.cfl) or --on-instability reduce-dt.")
+        outcome = exc
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
+        writer.close()  # writes the frames still queued (a stopped or unstable run keeps them)
         closing = [_close(diagnostics.close), particles is not None and _close(particles.close),
                    _close(lambda: cache.finish(outputs.out))]
+    loop_wall = time.perf_counter() - start
+    written = "no frames" if writer.written is None else f"frames 0..{writer.written}"
+    hint = "" if not outputs.checkpoint.exists() else f"; last checkpoint: {outputs.checkpoint}"
+    if isinstance(outcome, StopRequest):
+        name = signal.Signals(outcome.signum).name
+        code, message = 128 + outcome.signum, (
+            f"\nwarpsph: {name}: stopped after frame {sim.frame}; the cache {outputs.out} holds {written}; "
+            f"continue with: warpsph resume {outputs.checkpoint}")
+    elif isinstance(outcome, WriteError):
+        code, message = 2, f"\nwarpsph: error: {outcome}; the cache {outputs.out} keeps the frames before it{hint}"
+    elif outcome is not None:
+        code, message = EXIT_UNSTABLE, (
+            f"\nwarpsph: {outcome}. The cache {outputs.out} keeps {written}{hint}. "
+            f"Try a smaller time step (time.dt_max, time.cfl) or --on-instability reduce-dt.")
+        if writer.error is not None:
+            message += f"\nwarpsph: error: {_write_error(WriterFailed(*writer.error))}"
+    elif writer.error is not None:
+        code, message = 2, (f"\nwarpsph: error: {_write_error(WriterFailed(*writer.error))}; the cache {outputs.out} "
+                            f"keeps the frames before it{hint}")
     if code is None and any(closing):
         code, message = 2, f"warpsph: error: cannot finish the outputs: {next(c for c in closing if c)}"
     if code is not None:
         print(message, file=sys.stderr)
         return code
-    wall = time.perf_counter() - start
     stats = sim.statistics()
     steps = sim.step_count - steps0
+    disk = _disk_usage(outputs, options.get("clips"))
+    per_particle = payload["bytes"] / max(payload["particle_frames"], 1)
+    last_run.clear()
+    last_run.update(wall=loop_wall, steps=steps, frames=writer.frames, payload_bytes=payload["bytes"],
+                    particle_frames=payload["particle_frames"], disk_bytes=disk, writer_seconds=writer.seconds,
+                    writer_waited=writer.waited, background=writer.background, fields=list(fields))
     if progress is not None and progress.tty:
         print(file=sys.stderr)
-    print(f"done: frame {frames}, {steps} steps, {sim.time:.3f} s simulated, {wall:.1f} s wall "
-          f"({steps / max(wall, 1e-9):.1f} steps/s); mean iterations: divergence "
+    print(f"done: frame {frames}, {steps} steps, {sim.time:.3f} s simulated, {loop_wall:.1f} s wall "
+          f"({steps / max(loop_wall, 1e-9):.1f} steps/s); mean iterations: divergence "
           f"{stats['divergence_iterations']:.2f}, density {stats['density_iterations']:.2f}; wrote {outputs.out} and "
           f"{outputs.stats.name}", file=sys.stderr)
+    print(f"output: {writer.frames} frames, {per_particle:.1f} B per particle per frame of USD arrays "
+          f"({','.join(fields)}), {_size(disk)} on disk; writing took {writer.seconds:.1f} s "
+          f"{'in the background' if writer.background else 'on the simulation thread'}"
+          + (f", the simulation waited {writer.waited:.1f} s for it" if writer.background else ""), file=sys.stderr)
     return 0
 
 
@@ -391,13 +467,16 @@ def run_command(args):
 
     sim = Simulation(scene, device=device)
     sim.on_instability = args.on_instability
+    from .io.frames import parse_fields
+
+    fields = parse_fields(args.fields, sim)  # refused before the outputs are touched
     for path in outputs.existing():
         outputs.remove(path)
     print(f"warpsph: {scene.name} on {device}: {sim.num_fluid} fluid + {sim.num_boundary} boundary particles, "
           f"r = {scene.particle_radius:.4g} m, {frames} frames at {scene.output.fps:g} fps -> {outputs.out}",
           file=sys.stderr)
     options = {"checkpoint_every": args.checkpoint_every, "on_instability": args.on_instability, "clips": int(args.clips),
-               "preview": args.preview, "particles_h5": int(args.particles_h5)}
+               "preview": args.preview, "particles_h5": int(args.particles_h5), "fields": ",".join(fields)}
     return _simulate(sim, outputs, frames, args, options, append=None)
 
 
@@ -427,7 +506,7 @@ def resume_command(args):
           file=sys.stderr)
     run_options = {"checkpoint_every": int(options.get("checkpoint_every", 0)), "on_instability": sim.on_instability,
                    "clips": int(clips), "preview": int(options.get("preview", 0)),
-                   "particles_h5": int(options.get("particles_h5", 0))}
+                   "particles_h5": int(options.get("particles_h5", 0)), "fields": str(options.get("fields", ""))}
     return _simulate(sim, outputs, frames, args, run_options, append=sim.frame)
 
 
@@ -481,6 +560,10 @@ def build_parser():
                      help="also write every frame's particles to OUT.particles.h5 (for numpy/pandas)")
     run.add_argument("--preview", type=int, default=0, metavar="K",
                      help="every K frames write OUT.preview.FRAME.png, a mid-depth slab coloured by vorticity (or speed)")
+    run.add_argument("--fields", metavar="NAMES",
+                     help="comma-separated USD arrays to write: points (required), velocities, ids, widths and the "
+                          "scene's fields (density, vorticity, vorticity_magnitude, angular_velocity, ...); default all. "
+                          "ids and widths get a time sample only when they change (particles are written in id order)")
     run.add_argument("--dry-run", action="store_true", help="print particle counts and the memory estimate, run nothing")
     run.set_defaults(func=run_command)
     resume = sub.add_parser("resume", help="continue a run from its checkpoint")
@@ -516,6 +599,9 @@ def build_parser():
         p.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
         p.add_argument("--frames", type=int, help="last frame to simulate (default: the scene's output.frames)")
         p.add_argument("--quiet", action="store_true", help="no progress line")
+        p.add_argument("--sync-output", action="store_true",
+                       help="write each frame on the simulation's thread (default: a background writer thread, "
+                            "so the simulation goes on while a frame is written)")
     return parser
 
 

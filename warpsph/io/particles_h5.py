@@ -28,17 +28,20 @@ class ParticleFrames:
                 del self.frames[name]
 
     def __call__(self, sim, frame):
+        arrays = {"x": sim.host(sim.fluid.x), "v": sim.host(sim.fluid.v), "ids": sim.host(sim.fluid.ids)}
+        arrays.update({field: sim.host(array) for field, array in sim.fields().items()})
+        self.write(frame, sim.time, sim.step_count, arrays)
+
+    def write(self, frame, time, step, arrays):
+        """One frame: ``arrays`` holds x, v, ids and the fields (a writer thread calls this)."""
         name = f"{frame:06d}"
         if name in self.frames:  # a resumed run rewrites the frames after its checkpoint
             del self.frames[name]
         g = self.frames.create_group(name)
-        g.attrs["time"] = sim.time
-        g.attrs["step"] = sim.step_count
-        g["x"] = sim.host(sim.fluid.x)
-        g["v"] = sim.host(sim.fluid.v)
-        g["ids"] = sim.host(sim.fluid.ids)
-        for field, array in sim.fields().items():
-            g[field] = sim.host(array)
+        g.attrs["time"] = time
+        g.attrs["step"] = step
+        for field, array in arrays.items():
+            g[field] = array
         self.file.flush()
 
     def close(self):

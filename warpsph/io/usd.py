@@ -98,14 +98,24 @@ def _write_body_poses(stage, frame, poses):
         orient.Set(Gf.Quatf(q), Usd.TimeCode(frame))
 
 
-def _write_points(points_prim, frame, points, velocities, ids, radius, fields):
-    """One frame's time samples on a Points prim."""
+def _write_points(points_prim, frame, points, velocities, ids, radius, fields, widths=True):
+    """One frame's time samples on a Points prim; ``velocities`` or ``ids`` None: not written,
+    ``widths`` False: not written. Returns the bytes of the arrays set."""
     p, t = points_prim, Usd.TimeCode(frame)
     points = np.ascontiguousarray(points, np.float32)
+    written = points.nbytes
     p.GetPointsAttr().Set(Vt.Vec3fArray.FromNumpy(points), t)
-    p.GetVelocitiesAttr().Set(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(velocities, np.float32)), t)
-    p.GetIdsAttr().Set(Vt.Int64Array.FromNumpy(np.ascontiguousarray(ids, np.int64)), t)
-    p.GetWidthsAttr().Set(Vt.FloatArray.FromNumpy(np.full(len(points), 2.0 * radius, np.float32)), t)
+    if velocities is not None:
+        velocities = np.ascontiguousarray(velocities, np.float32)
+        p.GetVelocitiesAttr().Set(Vt.Vec3fArray.FromNumpy(velocities), t)
+        written += velocities.nbytes
+    if ids is not None:
+        ids = np.ascontiguousarray(ids, np.int64)
+        p.GetIdsAttr().Set(Vt.Int64Array.FromNumpy(ids), t)
+        written += ids.nbytes
+    if widths:
+        p.GetWidthsAttr().Set(Vt.FloatArray.FromNumpy(np.full(len(points), 2.0 * radius, np.float32)), t)
+        written += 4 * len(points)
     p.GetExtentAttr().Set(_extent(points, radius), t)
     api = UsdGeom.PrimvarsAPI(p.GetPrim())
     for name, values in (fields or {}).items():
@@ -115,6 +125,8 @@ def _write_points(points_prim, frame, points, velocities, ids, radius, fields):
         if not primvar:
             primvar = api.CreatePrimvar(name, _PRIMVAR_TYPES[width], UsdGeom.Tokens.vertex)
         primvar.Set(Vt.FloatArray.FromNumpy(values) if width == 1 else Vt.Vec3fArray.FromNumpy(values), t)
+        written += values.nbytes
+    return written
 
 
 class UsdPointCache:
@@ -126,6 +138,8 @@ class UsdPointCache:
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.frames = 0
+        self._ids = None  # the ids and particle count of the last time samples written
+        self._count = None
         if append is not None:
             self.stage = Usd.Stage.Open(str(self.path))
             self.points = UsdGeom.Points(self.stage.GetPrimAtPath("/World/Fluid"))
@@ -148,14 +162,27 @@ class UsdPointCache:
         _define_boundary(self.stage, boundary_points, boundary_radius)
         _define_bodies(self.stage, bodies)
 
-    def write_frame(self, frame, points, velocities, ids, radius, fields=None, body_poses=None):
-        """Writes one frame at time code ``frame`` and saves the layer."""
-        _write_points(self.points, frame, points, velocities, ids, radius, fields)
+    def write_frame(self, frame, points, velocities, ids, radius, fields=None, body_poses=None, widths=True):
+        """Writes one frame at time code ``frame`` and saves the layer; returns the bytes of the
+        arrays written. ``ids`` and widths get a time sample only when they differ from the last
+        one (USD holds a sample until the next), so a cache in id order without emitters or sinks
+        has them once; the first frame a run writes (or appends) always has them."""
+        count = len(points)
+        if ids is not None:
+            ids = np.asarray(ids)
+            if self._ids is not None and np.array_equal(ids, self._ids):
+                ids = None
+            else:
+                self._ids = ids.copy()
+        widths = widths and count != self._count
+        written = _write_points(self.points, frame, points, velocities, ids, radius, fields, widths)
         _write_body_poses(self.stage, frame, body_poses)
         self.stage.SetEndTimeCode(max(frame, self.stage.GetEndTimeCode()))
         if not self.stage.GetRootLayer().Save():
             raise OSError(f"{self.path}: USD could not save the layer")
+        self._count = count
         self.frames += 1
+        return written
 
     def finish(self, final_path):
         """The cache is complete up to its last frame: move it to its final name."""
@@ -196,17 +223,21 @@ class UsdClipCache:
     def frame_path(self, frame):
         return self.dir / f"frame.{frame:06d}.usdc"
 
-    def write_frame(self, frame, points, velocities, ids, radius, fields=None, body_poses=None):
+    def write_frame(self, frame, points, velocities, ids, radius, fields=None, body_poses=None, widths=True):
+        """Writes the layer of frame ``frame`` (every asked array: a clip stands on its own);
+        returns the bytes of the arrays written."""
         stage = Usd.Stage.CreateNew(str(self.frame_path(frame)))
         stage.SetStartTimeCode(frame)  # StitchClips activates each clip at its layer's start
         stage.SetEndTimeCode(frame)
         UsdGeom.Xform.Define(stage, "/World")
-        _write_points(UsdGeom.Points.Define(stage, "/World/Fluid"), frame, points, velocities, ids, radius, fields)
+        written = _write_points(UsdGeom.Points.Define(stage, "/World/Fluid"), frame, points, velocities, ids, radius,
+                                fields, widths)
         _write_body_poses(stage, frame, body_poses)
         if not stage.GetRootLayer().Save():
             raise OSError(f"{self.frame_path(frame)}: USD could not save the layer")
         del stage
         self.frames += 1
+        return written
 
     def finish(self, final_path=None):
         """Stitches every frame layer into the top-level file (value clips + topology layer)."""
@@ -248,16 +279,41 @@ def _extent(points, pad=0.0):
     return Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))])
 
 
-def frame_writer(cache):
-    """An ``on_frame`` callback for :meth:`Simulation.run` that writes every frame to ``cache``."""
+def write_host_frame(cache, item, radius, fields=None):
+    """Writes a :class:`~warpsph.io.frames.HostFrame` to ``cache`` with the ``--fields`` asked
+    (None: every field the frame has); returns the bytes of the arrays written."""
+    a = item.arrays
+    if fields is None:
+        fields = ["points", "velocities", "ids", "widths", *[k for k in a if k not in ("x", "v", "ids")]]
+        if "vorticity" in a:
+            fields.append("vorticity_magnitude")
+    primvars = {}
+    for name in fields:
+        if name == "vorticity_magnitude":
+            primvars[name] = np.linalg.norm(a["vorticity"], axis=1)
+        elif name not in ("points", "velocities", "ids", "widths"):
+            primvars[name] = a[name]
+    return cache.write_frame(item.frame, a["x"], a["v"] if "velocities" in fields else None,
+                             a["ids"] if "ids" in fields else None, radius, primvars, item.poses,
+                             widths="widths" in fields)
+
+
+def frame_writer(cache, fields=None):
+    """An ``on_frame`` callback for :meth:`Simulation.run` that writes every frame to ``cache``
+    at once (the CLI writes in the background: :class:`~warpsph.io.frames.FrameWriter`)."""
+    from warpsph.io.frames import FrameWriter, WriterFailed
+
+    state = {}
 
     def on_frame(sim, frame):
-        f = sim.fluid
-        fields = {name: sim.host(a) for name, a in sim.fields().items()}
-        if "vorticity" in fields:
-            fields["vorticity_magnitude"] = np.linalg.norm(fields["vorticity"], axis=1)
-        poses = sim.moving_bodies.poses() if sim.moving_bodies is not None else None
-        cache.write_frame(frame, sim.host(f.x), sim.host(f.v), sim.host(f.ids), sim.scene.particle_radius, fields, poses)
+        if "writer" not in state:
+            radius = sim.scene.particle_radius
+            state["writer"] = FrameWriter(sim, lambda item: write_host_frame(cache, item, radius, fields),
+                                          copy=["v", *sim.fields()], background=False)
+        try:
+            state["writer"].submit(sim, frame)
+        except WriterFailed as failed:
+            raise failed.cause from None
 
     return on_frame
 
