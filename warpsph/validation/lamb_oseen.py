@@ -171,9 +171,10 @@ def measure(sim, p, edges, t):
 
 
 def build(models, resolution=24, nu=0.01, T=0.5, core=3.0, u_peak=0.5, depth=6, device="cpu", frames=10,
-          r_max=0.35, solver=None):
+          r_max=0.35, solver=None, pack_steps=0):
     """The simulation at t = 0 with the vortex's velocity; returns (simulation, set-up with the bins, bin
-    edges). ``solver``: scene "solver" keys (e.g. {"density_max_error": 0.05}); None: the defaults."""
+    edges). ``solver``: scene "solver" keys (e.g. {"density_max_error": 0.05}); None: the defaults.
+    ``pack_steps`` > 0: the scene's ``initial_packing`` of that many steps instead of the lattice."""
     from warpsph.scene import scene_from_dict
     from warpsph.simulation import Simulation
 
@@ -185,6 +186,8 @@ def build(models, resolution=24, nu=0.01, T=0.5, core=3.0, u_peak=0.5, depth=6, 
             "fluid": {"viscosity": nu}, "models": list(models), "output": {"fps": frames / T}}
     if solver:
         data["solver"] = dict(solver)
+    if pack_steps:
+        data["initial_packing"] = {"steps": pack_steps}
     sim = Simulation(scene_from_dict(data), device=device)
     x0 = sim.fluid.x.numpy().astype(np.float64)
     dx, dy = x0[:, 0] - p["centre"][0], x0[:, 1] - p["centre"][1]
