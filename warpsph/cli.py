@@ -227,6 +227,10 @@ def _disk_usage(outputs, clips):
     return sum(p.stat().st_size for p in paths if p.is_file())
 
 
+def _cache_exists(outputs, clips):
+    return outputs.clips.is_dir() if clips else outputs.out.exists() or outputs.partial.exists()
+
+
 last_run = {}  # timings and sizes of the last _simulate (tools/bench_job.py reads them)
 
 
@@ -352,7 +356,9 @@ def _simulate(sim, outputs, frames, args, options, append):
             f"\nwarpsph: {name}: stopped after frame {sim.frame}; the cache {outputs.out} holds {written}; "
             f"continue with: warpsph resume {outputs.checkpoint}")
     elif isinstance(outcome, WriteError):
-        code, message = 2, f"\nwarpsph: error: {outcome}; the cache {outputs.out} keeps the frames before it{hint}"
+        kept = (f"the cache {outputs.out} keeps the frames before it" if _cache_exists(outputs, options.get("clips"))
+                else f"the cache {outputs.out} is gone")
+        code, message = 2, f"\nwarpsph: error: {outcome}; {kept}{hint}"
     elif outcome is not None:
         code, message = EXIT_UNSTABLE, (
             f"\nwarpsph: {outcome}. The cache {outputs.out} keeps {written}{hint}. "

@@ -23,6 +23,7 @@ Two writers with one interface (``write_frame``, ``finish``):
 
 from __future__ import annotations
 
+import errno
 import os
 from pathlib import Path
 
@@ -167,6 +168,7 @@ class UsdPointCache:
         arrays written. ``ids`` and widths get a time sample only when they differ from the last
         one (USD holds a sample until the next), so a cache in id order without emitters or sinks
         has them once; the first frame a run writes (or appends) always has them."""
+        _check_directory(self.path.parent)
         count = len(points)
         if ids is not None:
             ids = np.asarray(ids)
@@ -226,6 +228,7 @@ class UsdClipCache:
     def write_frame(self, frame, points, velocities, ids, radius, fields=None, body_poses=None, widths=True):
         """Writes the layer of frame ``frame`` (every asked array: a clip stands on its own);
         returns the bytes of the arrays written."""
+        _check_directory(self.dir)
         stage = Usd.Stage.CreateNew(str(self.frame_path(frame)))
         stage.SetStartTimeCode(frame)  # StitchClips activates each clip at its layer's start
         stage.SetEndTimeCode(frame)
@@ -269,6 +272,13 @@ class UsdClipCache:
             _define_bodies(stage, [(str(data[f"name_{n}"]), data[f"vertices_{n}"], data[f"faces_{n}"],
                                     bool(data[f"moving_{n}"])) for n in range(int(data["count"]))])
         layer.Save()
+
+
+def _check_directory(path):
+    """USD would create a missing directory again and go on writing into it: a directory removed
+    during a run (and the frames in it) is an error instead."""
+    if not path.is_dir():
+        raise OSError(errno.ENOENT, f"the output directory {path} was removed during the run")
 
 
 def _extent(points, pad=0.0):
