@@ -1,0 +1,223 @@
+"""Benchmark of the whole job (#24): `warpsph run` with its USD output against the solver alone.
+
+    python tools/bench_job.py --device cuda --particles 1e6 --frames 25 --out tools/results/bench_job_h100.json
+    python tools/bench_job.py --device cpu --particles 2e4 --frames 5          # a CPU-sized check
+
+For a scene (default the dam break) scaled to ~N fluid particles it measures
+
+- start-up: the time to the first step, and where it goes (imports and wp.init, scene loading,
+  host sampling of the fluid blocks and the walls, Z-ordering, the boundary volumes, the initial
+  neighbour lists and densities, the first step with its kernel loading), each stage timed with
+  the device synchronised around it;
+- the solver alone: ``Simulation.run(frames=F)`` without output (a fresh simulation, kernels loaded);
+- the job: ``warpsph run SCENE --frames F`` through the CLI (its loop wall: steps, diagnostics,
+  frame copies and the USD writer), once per ``--modes`` (``background``: the writer thread,
+  ``sync``: ``--sync-output``), with the payload and disk bytes per particle per frame;
+
+and writes JSON with the device, Warp version and commit. Goal of #24: loop wall <= 1.2 x solver
+alone, time to first step <= 2 s with a warm kernel cache, at 1M particles on an H100.
+"""
+
+from __future__ import annotations
+
+import time
+
+T0 = time.perf_counter()  # before the imports: the time to the first step counts them
+
+import argparse  # noqa: E402
+import contextlib  # noqa: E402
+import functools  # noqa: E402
+import gc  # noqa: E402
+import json  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+from collections import defaultdict  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def commit():
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    except OSError:
+        return "unknown"
+
+
+class Stages:
+    """Wall time of wrapped functions (device synchronised before and after), by stage name."""
+
+    def __init__(self, wp):
+        self.wp = wp
+        self.seconds = defaultdict(float)
+        self._depth = 0
+
+    @contextlib.contextmanager
+    def __call__(self, name):
+        self.wp.synchronize()
+        start = time.perf_counter()
+        self._depth += 1
+        try:
+            yield
+        finally:
+            self._depth -= 1
+            self.wp.synchronize()
+            self.seconds[name] += time.perf_counter() - start
+
+    def wrap(self, owner, attribute, name):
+        original = getattr(owner, attribute)
+
+        @functools.wraps(original)
+        def timed(*args, **kwargs):
+            with self(name):
+                return original(*args, **kwargs)
+
+        setattr(owner, attribute, timed)
+        return original
+
+
+def startup(args):
+    """The time to the first step, by stage (functions wrapped from the outside: no source edits);
+    returns the result and the --scale that gives ~args.particles."""
+    t_import = time.perf_counter()
+    import warp as wp
+
+    wp.config.log_level = wp.LOG_WARNING
+    wp.init()
+    t_init = time.perf_counter()
+    from warpsph import sampling, simulation
+    from warpsph.neighbours import NeighbourSearch
+    from warpsph.scene import load_scene
+    from warpsph.solver import DFSPHSolver
+
+    t_warpsph = time.perf_counter()
+    stages = Stages(wp)
+    base = simulation.count_particles(load_scene(args.scene))[0]
+    scale = args.particles / base
+    scene = load_scene(args.scene, scale=scale)
+    t_scene = time.perf_counter()
+    restore = [(sampling, "fill_block", stages.wrap(sampling, "fill_block", "sampling: fluid blocks")),
+               (sampling, "sample_box_walls", stages.wrap(sampling, "sample_box_walls", "sampling: box walls")),
+               (sampling, "morton_order", stages.wrap(sampling, "morton_order", "sampling: Z-order of the walls")),
+               (simulation, "sample_scene", stages.wrap(simulation, "sample_scene", "sample_scene (all host sampling)")),
+               (NeighbourSearch, "__init__", stages.wrap(NeighbourSearch, "__init__", "neighbour grids (boundary grid)")),
+               (NeighbourSearch, "update", stages.wrap(NeighbourSearch, "update", "initial neighbour lists")),
+               (DFSPHSolver, "__init__", stages.wrap(DFSPHSolver, "__init__", "pressure solver set-up")),
+               (simulation.Simulation, "_compute_density",
+                stages.wrap(simulation.Simulation, "_compute_density", "initial densities"))]
+    launch = simulation.Simulation.launch
+
+    def timed_launch(self, kernel, dim, inputs):
+        if kernel.key.endswith("compute_boundary_volume"):
+            with stages("boundary volumes (incl. kernel load)"):
+                return launch(self, kernel, dim, inputs)
+        return launch(self, kernel, dim, inputs)
+
+    simulation.Simulation.launch = timed_launch
+    try:
+        start = time.perf_counter()
+        sim = simulation.Simulation(scene, device=args.device)
+        wp.synchronize()
+        t_sim = time.perf_counter()
+    finally:
+        simulation.Simulation.launch = launch
+        for owner, attribute, original in restore:
+            setattr(owner, attribute, original)
+    with stages("first step (kernel loading)"):
+        sim.step()
+    t_first = time.perf_counter()
+    result = {
+        "particles": sim.num_fluid, "boundary": sim.num_boundary,
+        "time_to_first_step_s": t_first - T0,
+        "stages_s": {"python start and imports before warp": t_import - T0, "import warp + wp.init": t_init - t_import,
+                     "import warpsph": t_warpsph - t_init, "load_scene": t_scene - t_warpsph,
+                     "Simulation() in all": t_sim - start, **dict(stages.seconds)},
+    }
+    del sim
+    gc.collect()
+    return result, scale
+
+
+def solver_only(args, scale):
+    import warp as wp
+
+    from warpsph.scene import load_scene
+    from warpsph.simulation import Simulation
+
+    sim = Simulation(load_scene(args.scene, scale=scale), device=args.device)
+    wp.synchronize()
+    start = time.perf_counter()
+    sim.run(frames=args.frames)
+    wp.synchronize()
+    wall = time.perf_counter() - start
+    out = {"wall_s": wall, "steps": sim.step_count, "ms_per_step": 1e3 * wall / max(sim.step_count, 1)}
+    del sim
+    gc.collect()
+    return out
+
+
+def job(args, scale, mode, folder):
+    from warpsph import cli
+
+    out = Path(folder) / f"job_{mode}.usdc"
+    argv = ["run", args.scene, "--device", args.device, "--scale", repr(scale), "--frames", str(args.frames),
+            "--out", str(out), "--overwrite", "--quiet"]
+    argv += ["--sync-output"] if mode == "sync" else []
+    argv += ["--clips"] if args.clips else []
+    argv += ["--fields", args.fields] if args.fields else []
+    start = time.perf_counter()
+    code = cli.main(argv)
+    process = time.perf_counter() - start
+    if code != 0:
+        raise SystemExit(f"warpsph run failed ({code}): {' '.join(argv)}")
+    r = dict(cli.last_run)
+    gc.collect()
+    return {"mode": mode, "loop_wall_s": r["wall"], "run_command_s": process, "steps": r["steps"], "frames": r["frames"],
+            "writer_busy_s": r["writer_seconds"], "simulation_waited_for_writer_s": r["writer_waited"],
+            "bytes_per_particle_frame": r["payload_bytes"] / max(r["particle_frames"], 1),
+            "disk_bytes": r["disk_bytes"], "disk_bytes_per_particle_frame": r["disk_bytes"] / max(r["particle_frames"], 1),
+            "fields": r["fields"]}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--scene", default=str(ROOT / "scenes" / "dam_break.json"))
+    parser.add_argument("--device", default="cuda")
+    parser.add_argument("--particles", type=float, default=1e6, help="target fluid particle count")
+    parser.add_argument("--frames", type=int, default=25, help="output frames (at the scene's fps: 25 = 1 s for the dam break)")
+    parser.add_argument("--modes", nargs="+", choices=["background", "sync"], default=["background", "sync"])
+    parser.add_argument("--clips", action="store_true", help="write the cache as value clips (--clips)")
+    parser.add_argument("--fields", help="--fields of warpsph run (default: all)")
+    parser.add_argument("--startup-only", action="store_true", help="measure the start-up only")
+    parser.add_argument("--keep", help="write the caches into this folder (default: a temporary one, removed)")
+    parser.add_argument("--out", help="JSON file to write")
+    args = parser.parse_args()
+
+    result = {"scene": args.scene, "device": args.device, "target_particles": args.particles, "frames": args.frames,
+              "commit": commit(), "argv": sys.argv[1:]}
+    result["startup"], scale = startup(args)
+    import warp as wp
+
+    result.update(device_name=str(wp.get_device(args.device).name), warp=wp.__version__)
+    print(json.dumps(result["startup"], indent=2), flush=True)
+    if args.startup_only:
+        args.modes = []
+    result["solver_only"] = solver_only(args, scale) if args.modes else None
+    print(json.dumps(result["solver_only"]), flush=True)
+    with (contextlib.nullcontext(args.keep) if args.keep else tempfile.TemporaryDirectory()) as folder:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        result["jobs"] = []
+        for mode in args.modes:
+            r = job(args, scale, mode, folder)
+            r["loop_over_solver"] = r["loop_wall_s"] / result["solver_only"]["wall_s"]
+            result["jobs"].append(r)
+            print(json.dumps(r), flush=True)
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
+        print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()
