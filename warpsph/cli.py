@@ -414,14 +414,27 @@ def _refusal(outputs, overwrite):
     return None
 
 
-def disk_bytes(scene, num_fluid, frames, particles_h5=False):
+FIELD_BYTES = {"points": 12, "velocities": 12, "ids": 8, "widths": 4, "density": 4, "vorticity": 12,
+               "vorticity_magnitude": 4, "angular_velocity": 12}
+
+
+def disk_bytes(scene, num_fluid, frames, particles_h5=False, fields=None, clips=False):
     """Disk the outputs of a run take (an estimate): per frame and fluid particle the USD cache's
-    points, velocities, ids, widths and fields (and as much again with --particles-h5)."""
+    arrays (``fields``, a --fields string; None: all), ids and widths once in a single-file cache
+    without emitters or sinks (every frame otherwise), and with --particles-h5 every array again."""
     from .simulation import MODEL_NAMES
 
     names = {MODEL_NAMES[type(m)] for m in scene.models}
-    per_particle = 12 + 12 + 8 + 4 + 4 + (16 if names else 0) + (12 if "micropolar" in names else 0)
-    return (frames + 1) * num_fluid * per_particle * (2 if particles_h5 else 1)
+    available = ["points", "velocities", "ids", "widths", "density"] + (["vorticity", "vorticity_magnitude"] if names else [])
+    available += ["angular_velocity"] if "micropolar" in names else []
+    asked = available if not fields else [f.strip() for f in fields.split(",") if f.strip()]
+    once = sum(FIELD_BYTES[f] for f in ("ids", "widths") if f in asked)
+    every = sum(FIELD_BYTES.get(f, 4) for f in asked if f not in ("ids", "widths"))
+    if clips or scene.emitters or scene.sinks:
+        every, once = every + once, 0
+    usd = num_fluid * ((frames + 1) * every + once)
+    h5 = (frames + 1) * num_fluid * (12 + 12 + 4 + sum(FIELD_BYTES[f] for f in available[4:] if f != "vorticity_magnitude"))
+    return usd + (h5 if particles_h5 else 0)
 
 
 def _size(n):
@@ -438,7 +451,7 @@ def _dry_run(scene, frames, outputs, args):
     fluid, _, static, _, bodies = sample_scene(scene)
     boundary = len(static) + sum(len(b.samples) for b in bodies if b.kind != "static")
     need, free = estimate_bytes(scene, len(fluid), boundary), free_bytes(device)
-    disk = disk_bytes(scene, len(fluid), frames, args.particles_h5)
+    disk = disk_bytes(scene, len(fluid), frames, args.particles_h5, args.fields, args.clips)
     refusal = _refusal(outputs, args.overwrite)
     existing = outputs.existing()
     if refusal is not None:
