@@ -155,6 +155,8 @@ class FrameWriter:
         if buffers is None:
             buffers = self._allocate(sources)
         n = sim.num_fluid
+        now, step = sim.time, sim.step_count  # host reads before the copies are queued, not after them
+        poses = sim.moving_bodies.poses() if sim.moving_bodies is not None else None
         event = None
         with wp.ScopedDevice(self.device):
             for name, a in sources.items():
@@ -162,8 +164,7 @@ class FrameWriter:
                     wp.copy(buffers[name][0], a, count=n)
             if self.device.is_cuda:
                 event = wp.record_event()
-        poses = sim.moving_bodies.poses() if sim.moving_bodies is not None else None
-        item = HostFrame(frame, sim.time, sim.step_count, n, {}, poses, row,
+        item = HostFrame(frame, now, step, n, {}, poses, row,
                          buffers={k: v[1] for k, v in buffers.items()}, event=event)
         item._handle = buffers
         if self.background:
