@@ -10,7 +10,8 @@ stages in %, iterations, neighbour passes k, bytes per particle, steps/s) is wri
 Runs ``--warmup`` steps, then ``--steps`` steps with a synchronised per-stage timer
 (stage times), then ``--steps`` steps as the production stepper runs them (CUDA graph
 for the solver part where available) for the total. Writes JSON with the device, Warp
-version and commit, memory per particle (device free memory before/after the allocation and the
+version and commit (``WARPSPH_COMMIT`` overrides git's: set it on a copy of the tree whose .git is
+absent or stale), memory per particle (device free memory before/after the allocation and the
 warm-up, with the memory pool returning freed blocks at once, so retained temporaries are not
 counted; and the pool's live bytes) and the mean solver iterations.
 """
@@ -20,20 +21,14 @@ from __future__ import annotations
 import argparse
 import gc
 import json
-import subprocess
 import time
 from pathlib import Path
 
 import warp as wp
 
+from warpsph.validation.cases import commit_info
+
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def commit():
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    except OSError:
-        return "unknown"
 
 
 def main():
@@ -177,7 +172,7 @@ def run(args, particles):
         "model": args.model,
         "device": device.name if device.is_cuda else "cpu",
         "warp": wp.__version__,
-        "commit": commit(),
+        **commit_info(),
         "fluid_particles": sim.num_fluid,
         "boundary_particles": sim.num_boundary,
         "particle_radius": scene.particle_radius,

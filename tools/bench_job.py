@@ -14,7 +14,8 @@ For a scene (default the dam break) scaled to ~N fluid particles it measures
   frame copies and the USD writer), once per ``--modes`` (``background``: the writer thread,
   ``sync``: ``--sync-output``), with the payload and disk bytes per particle per frame;
 
-and writes JSON with the device, Warp version and commit. Goal of #24: loop wall <= 1.2 x solver
+and writes JSON with the device, Warp version and commit (``WARPSPH_COMMIT`` overrides git's: set it where the
+tree is a copy whose .git is absent or stale). Goal of #24: loop wall <= 1.2 x solver
 alone, time to first step <= 2 s with a warm kernel cache, at 1M particles on an H100.
 """
 
@@ -29,20 +30,12 @@ import contextlib  # noqa: E402
 import functools  # noqa: E402
 import gc  # noqa: E402
 import json  # noqa: E402
-import subprocess  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 from collections import defaultdict  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def commit():
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    except OSError:
-        return "unknown"
 
 
 class Stages:
@@ -195,11 +188,13 @@ def main():
     args = parser.parse_args()
 
     result = {"scene": args.scene, "device": args.device, "target_particles": args.particles, "frames": args.frames,
-              "commit": commit(), "argv": sys.argv[1:]}
+              "argv": sys.argv[1:]}
     result["startup"], scale = startup(args)
     import warp as wp
 
-    result.update(device_name=str(wp.get_device(args.device).name), warp=wp.__version__)
+    from warpsph.validation.cases import commit_info  # after the start-up: its imports and git are not timed
+
+    result.update(device_name=str(wp.get_device(args.device).name), warp=wp.__version__, **commit_info())
     print(json.dumps(result["startup"], indent=2), flush=True)
     if args.startup_only:
         args.modes = []

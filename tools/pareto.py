@@ -49,18 +49,13 @@ import json
 import math
 import os
 import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # bench_dam_break (the commit)
-
-from warpsph.validation.lamb_oseen import CORE_RADIUS as LAMB_OSEEN_CORE_RADIUS  # noqa: E402
-
-ROOT = Path(__file__).resolve().parent.parent
+from warpsph.validation.lamb_oseen import CORE_RADIUS as LAMB_OSEEN_CORE_RADIUS
 
 # name -> (label, scene "models" list)
 METHODS = {
@@ -290,20 +285,14 @@ def dam_front_point(models, resolution, tolerance, device, T_end=6.0, depth=4):
 # --- report -----------------------------------------------------------------------------------------
 
 def commit():
-    """The commit (and uncommitted simulator files); PARETO_COMMIT overrides it where the checkout's .git is
-    absent or stale (a copy of the working tree on another machine)."""
-    from bench_dam_break import commit as head
+    """The commit (and uncommitted simulator files): warpsph's commit_info, so WARPSPH_COMMIT overrides git's where
+    the checkout's .git is absent or stale (a copy of the working tree on another machine); PARETO_COMMIT, the
+    older name, still does."""
+    from warpsph.validation.cases import commit_info
 
-    if os.environ.get("PARETO_COMMIT"):
+    if os.environ.get("PARETO_COMMIT") and not os.environ.get("WARPSPH_COMMIT"):
         return {"commit": os.environ["PARETO_COMMIT"], "commit_from": "PARETO_COMMIT"}
-    out = {"commit": head() or "unknown"}
-    try:  # uncommitted changes in the simulator make the commit alone not enough to reproduce
-        status = subprocess.run(["git", "status", "--porcelain", "--", "warpsph", "kernels", "tools/pareto.py"], cwd=ROOT,
-                                capture_output=True, text=True).stdout
-        out["uncommitted"] = [line[3:] for line in status.splitlines() if line[:2].strip()]
-    except OSError:
-        pass
-    return out
+    return commit_info()
 
 
 def device_info(device):

@@ -12,7 +12,6 @@ A DFSPH step costs k neighbour passes; its floor is k x the pass floor.
 
 import argparse
 import json
-import subprocess
 import time
 from pathlib import Path
 
@@ -111,12 +110,9 @@ def main():
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
     device = wp.get_device(args.device)
-    try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                                cwd=Path(__file__).parent).stdout.strip()
-    except OSError:
-        commit = ""
-    report = {"device": device.name if device.is_cuda else "cpu", "warp": wp.__version__, "commit": commit,
+    from warpsph.validation.cases import commit_info
+
+    report = {"device": device.name if device.is_cuda else "cpu", "warp": wp.__version__, **commit_info(),
               "probes": [probe(int(n), device) for n in args.sizes]}
     text = json.dumps(report, indent=2)
     print(text)

@@ -17,7 +17,9 @@ from pathlib import Path
 
 import warp as wp
 
-from bench_dam_break import commit, make_scene
+from bench_dam_break import make_scene
+
+from warpsph.validation.cases import commit_info
 
 
 def kernel_times(sim, steps):
@@ -61,7 +63,7 @@ def main():
     rows = sorted(({"kernel": k, "ms_per_step": t, "launches_per_step": n, "ms_per_launch": t / max(n, 1e-9)}
                    for k, (t, n) in times.items()), key=lambda r: -r["ms_per_step"])
     result = {"benchmark": "kernels", "scene": sim.scene.name, "model": args.model,
-              "device": device.name if device.is_cuda else "cpu", "warp": wp.__version__, "commit": commit(),
+              "device": device.name if device.is_cuda else "cpu", "warp": wp.__version__, **commit_info(),
               "fluid_particles": sim.num_fluid, "steps_before": args.warmup, "steps_timed": args.steps, "kernels": rows}
     for r in rows:
         print(f"{r['kernel'][:60]:60s} {r['ms_per_step']:8.3f} ms/step  {r['launches_per_step']:5.1f} x {r['ms_per_launch']:.3f} ms")
