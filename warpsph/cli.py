@@ -2,8 +2,9 @@
 
     warpsph run SCENE.json [--device auto|cpu|cuda] [--out FILE.usdc] [--frames N] [--scale S]
                            [--overwrite] [--checkpoint-every N] [--on-instability stop|reduce-dt] [--dry-run]
-                           [--fields points,velocities,...] [--sync-output]
+                           [--fields points,velocities,...] [--sync-output] [--surface [--surface-cube C]]
     warpsph resume CHECKPOINT.h5 [--device ...] [--frames N]
+    warpsph surface OUT.usdc|OUT.particles.h5 [--cube C] [--smoothing L] [--frames A B] [--out NEW.usdc]
 
 --overwrite replaces only files warpsph wrote (a directory or anyone else's file is refused). A
 checkpoint holds the whole scene: resume works from any directory, and resuming again rewrites
@@ -272,11 +273,21 @@ def _simulate(sim, outputs, frames, args, options, append):
         copy = (["v"] if "velocities" in fields else []) + [n for n in published if n in fields]
         if "vorticity_magnitude" in fields and "vorticity" not in copy:
             copy.append("vorticity")
+    surface = _surface_options(options)
+    if surface is not None:  # the mesh interpolates velocity and vorticity magnitude to its vertices
+        copy += [n for n in ("v", "vorticity") if (n == "v" or n in published) and n not in copy]
     radius = scene.particle_radius
-    payload = {"bytes": 0, "particle_frames": 0}
+    payload = {"bytes": 0, "particle_frames": 0, "surface_seconds": 0.0}
 
-    def write(item):  # on the writer's thread: the USD frame, the HDF5 frame, then the CSV row
-        payload["bytes"] += write_host_frame(cache, item, radius, fields)
+    def write(item):  # on the writer's thread: the surface mesh, the USD frame, the HDF5 frame, the CSV row
+        mesh = None
+        if surface is not None:
+            from .surface import reconstruct
+
+            a = item.arrays
+            mesh = reconstruct(a["x"], radius, a.get("v"), a.get("vorticity"), surface)
+            payload["surface_seconds"] += mesh.seconds
+        payload["bytes"] += write_host_frame(cache, item, radius, fields, surface=mesh)
         payload["particle_frames"] += item.count
         if particles is not None:
             particles.write(item.frame, item.time, item.step, item.arrays)
@@ -380,7 +391,8 @@ def _simulate(sim, outputs, frames, args, options, append):
     last_run.clear()
     last_run.update(wall=loop_wall, steps=steps, frames=writer.frames, payload_bytes=payload["bytes"],
                     particle_frames=payload["particle_frames"], disk_bytes=disk, writer_seconds=writer.seconds,
-                    writer_waited=writer.waited, background=writer.background, fields=list(fields))
+                    writer_waited=writer.waited, background=writer.background, fields=list(fields),
+                    surface_seconds=payload["surface_seconds"] if surface is not None else None)
     if progress is not None and progress.tty:
         print(file=sys.stderr)
     print(f"done: frame {frames}, {steps} steps, {sim.time:.3f} s simulated, {loop_wall:.1f} s wall "
@@ -391,7 +403,24 @@ def _simulate(sim, outputs, frames, args, options, append):
           f"({','.join(fields)}), {_size(disk)} on disk; writing took {writer.seconds:.1f} s "
           f"{'in the background' if writer.background else 'on the simulation thread'}"
           + (f", the simulation waited {writer.waited:.1f} s for it" if writer.background else ""), file=sys.stderr)
+    if surface is not None:
+        print(f"surface: /World/FluidSurface in every frame, {payload['surface_seconds'] / max(writer.frames, 1):.2f} s "
+              f"of meshing per frame (splashsurf, cube {surface.cube:g} r, smoothing length {surface.smoothing:g} r)",
+              file=sys.stderr)
     return 0
+
+
+def _surface_options(options):
+    """The :class:`~warpsph.surface.SurfaceOptions` of a run's options, or None without --surface;
+    raises :class:`SceneError` naming the option (a bad value, pysplashsurf missing)."""
+    if not int(options.get("surface", 0) or 0):
+        return None
+    from .surface import SurfaceOptions, require_pysplashsurf
+
+    surface = SurfaceOptions(cube=float(options.get("surface_cube", SurfaceOptions.cube)),
+                             smoothing=float(options.get("surface_smoothing", SurfaceOptions.smoothing))).check("--surface-")
+    require_pysplashsurf("--surface")
+    return surface
 
 
 def _check_options(args):
@@ -472,6 +501,8 @@ def run_command(args):
     from .scene import load_scene
 
     _check_options(args)
+    surface = {"surface": int(args.surface), "surface_cube": args.surface_cube, "surface_smoothing": args.surface_smoothing}
+    _surface_options(surface)  # a bad value or no pysplashsurf: refused before anything is written
     scene = load_scene(args.scene, scale=args.scale)
     frames = scene.output.frames if args.frames is None else args.frames
     outputs = Outputs(args.out or f"out/{scene.name}.usdc")
@@ -495,7 +526,7 @@ def run_command(args):
           f"r = {scene.particle_radius:.4g} m, {frames} frames at {scene.output.fps:g} fps -> {outputs.out}",
           file=sys.stderr)
     options = {"checkpoint_every": args.checkpoint_every, "on_instability": args.on_instability, "clips": int(args.clips),
-               "preview": args.preview, "particles_h5": int(args.particles_h5), "fields": ",".join(fields)}
+               "preview": args.preview, "particles_h5": int(args.particles_h5), "fields": ",".join(fields), **surface}
     return _simulate(sim, outputs, frames, args, options, append=None)
 
 
@@ -520,13 +551,30 @@ def resume_command(args):
     clips = bool(int(options.get("clips", 0)))
     if not (outputs.clips.is_dir() if clips else outputs.out.exists() or outputs.partial.exists()):
         raise SceneError(outputs.out, "", "the cache of this checkpoint's run is missing: it cannot be continued")
+    surface = {k: options[k] for k in ("surface", "surface_cube", "surface_smoothing") if k in options}
+    _surface_options(surface)
     sim.on_instability = options.get("on_instability", "stop")
     print(f"warpsph: resuming {sim.scene.name} at frame {sim.frame} (t = {sim.time:.3f} s) on {device} -> {outputs.out}",
           file=sys.stderr)
     run_options = {"checkpoint_every": int(options.get("checkpoint_every", 0)), "on_instability": sim.on_instability,
                    "clips": int(clips), "preview": int(options.get("preview", 0)),
-                   "particles_h5": int(options.get("particles_h5", 0)), "fields": str(options.get("fields", ""))}
+                   "particles_h5": int(options.get("particles_h5", 0)), "fields": str(options.get("fields", "")),
+                   **surface}
     return _simulate(sim, outputs, frames, args, run_options, append=sim.frame)
+
+
+def surface_command(args):
+    from .surface import SurfaceOptions, plan_remesh, remesh
+
+    options = SurfaceOptions(cube=args.cube, smoothing=args.smoothing, iso=args.iso)
+    source, frames, out, radius = plan_remesh(args.cache, args.frames, args.out, args.radius, args.overwrite, options)
+    print(f"warpsph: meshing {len(frames)} frames of {args.cache} (r = {radius:.4g} m, cube {options.cube:g} r, "
+          f"smoothing length {options.smoothing:g} r) -> {out}", file=sys.stderr)
+    log = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
+    done = remesh(source, frames, out, radius, options, log=log)
+    print(f"wrote {out}: {done['frames']} frames, {done['seconds'] / max(done['frames'], 1):.2f} s per frame, "
+          f"{done['triangles'] / max(done['frames'], 1):.0f} triangles per frame", file=sys.stderr)
+    return 0
 
 
 def plot_energy_command(args):
@@ -584,6 +632,13 @@ def build_parser():
                           "scene's fields (density, vorticity, vorticity_magnitude, angular_velocity, ...); default all. "
                           "ids and widths get a time sample only when they change (particles are written in id order)")
     run.add_argument("--dry-run", action="store_true", help="print particle counts and the memory estimate, run nothing")
+    run.add_argument("--surface", action="store_true",
+                     help="also write the fluid's surface mesh /World/FluidSurface every frame (splashsurf, in the "
+                          "background writer; needs pip install 'warpsph[surface]')")
+    run.add_argument("--surface-cube", type=float, default=0.75, metavar="C",
+                     help="marching-cubes cell of the surface in particle radii (default 0.75; 0.5 is finer)")
+    run.add_argument("--surface-smoothing", type=float, default=2.0, metavar="L",
+                     help="smoothing length of the surface's colour field in particle radii (default 2.0)")
     run.set_defaults(func=run_command)
     resume = sub.add_parser("resume", help="continue a run from its checkpoint")
     resume.add_argument("checkpoint", help="OUT.checkpoint.h5 written by --checkpoint-every or at Ctrl-C")
@@ -601,6 +656,18 @@ def build_parser():
     slab.add_argument("--axis", choices=["x", "y", "z"], default="z")
     slab.add_argument("--out", default="slice.png")
     slab.set_defaults(func=plot_slice_command)
+    mesh = sub.add_parser("surface", help="mesh the fluid surface of a finished run into a new USD file "
+                                          "(it sublayers the cache), without simulating again")
+    mesh.add_argument("cache", help="OUT.usdc (single file or the top-level file of --clips) or OUT.particles.h5")
+    mesh.add_argument("--out", help="the new file (default CACHE.surface.usdc beside the cache)")
+    mesh.add_argument("--frames", type=int, nargs=2, metavar=("A", "B"), help="mesh frames A..B only (default all)")
+    mesh.add_argument("--cube", type=float, default=0.75, help="marching-cubes cell in particle radii (default 0.75)")
+    mesh.add_argument("--smoothing", type=float, default=2.0, help="smoothing length in particle radii (default 2.0)")
+    mesh.add_argument("--iso", type=float, default=0.6, help="iso threshold of the colour field (default 0.6)")
+    mesh.add_argument("--radius", type=float, help="particle radius in metres (default: the cache's widths / 2)")
+    mesh.add_argument("--overwrite", action="store_true", help="replace an existing --out that warpsph wrote")
+    mesh.add_argument("--quiet", action="store_true", help="no line per frame")
+    mesh.set_defaults(func=surface_command)
     from .validation.taylor_green import METHODS
 
     check = sub.add_parser("validate", help="validation cases with the default solver: error, particles, steps and "

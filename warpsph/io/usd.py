@@ -7,6 +7,11 @@ Layout of the stage (``metersPerUnit`` = 1, ``upAxis`` from the scene,
   (int64, stable across re-sorting), ``widths`` (diameter), ``extent``, and one primvar
   per published field (``density``; with a turbulence model ``vorticity`` (float3) and
   ``vorticity_magnitude``; micropolar ``angular_velocity``), float/float3 only;
+- ``/World/FluidSurface`` (Mesh, ``--surface``): the fluid's surface from splashsurf
+  (:mod:`warpsph.surface`), time-sampled ``points``, ``faceVertexCounts`` (all 3),
+  ``faceVertexIndices``, ``normals`` (vertex), ``extent``, ``velocities`` (interpolated from the
+  particles) and, with a turbulence model, the primvar ``vorticity_magnitude``;
+  ``subdivisionScheme`` "none"; the vertex count changes from frame to frame;
 - ``/World/Boundary`` (Points, purpose ``guide``): the static boundary samples, written
   once without time samples;
 - ``/World/Bodies/NAME`` (Mesh), one per obstacle, in metres: a static body in world space; a
@@ -99,6 +104,40 @@ def _write_body_poses(stage, frame, poses):
         orient.Set(Gf.Quatf(q), Usd.TimeCode(frame))
 
 
+SURFACE = "/World/FluidSurface"
+
+
+def write_surface(stage, frame, mesh):
+    """One frame's time samples of the surface mesh ``mesh`` (:class:`warpsph.surface.SurfaceMesh`)
+    on ``/World/FluidSurface`` (defined on first use); returns the bytes of the arrays set."""
+    prim = UsdGeom.Mesh.Define(stage, SURFACE)
+    t = Usd.TimeCode(frame)
+    if not prim.GetSubdivisionSchemeAttr().HasAuthoredValue():
+        prim.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        prim.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    points = np.ascontiguousarray(mesh.points, np.float32)
+    faces = np.ascontiguousarray(mesh.faces, np.int32)
+    normals = np.ascontiguousarray(mesh.normals, np.float32)
+    prim.CreatePointsAttr().Set(Vt.Vec3fArray.FromNumpy(points), t)
+    prim.CreateFaceVertexCountsAttr().Set(Vt.IntArray.FromNumpy(np.full(len(faces), 3, np.int32)), t)
+    prim.CreateFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(faces.ravel()), t)
+    prim.CreateNormalsAttr().Set(Vt.Vec3fArray.FromNumpy(normals), t)
+    prim.CreateExtentAttr().Set(_extent(points), t)
+    written = points.nbytes + faces.nbytes + 4 * len(faces) + normals.nbytes
+    if mesh.velocities is not None:
+        velocities = np.ascontiguousarray(mesh.velocities, np.float32)
+        prim.CreateVelocitiesAttr().Set(Vt.Vec3fArray.FromNumpy(velocities), t)
+        written += velocities.nbytes
+    api = UsdGeom.PrimvarsAPI(prim.GetPrim())
+    for name, values in mesh.primvars.items():
+        values = np.ascontiguousarray(values, np.float32)
+        width = 1 if values.ndim == 1 else values.shape[1]
+        primvar = api.GetPrimvar(name) or api.CreatePrimvar(name, _PRIMVAR_TYPES[width], UsdGeom.Tokens.vertex)
+        primvar.Set(Vt.FloatArray.FromNumpy(values) if width == 1 else Vt.Vec3fArray.FromNumpy(values), t)
+        written += values.nbytes
+    return written
+
+
 def _write_points(points_prim, frame, points, velocities, ids, radius, fields, widths=True):
     """One frame's time samples on a Points prim; ``velocities`` or ``ids`` None: not written,
     ``widths`` False: not written. Returns the bytes of the arrays set."""
@@ -163,7 +202,8 @@ class UsdPointCache:
         _define_boundary(self.stage, boundary_points, boundary_radius)
         _define_bodies(self.stage, bodies)
 
-    def write_frame(self, frame, points, velocities, ids, radius, fields=None, body_poses=None, widths=True):
+    def write_frame(self, frame, points, velocities, ids, radius, fields=None, body_poses=None, widths=True,
+                    surface=None):
         """Writes one frame at time code ``frame`` and saves the layer; returns the bytes of the
         arrays written. ``ids`` and widths get a time sample only when they differ from the last
         one (USD holds a sample until the next), so a cache in id order without emitters or sinks
@@ -178,6 +218,8 @@ class UsdPointCache:
                 self._ids = ids.copy()
         widths = widths and count != self._count
         written = _write_points(self.points, frame, points, velocities, ids, radius, fields, widths)
+        if surface is not None:
+            write_surface(self.stage, frame, surface)  # not in the bytes of particle arrays returned
         _write_body_poses(self.stage, frame, body_poses)
         self.stage.SetEndTimeCode(max(frame, self.stage.GetEndTimeCode()))
         if not self.stage.GetRootLayer().Save():
@@ -225,7 +267,8 @@ class UsdClipCache:
     def frame_path(self, frame):
         return self.dir / f"frame.{frame:06d}.usdc"
 
-    def write_frame(self, frame, points, velocities, ids, radius, fields=None, body_poses=None, widths=True):
+    def write_frame(self, frame, points, velocities, ids, radius, fields=None, body_poses=None, widths=True,
+                    surface=None):
         """Writes the layer of frame ``frame`` (every asked array: a clip stands on its own);
         returns the bytes of the arrays written."""
         _check_directory(self.dir)
@@ -235,6 +278,8 @@ class UsdClipCache:
         UsdGeom.Xform.Define(stage, "/World")
         written = _write_points(UsdGeom.Points.Define(stage, "/World/Fluid"), frame, points, velocities, ids, radius,
                                 fields, widths)
+        if surface is not None:
+            write_surface(stage, frame, surface)
         _write_body_poses(stage, frame, body_poses)
         if not stage.GetRootLayer().Save():
             raise OSError(f"{self.frame_path(frame)}: USD could not save the layer")
@@ -289,9 +334,10 @@ def _extent(points, pad=0.0):
     return Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))])
 
 
-def write_host_frame(cache, item, radius, fields=None):
+def write_host_frame(cache, item, radius, fields=None, surface=None):
     """Writes a :class:`~warpsph.io.frames.HostFrame` to ``cache`` with the ``--fields`` asked
-    (None: every field the frame has); returns the bytes of the arrays written."""
+    (None: every field the frame has) and the surface mesh ``surface`` (None: none); returns the
+    bytes of the arrays written."""
     a = item.arrays
     if fields is None:
         fields = ["points", "velocities", "ids", "widths", *[k for k in a if k not in ("x", "v", "ids")]]
@@ -305,7 +351,7 @@ def write_host_frame(cache, item, radius, fields=None):
             primvars[name] = a[name]
     return cache.write_frame(item.frame, a["x"], a["v"] if "velocities" in fields else None,
                              a["ids"] if "ids" in fields else None, radius, primvars, item.poses,
-                             widths="widths" in fields)
+                             widths="widths" in fields, surface=surface)
 
 
 def frame_writer(cache, fields=None):

@@ -1,0 +1,252 @@
+"""Surface meshes (#17): splashsurf's reconstruction of a sphere of particles, /World/FluidSurface in
+the caches of ``warpsph run --surface`` (single file and --clips, and after SIGINT), ``warpsph
+surface`` re-meshing a finished cache, and bad options refused before anything is written. The
+tests that mesh need pysplashsurf (``warpsph[surface]``); the refusals run without it."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+from pxr import Usd
+
+from conftest import tank_scene
+from warpsph.cli import main
+from warpsph.surface import SurfaceOptions, boundary_edges, mesh_volume
+
+
+def lattice_sphere(radius, sphere):
+    """Particles of radius ``radius`` on a cubic lattice 2 r apart inside a ball of radius ``sphere``."""
+    g = np.arange(-sphere, sphere + 1e-9, 2 * radius)
+    p = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    return p[np.linalg.norm(p, axis=1) <= sphere]
+
+
+def run_cli(*args):
+    return main([*map(str, args), "--device", "cpu", "--quiet"])
+
+
+def write_scene(tmp_path, data):
+    path = tmp_path / "scene.json"
+    path.write_text(json.dumps(data))
+    return path
+
+
+def small_scene(tmp_path, frames=3, **kw):
+    data = tank_scene(radius=0.03, block=(0.2, 0.3, 0.2), models=[{"type": "micropolar"}],
+                      output={"fps": 25, "frames": frames}, **kw)
+    return write_scene(tmp_path, data)
+
+
+def surface_frames(path):
+    stage = Usd.Stage.Open(str(path))
+    prim = stage.GetPrimAtPath("/World/FluidSurface")
+    assert prim and prim.GetTypeName() == "Mesh"
+    return stage, prim
+
+
+@pytest.mark.parametrize("cube", [0.5, 0.75])
+def test_a_sphere_of_particles_meshes_to_a_closed_surface_of_the_particles_volume(cube):
+    pytest.importorskip("pysplashsurf")
+    from warpsph.surface import reconstruct
+
+    r, sphere = 0.01, 0.2
+    points = lattice_sphere(r, sphere)
+    velocity = np.tile([1.0, -2.0, 0.5], (len(points), 1))
+    mesh = reconstruct(points, r, velocity, np.full(len(points), 3.0), SurfaceOptions(cube=cube))
+    assert boundary_edges(mesh.faces) == 0  # closed: every edge has two triangles
+    volume = len(points) * (2 * r) ** 3
+    assert mesh_volume(mesh.points, mesh.faces) == pytest.approx(volume, rel=0.05)
+    # outward normals of unit length, the velocity and vorticity magnitude interpolated to the vertices
+    assert np.all(np.einsum("ij,ij->i", mesh.normals, mesh.points) > 0)
+    assert np.allclose(np.linalg.norm(mesh.normals, axis=1), 1.0, atol=1e-3)
+    assert np.allclose(mesh.velocities, velocity[0], atol=1e-4)
+    assert np.allclose(mesh.primvars["vorticity_magnitude"], 3.0, atol=1e-4)
+
+
+def test_smoothing_length_and_cube_are_multiples_of_the_particle_radius():
+    """pysplashsurf 0.14.1.0 reads them as multiples of the radius (its docstring of
+    reconstruct_surface says absolute units): the mesh of a sphere scales with the sphere and the
+    edges are about cube * r long."""
+    pytest.importorskip("pysplashsurf")
+    from warpsph.surface import reconstruct
+
+    r, sphere = 0.01, 0.2
+    points = lattice_sphere(r, sphere)
+    small = reconstruct(points, r)
+    large = reconstruct(points * 10.0, r * 10.0)
+    assert np.linalg.norm(small.points, axis=1).mean() == pytest.approx(sphere, abs=r)
+    assert mesh_volume(large.points, large.faces) == pytest.approx(1000 * mesh_volume(small.points, small.faces), rel=1e-3)
+    for cube in (0.5, 1.0):
+        mesh = reconstruct(points, r, options=SurfaceOptions(cube=cube))
+        edges = np.linalg.norm(mesh.points[mesh.faces[:, 0]] - mesh.points[mesh.faces[:, 1]], axis=1)
+        assert 0.4 * cube * r < np.median(edges) < 1.5 * cube * r
+
+
+def test_no_particles_give_an_empty_mesh():
+    pytest.importorskip("pysplashsurf")
+    from warpsph.surface import reconstruct
+
+    mesh = reconstruct(np.zeros((0, 3)), 0.01, np.zeros((0, 3)))
+    assert mesh.points.shape == (0, 3) and mesh.faces.shape == (0, 3)
+
+
+@pytest.mark.parametrize("clips", [False, True])
+def test_a_run_with_surface_has_a_mesh_at_every_frame(tmp_path, clips):
+    pytest.importorskip("pysplashsurf")
+    scene = small_scene(tmp_path)
+    out = tmp_path / ("run.usda" if clips else "run.usdc")
+    assert run_cli("run", scene, "--out", out, "--surface", *(["--clips"] if clips else [])) == 0
+    stage, prim = surface_frames(out)
+    points = stage.GetPrimAtPath("/World/Fluid").GetAttribute("points")
+    assert len(points.GetTimeSamples()) == 4  # the particles stay
+    assert prim.GetAttribute("subdivisionScheme").Get() == "none"
+    for name in ("points", "faceVertexCounts", "faceVertexIndices", "normals", "extent", "velocities",
+                 "primvars:vorticity_magnitude"):
+        assert prim.GetAttribute(name).GetTimeSamples() == [0.0, 1.0, 2.0, 3.0], name
+    for t in range(4):
+        vertices = np.array(prim.GetAttribute("points").Get(t))
+        indices = np.array(prim.GetAttribute("faceVertexIndices").Get(t)).reshape(-1, 3)
+        counts = np.array(prim.GetAttribute("faceVertexCounts").Get(t))
+        assert len(vertices) > 100 and len(counts) == len(indices) and np.all(counts == 3)
+        assert indices.max() < len(vertices) and boundary_edges(indices) == 0
+        assert len(prim.GetAttribute("normals").Get(t)) == len(vertices)
+        assert len(prim.GetAttribute("velocities").Get(t)) == len(vertices)
+        assert len(prim.GetAttribute("primvars:vorticity_magnitude").Get(t)) == len(vertices)
+    if clips:
+        for layer in sorted((tmp_path / "run.clips").glob("frame.*.usdc")):
+            stage = Usd.Stage.Open(str(layer))
+            assert len(stage.GetPrimAtPath("/World/FluidSurface").GetAttribute("points").GetTimeSamples()) == 1
+
+
+def test_resume_keeps_meshing(tmp_path):
+    pytest.importorskip("pysplashsurf")
+    scene = small_scene(tmp_path)
+    out = tmp_path / "run.usdc"
+    assert run_cli("run", scene, "--out", out, "--surface", "--checkpoint-every", "2", "--frames", "2") == 0
+    assert main(["resume", str(out.with_suffix(".checkpoint.h5")), "--device", "cpu", "--frames", "3", "--quiet"]) == 0
+    _, prim = surface_frames(out)
+    assert prim.GetAttribute("points").GetTimeSamples() == [0.0, 1.0, 2.0, 3.0]
+
+
+SLOW_MESHER = """
+import sys, time
+from warpsph import surface
+original = surface.reconstruct
+def slow(*args, **kwargs):
+    time.sleep(0.2)  # a slow mesher: the signal arrives while a frame is being meshed
+    return original(*args, **kwargs)
+surface.reconstruct = slow
+from warpsph.cli import main
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_sigint_leaves_a_readable_cache_with_the_meshes_of_the_frames_done(tmp_path):
+    pytest.importorskip("pysplashsurf")
+    data = tank_scene(radius=0.03, domain=(0.6, 0.4, 0.2), block=(0.2, 0.3, 0.2), output={"fps": 50, "frames": 400})
+    scene = write_scene(tmp_path, data)
+    out = tmp_path / "long.usdc"
+    proc = subprocess.Popen([sys.executable, "-c", SLOW_MESHER, "run", str(scene), "--device", "cpu", "--out", str(out),
+                             "--quiet", "--surface"], stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"}, cwd=tmp_path)
+    stats = out.with_suffix(".stats.csv")
+    deadline = time.time() + 120
+    while time.time() < deadline and (not stats.exists() or len(stats.read_text().splitlines()) < 3):
+        time.sleep(0.05)
+    time.sleep(0.1)  # mid-mesh
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    stage, prim = surface_frames(out)
+    done = stage.GetPrimAtPath("/World/Fluid").GetAttribute("points").GetTimeSamples()
+    assert len(done) >= 2 and done == [float(f) for f in range(len(done))]
+    assert prim.GetAttribute("points").GetTimeSamples() == done
+    assert prim.GetAttribute("faceVertexIndices").GetTimeSamples() == done
+    assert f"holds frames 0..{len(done) - 1}" in err
+
+
+@pytest.mark.parametrize("source", ["usdc", "clips", "h5"])
+def test_surface_command_meshes_a_finished_cache_into_a_new_layer(tmp_path, source, capsys):
+    pytest.importorskip("pysplashsurf")
+    scene = small_scene(tmp_path)
+    out = tmp_path / ("run.usda" if source == "clips" else "run.usdc")
+    extra = {"usdc": [], "clips": ["--clips"], "h5": ["--particles-h5"]}[source]
+    assert run_cli("run", scene, "--out", out, *extra) == 0
+    cache = out.with_suffix(".particles.h5") if source == "h5" else out
+    before = {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*") if p.is_file()}
+    assert main(["surface", str(cache), "--frames", "1", "3", "--cube", "1.0", "--quiet"]) == 0
+    new = tmp_path / "run.surface.usdc"
+    assert {p: p.stat().st_mtime_ns for p in before} == before  # the cache is untouched
+    stage, prim = surface_frames(new)
+    assert prim.GetAttribute("points").GetTimeSamples() == [1.0, 2.0, 3.0]
+    assert stage.GetPrimAtPath("/World/Fluid").GetAttribute("points").GetTimeSamples() == [0.0, 1.0, 2.0, 3.0]
+    assert len(prim.GetAttribute("velocities").Get(2)) == len(prim.GetAttribute("points").Get(2)) > 50
+    assert len(prim.GetAttribute("primvars:vorticity_magnitude").Get(2)) == len(prim.GetAttribute("points").Get(2))
+    del stage, prim  # USD's layer registry would hand back the layer held open
+    # a second time: refused without --overwrite, replaced with it
+    assert main(["surface", str(cache), "--quiet"]) == 2
+    assert "--out" in capsys.readouterr().err
+    assert main(["surface", str(cache), "--quiet", "--overwrite"]) == 0
+    _, prim = surface_frames(new)
+    assert prim.GetAttribute("points").GetTimeSamples() == [0.0, 1.0, 2.0, 3.0]
+
+
+def _files(folder):
+    return sorted(p.relative_to(folder) for p in folder.rglob("*"))
+
+
+@pytest.mark.parametrize("option, value", [("--surface-cube", "0"), ("--surface-cube", "-1"),
+                                           ("--surface-smoothing", "0"), ("--surface-cube", "nan")])
+def test_bad_surface_options_of_run_are_refused_before_anything_is_written(tmp_path, capsys, option, value):
+    scene = small_scene(tmp_path)
+    before = _files(tmp_path)
+    assert run_cli("run", scene, "--out", tmp_path / "x.usdc", "--surface", option, value) == 2
+    err = capsys.readouterr().err
+    assert f"warpsph: error: {option}:" in err and "Traceback" not in err
+    assert _files(tmp_path) == before
+
+
+def test_missing_pysplashsurf_is_a_clear_error_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    scene = small_scene(tmp_path)
+    assert run_cli("run", scene, "--out", tmp_path / "a.usdc") == 0
+    monkeypatch.setitem(sys.modules, "pysplashsurf", None)  # import pysplashsurf raises ImportError
+    before = _files(tmp_path)
+    assert run_cli("run", scene, "--out", tmp_path / "x.usdc", "--surface") == 2
+    err = capsys.readouterr().err
+    assert "warpsph: error: --surface: " in err and "pip install 'warpsph[surface]'" in err
+    assert main(["surface", str(tmp_path / "a.usdc")]) == 2
+    err = capsys.readouterr().err
+    assert "warpsph: error: surface: " in err and "pysplashsurf" in err and "Traceback" not in err
+    assert _files(tmp_path) == before
+
+
+@pytest.mark.parametrize("args, option", [(["--cube", "0"], "--cube"), (["--cube", "-0.5"], "--cube"),
+                                          (["--smoothing", "0"], "--smoothing"),
+                                          (["--frames", "2", "9"], "--frames"), (["--frames", "3", "1"], "--frames"),
+                                          (["--frames", "-1", "2"], "--frames"), (["--radius", "0"], "--radius"),
+                                          (["--out", "{tmp}/a.usdc"], "--out"), (["--out", "{tmp}/m.txt"], "--out")])
+def test_bad_options_of_surface_are_refused_before_anything_is_written(tmp_path, capsys, monkeypatch, args, option):
+    monkeypatch.setitem(sys.modules, "pysplashsurf", sys.modules.get("pysplashsurf") or object())  # present or not
+    scene = small_scene(tmp_path)
+    assert run_cli("run", scene, "--out", tmp_path / "a.usdc") == 0
+    capsys.readouterr()
+    before = _files(tmp_path)
+    assert main(["surface", str(tmp_path / "a.usdc"), *[a.format(tmp=tmp_path) for a in args]]) == 2
+    err = capsys.readouterr().err
+    assert f": {option}: " in err and "Traceback" not in err, err
+    assert _files(tmp_path) == before
+
+
+def test_surface_of_a_file_that_is_not_a_cache_is_refused(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "pysplashsurf", sys.modules.get("pysplashsurf") or object())
+    (tmp_path / "notes.usdc").write_text("hello")
+    assert main(["surface", str(tmp_path / "notes.usdc")]) == 2
+    assert "not a warpsph point cache" in capsys.readouterr().err
+    assert main(["surface", str(tmp_path / "missing.usdc")]) == 2
+    assert "no such file" in capsys.readouterr().err
+    assert _files(tmp_path) == [__import__("pathlib").Path("notes.usdc")]
