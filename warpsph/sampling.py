@@ -1,6 +1,8 @@
 """Initial particle sampling: fluid blocks on a lattice, boundary surfaces from meshes.
 
-Runs once per scene on the host (numpy + trimesh); nothing here runs per step.
+Runs once per scene on the host (numpy + trimesh); nothing here runs per step. trimesh is imported by
+the functions that read or transform meshes (it takes longer to import than the rest of warpsph),
+so scenes without meshes never load it.
 """
 
 from __future__ import annotations
@@ -9,7 +11,6 @@ import math
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
 from .errors import SceneError
 
@@ -25,8 +26,11 @@ def fill_block(start, end, spacing):
     if np.any(counts < 1):
         return np.zeros((0, 3), dtype=np.float32)
     axes = [start[a] + spacing * (0.5 + np.arange(counts[a])) for a in range(3)]
-    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    return grid.astype(np.float32)
+    grid = np.empty((*counts, 3), dtype=np.float32)  # filled in place: no float64 meshgrid of 1M points
+    grid[..., 0] = axes[0][:, None, None]
+    grid[..., 1] = axes[1][None, :, None]
+    grid[..., 2] = axes[2][None, None, :]
+    return grid.reshape(-1, 3)
 
 
 def _c_round(x):
@@ -119,8 +123,21 @@ def sample_triangles(vertices, faces, spacing):
     points = np.concatenate(points) if points else np.zeros((0, 3))
     # merge duplicates on shared edges and vertices
     key = np.round(points / (1e-3 * spacing)).astype(np.int64)
-    _, unique = np.unique(key, axis=0, return_index=True)
-    return points[np.sort(unique)].astype(np.float32)
+    return points[_first_of_each_row(key)].astype(np.float32)
+
+
+def _first_of_each_row(key):
+    """Sorted indices of the first occurrence of each distinct row of an int64 (N, 3) array:
+    ``np.sort(np.unique(key, axis=0, return_index=True)[1])``, with the rows packed into one int64
+    where they fit (np.unique over rows sorts a structured view, several times slower)."""
+    if not len(key):
+        return np.zeros(0, dtype=np.int64)
+    key = key - key.min(axis=0)  # the same rows are equal: a shift per column
+    top = int(key.max()) + 1
+    if top**3 >= 2**63:
+        return np.sort(np.unique(key, axis=0, return_index=True)[1])
+    packed = (key[:, 0] * top + key[:, 1]) * top + key[:, 2]
+    return np.sort(np.unique(packed, return_index=True)[1])
 
 
 def sample_box_walls(lo, hi, spacing, periodic=()):
@@ -147,8 +164,7 @@ def sample_box_walls(lo, hi, spacing, periodic=()):
         return np.zeros((0, 3), dtype=np.float32)
     points = np.concatenate(points)
     key = np.round((points - lo) / (1e-3 * spacing)).astype(np.int64)  # edges and corners once
-    _, unique = np.unique(key, axis=0, return_index=True)
-    points = points[np.sort(unique)]
+    points = points[_first_of_each_row(key)]
     for axis in periodic:  # the samples on the far face are the images of those on the near one
         k = "xyz".index(axis)
         points = points[points[:, k] < hi[k] - 1e-6 * spacing]
@@ -157,6 +173,8 @@ def sample_box_walls(lo, hi, spacing, periodic=()):
 
 def load_mesh(path):
     """Reads a mesh with trimesh; any failure is a :class:`SceneError` naming the file."""
+    import trimesh
+
     path = Path(path)
     try:
         mesh = trimesh.load(str(path), force="mesh", process=True)
@@ -183,6 +201,8 @@ def rotation_matrix(axis, angle):
     norm = np.linalg.norm(axis)
     if norm == 0.0 or angle == 0.0:
         return np.eye(3)
+    import trimesh
+
     return trimesh.transformations.rotation_matrix(angle, axis / norm)[:3, :3]
 
 
@@ -201,6 +221,8 @@ def place_mesh(obstacle, path, spacing, domain_size):
         raise SceneError(path, "scale", f"the scaled mesh is {size:.3g} m across, smaller than one particle "
                                         f"spacing ({spacing:.3g} m)")
     v = v @ rotation_matrix(obstacle.rotation_axis, obstacle.rotation_angle).T + np.asarray(obstacle.translation)
+    import trimesh
+
     return trimesh.Trimesh(vertices=v, faces=np.asarray(mesh.faces), process=False)
 
 
@@ -235,8 +257,17 @@ def inset_vertices(mesh, distance):
 def morton_order(points, origin, cell_size):
     """Permutation that sorts points by the Z-order of their grid cell (memory coherence)."""
     cells = np.clip(np.floor((points - origin) / cell_size).astype(np.int64), 0, 1023)
-    key = np.zeros(len(points), dtype=np.int64)
-    for bit in range(10):
-        for axis in range(3):
-            key |= ((cells[:, axis] >> bit) & 1) << (3 * bit + axis)
+    key = _SPREAD_BITS[cells[:, 0]] | (_SPREAD_BITS[cells[:, 1]] << 1) | (_SPREAD_BITS[cells[:, 2]] << 2)
     return np.argsort(key, kind="stable")
+
+
+def _spread_bits(n_bits=10):
+    """Table of the 2^n_bits cell coordinates with bit b moved to bit 3b (one axis of a Morton key)."""
+    c = np.arange(1 << n_bits, dtype=np.int64)
+    out = np.zeros_like(c)
+    for bit in range(n_bits):
+        out |= ((c >> bit) & 1) << (3 * bit)
+    return out
+
+
+_SPREAD_BITS = _spread_bits()
