@@ -16,7 +16,10 @@ For a scene (default the dam break) scaled to ~N fluid particles it measures
 
 and writes JSON with the device, Warp version and commit (``WARPSPH_COMMIT`` overrides git's: set it where the
 tree is a copy whose .git is absent or stale). Goal of #24: loop wall <= 1.2 x solver
-alone, time to first step <= 2 s with a warm kernel cache, at 1M particles on an H100.
+alone, time to first step <= 2 s with a warm kernel cache, at 1M particles on an H100. The start-up of a
+first run on a fresh copy of the tree also compiles the Python bytecode of warpsph and of wheels installed
+with --no-compile (``bytecode_cached`` in the JSON says whether it was there): measure it on a second run,
+or after ``python -m compileall -q warpsph kernels SITE-PACKAGES``.
 """
 
 from __future__ import annotations
@@ -70,9 +73,27 @@ class Stages:
         return original
 
 
+def bytecode_cached(packages):
+    """Whether each package's compiled bytecode (.pyc of the file named) was there before the imports: on a
+    fresh copy of the tree, or wheels installed with --no-compile, every module compiles on its first import,
+    which adds seconds to the time to the first step. Looks at files only: imports nothing."""
+    import importlib.util
+
+    out = {}
+    for name, module in packages:
+        try:
+            spec = importlib.util.find_spec(name)
+            source = Path(spec.submodule_search_locations[0]) / module
+            out[name] = Path(importlib.util.cache_from_source(str(source))).exists()
+        except (ImportError, ValueError, TypeError, AttributeError, IndexError):
+            out[name] = None
+    return out
+
+
 def startup(args):
     """The time to the first step, by stage (functions wrapped from the outside: no source edits);
     returns the result and the --scale that gives ~args.particles."""
+    bytecode = bytecode_cached((("warp", "_src/context.py"), ("warpsph", "simulation.py"), ("pxr", "__init__.py")))
     t_import = time.perf_counter()
     import warp as wp
 
@@ -86,6 +107,8 @@ def startup(args):
 
     t_warpsph = time.perf_counter()
     stages = Stages(wp)
+    with stages("CUDA context (first use of the device)"):  # lazy in Warp: else it lands in Simulation()
+        wp.get_device(args.device).context
     base = simulation.count_particles(load_scene(args.scene))[0]
     scale = args.particles / base
     scene = load_scene(args.scene, scale=scale)
@@ -122,7 +145,7 @@ def startup(args):
     t_first = time.perf_counter()
     result = {
         "particles": sim.num_fluid, "boundary": sim.num_boundary,
-        "time_to_first_step_s": t_first - T0,
+        "time_to_first_step_s": t_first - T0, "bytecode_cached": bytecode,
         "stages_s": {"python start and imports before warp": t_import - T0, "import warp + wp.init": t_init - t_import,
                      "import warpsph": t_warpsph - t_init, "load_scene": t_scene - t_warpsph,
                      "Simulation() in all": t_sim - start, **dict(stages.seconds)},
