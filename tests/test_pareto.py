@@ -78,11 +78,11 @@ def test_every_point_is_written_with_time_error_and_flags(run):
 
 def test_finer_resolution_is_more_accurate(run):
     """At 12 and 16 particles across the box (core radius 1.5 and 2 spacings) plain DFSPH has an L1 error
-    of u_theta of 24 % and 14 % of the peak speed (cpu), peak vorticity 0.49 and 0.89 of the analytic."""
+    of u_theta of 5.7 % and 5.0 % of the peak speed (cpu; the clamped solver of earlier versions: 24 and 14 %)."""
     report, _ = run
     dfsph = {p["resolution"]: p for p in report["points"] if p["method"] == "dfsph"}
     coarse, fine = dfsph[RESOLUTIONS[0]], dfsph[RESOLUTIONS[1]]
-    assert fine[ERROR_KEY] < 0.75 * coarse[ERROR_KEY]
+    assert fine[ERROR_KEY] < 0.95 * coarse[ERROR_KEY] and coarse[ERROR_KEY] < 10.0
     assert fine["particles"] > coarse["particles"] and fine["steps"] > coarse["steps"]
 
 
