@@ -283,3 +283,86 @@ def test_every_key_is_accounted_for(scenes):
                 "RigidBodies[0].color", "mapResolution", "timeStepSize", "Standard viscosity.viscosity",
                 "DFSPH.maxIterationsV", "density0", "FluidBlocks[0]"):
         assert key in text, key
+
+
+# --- 5. the tolerance means the same thing: volume convention and density error measure ----------------
+
+# pysplishsplash 2.19.0 on its DamBreakModel (r = 0.025 m, density0 1000), measured by
+# tools/splishsplash_side_by_side.py through its Python API: FluidModel.getVolume(0) and getMass(0), and the
+# median density of the block's particles after the first step (the bulk of the lattice of spacing 2r).
+# SPlisHSPlasH up to 2.16 (FluidModel::initMasses) gave fluid particles 0.8 (2r)^3; 2.19 gives (2r)^3.
+SPLISHSPLASH_219 = {"radius": 0.025, "volume": 1.25e-4, "mass": 0.125, "bulk_density": 0.9999721}
+
+
+def _cubic(r, H):
+    """SPlisHSPlasH's CubicKernel::W and gradW (support radius H), written out here in numpy."""
+    q = r / H
+    k, l = 8.0 / (np.pi * H**3), 48.0 / (np.pi * H**3)
+    w = np.where(q <= 0.5, k * (6 * q**3 - 6 * q**2 + 1), np.where(q <= 1.0, 2 * k * (1 - q) ** 3, 0.0))
+    dw = np.where(q <= 0.5, l * q * (3 * q - 2), np.where(q <= 1.0, -l * (1 - q) ** 2, 0.0)) / H  # dW/dr
+    return w, dw
+
+
+def _splishsplash_average_density_error(x, v, xb, vb_volume, volume, h, H):
+    """TimeStepDFSPH (SPlisHSPlasH 2.16 source, Akinci boundary): densityAdv_i = rho_i / rho0 + h (V sum_j
+    (v_i - v_j).gradW_ij + sum_b V_b v_i.gradW_ib); the first iteration's avg_density_err / rho0 (p = 0)
+    is the mean over all fluid particles of -min(1 - densityAdv_i, 0), compared with maxError * 0.01."""
+    d = x[:, None, :] - x[None, :, :]
+    r = np.linalg.norm(d, axis=2)
+    w, dw = _cubic(r, H)
+    grad = np.where(r[..., None] > 1e-9, dw[..., None] * d / np.maximum(r, 1e-12)[..., None], 0.0)
+    db = x[:, None, :] - xb[None, :, :]
+    rb = np.linalg.norm(db, axis=2)
+    wb, dwb = _cubic(rb, H)
+    gradb = np.where(rb[..., None] > 1e-9, dwb[..., None] * db / np.maximum(rb, 1e-12)[..., None], 0.0)
+    density = volume * w.sum(1) + (vb_volume[None, :] * wb).sum(1)  # rho / rho0, self term included (r = 0)
+    rate = volume * np.einsum("ijk,ijk->i", v[:, None, :] - v[None, :, :], grad)
+    rate += np.einsum("ik,ijk->i", v, vb_volume[None, :, None] * gradb)
+    density_adv = density + h * rate
+    return float(np.mean(-np.minimum(1.0 - density_adv, 0.0))), density
+
+
+def test_fluid_volume_is_splishsplash_219s(scenes):
+    data = edited(Configuration__particleRadius=SPLISHSPLASH_219["radius"], FluidBlocks__0__end=[-0.1, 0.4, 0.2])
+    scene = load_quiet(write(scenes, data))
+    sim = Simulation(scene, device="cpu")
+    assert sim.fluid_volume == pytest.approx(SPLISHSPLASH_219["volume"], rel=1e-6)
+    assert sim.particle_mass == pytest.approx(SPLISHSPLASH_219["mass"], rel=1e-6)
+    # the same lattice has the same bulk density in both (SPlisHSPlasH 2.16's 0.8 (2r)^3 would give 0.8):
+    # particles a support radius inside the block, away from its free faces and the walls
+    x = sim.fluid.x.numpy()[: sim.num_fluid]
+    inside = np.all((x > x.min(0) + sim.support_radius) & (x < x.max(0) - sim.support_radius), axis=1)
+    rho = sim.fluid.density.numpy()[: sim.num_fluid][inside] / sim.rest_density
+    assert inside.sum() > 10 and np.median(rho) == pytest.approx(SPLISHSPLASH_219["bulk_density"], abs=2e-4)
+
+
+def test_density_error_is_splishsplashs_measure_and_max_error_maps_one_to_one(scenes):
+    from warpsph.kernels.density_solver import compute_density_source
+    from warpsph.solver import DENSITY
+
+    scene = load_quiet(write(scenes, DAM_BREAK))
+    assert scene.solver.density_max_error == DAM_BREAK["Configuration"]["DFSPH"]["maxError"]  # factor 1, in %
+    sim = Simulation(scene, device="cpu")
+    n = sim.num_fluid
+    x = sim.fluid.x.numpy()[:n].astype(np.float64)
+    # a compressing, shearing velocity field towards the floor and the left wall: errors of both signs
+    rng = np.random.default_rng(3)
+    v = -0.8 * (x - x.mean(0)) + np.array([-0.3, -1.0, 0.0]) + 0.2 * rng.standard_normal(x.shape)
+    sim.fluid.v.assign(v.astype(np.float32))
+    h = 0.004
+    sim.dt.fill_(h)
+    sim.neighbours.update(sim.fluid.x)
+    sim._compute_density()
+    solver = sim.pressure_solver
+    solver.detect_free_surface()
+    assert solver.free_surface_count() > 0  # free-surface flow: p >= 0 everywhere, as in SPlisHSPlasH
+    solver._measure(DENSITY, compute_density_source, solver._density_inputs(), 1e-4, 2, 100, True)
+    ours = solver.last_errors()[1]
+
+    xb = sim.boundary.x.numpy().astype(np.float64)
+    vb = sim.boundary.volume.numpy().astype(np.float64)
+    theirs, density = _splishsplash_average_density_error(x, v, xb, vb, (2 * scene.particle_radius) ** 3, h,
+                                                         sim.support_radius)
+    np.testing.assert_allclose(sim.fluid.density.numpy()[:n] / sim.rest_density, density, rtol=2e-5)
+    assert theirs > 1e-3  # the field compresses: the comparison is not of zeros
+    assert ours == pytest.approx(theirs, rel=1e-3)
