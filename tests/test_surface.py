@@ -250,3 +250,129 @@ def test_surface_of_a_file_that_is_not_a_cache_is_refused(tmp_path, capsys, monk
     assert main(["surface", str(tmp_path / "missing.usdc")]) == 2
     assert "no such file" in capsys.readouterr().err
     assert _files(tmp_path) == [__import__("pathlib").Path("notes.usdc")]
+
+
+# --- the preview method (Warp's sparse marching cubes), --surface-every and --surface-behind
+
+
+@pytest.mark.parametrize("cube", [0.75, 1.0])
+def test_the_preview_of_a_sphere_of_particles_is_closed_and_holds_the_particles_volume(cube):
+    from warpsph.surface import reconstruct_preview
+
+    r, sphere = 0.01, 0.2
+    points = lattice_sphere(r, sphere)
+    velocity = np.tile([1.0, -2.0, 0.5], (len(points), 1))
+    mesh = reconstruct_preview(points, r, velocity, np.full(len(points), 3.0),
+                               SurfaceOptions(method="preview", cube=cube), device="cpu")
+    assert len(mesh.faces) > 1000 and boundary_edges(mesh.faces) == 0
+    volume = len(points) * (2 * r) ** 3
+    assert mesh_volume(mesh.points, mesh.faces) == pytest.approx(volume, rel=0.10)
+    assert np.all(np.einsum("ij,ij->i", mesh.normals, mesh.points) > 0)
+    assert np.allclose(np.linalg.norm(mesh.normals, axis=1), 1.0, atol=1e-3)
+    assert np.allclose(mesh.velocities, velocity[0], atol=1e-4)
+    assert np.allclose(mesh.primvars["vorticity_magnitude"], 3.0, atol=1e-4)
+    assert np.linalg.norm(mesh.points, axis=1).mean() == pytest.approx(sphere, abs=1.5 * r)
+
+
+def test_the_preview_of_no_particles_is_empty():
+    from warpsph.surface import reconstruct_preview
+
+    mesh = reconstruct_preview(np.zeros((0, 3)), 0.01, np.zeros((0, 3)), options=SurfaceOptions(method="preview"))
+    assert mesh.points.shape == (0, 3) and mesh.faces.shape == (0, 3)
+
+
+@pytest.mark.parametrize("clips", [False, True])
+def test_a_run_with_the_preview_surface_needs_no_pysplashsurf(tmp_path, clips, monkeypatch):
+    monkeypatch.setitem(sys.modules, "pysplashsurf", None)
+    scene = small_scene(tmp_path)
+    out = tmp_path / ("run.usda" if clips else "run.usdc")
+    assert run_cli("run", scene, "--out", out, "--surface", "--surface-method", "preview",
+                   *(["--clips"] if clips else [])) == 0
+    stage, prim = surface_frames(out)
+    assert prim.GetAttribute("points").GetTimeSamples() == [0.0, 1.0, 2.0, 3.0]
+    for t in range(4):
+        indices = np.array(prim.GetAttribute("faceVertexIndices").Get(t)).reshape(-1, 3)
+        assert len(indices) > 100 and boundary_edges(indices) == 0
+        assert len(prim.GetAttribute("velocities").Get(t)) == len(prim.GetAttribute("points").Get(t))
+    note = stage.GetRootLayer().customLayerData["warpsph:surface"]
+    assert note["method"] == "preview" and note["meshed"] == 4 and note["skipped"] == 0
+
+
+@pytest.mark.parametrize("clips", [False, True])
+def test_surface_every_k_meshes_every_kth_frame_and_the_mesh_holds_between(tmp_path, clips, capsys):
+    pytest.importorskip("pysplashsurf")
+    scene = small_scene(tmp_path, frames=5)
+    out = tmp_path / ("run.usda" if clips else "run.usdc")
+    assert run_cli("run", scene, "--out", out, "--surface", "--surface-every", "2",
+                   *(["--clips"] if clips else [])) == 0
+    assert "in 3 frames (every 2-th frame)" in capsys.readouterr().err
+    stage, prim = surface_frames(out)
+    assert stage.GetPrimAtPath("/World/Fluid").GetAttribute("points").GetTimeSamples() == [0.0, 1.0, 2.0, 3.0, 4.0, 5.0]
+    assert prim.GetAttribute("points").GetTimeSamples() == [0.0, 2.0, 4.0]
+    for held, meshed in ((1, 0), (3, 2), (5, 4)):
+        for name in ("points", "faceVertexIndices", "normals"):
+            assert np.array_equal(np.array(prim.GetAttribute(name).Get(held)), np.array(prim.GetAttribute(name).Get(meshed)))
+    note = stage.GetRootLayer().customLayerData["warpsph:surface"]
+    assert note["every"] == 2 and note["meshed"] == 3 and note["skipped"] == 0 and "holds the mesh" in note["note"]
+
+
+SLOW = 0.6
+
+
+@pytest.mark.parametrize("behind", ["skip", "wait"])
+def test_a_mesher_behind_the_simulation_skips_frames_or_waits(tmp_path, monkeypatch, capsys, behind):
+    """A mesher slower than the simulation: skip meshes what it can and never holds the run up
+    (frames skipped are counted and listed in the metadata); wait meshes every frame."""
+    pytest.importorskip("pysplashsurf")
+    from warpsph import cli, surface
+
+    original = surface.reconstruct
+
+    def slow(*args, **kwargs):
+        time.sleep(SLOW)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(surface, "reconstruct", slow)
+    scene = small_scene(tmp_path, frames=8)
+    out = tmp_path / "run.usdc"
+    assert run_cli("run", scene, "--out", out, "--surface", "--surface-behind", behind) == 0
+    err = capsys.readouterr().err
+    stage, prim = surface_frames(out)
+    meshed = [int(t) for t in prim.GetAttribute("points").GetTimeSamples()]
+    note = stage.GetRootLayer().customLayerData["warpsph:surface"]
+    run = cli.last_run
+    if behind == "wait":
+        assert meshed == list(range(9)) and note["skipped"] == 0
+        assert run["writer_waited"] > 0  # the simulation waited for the mesher
+        assert "--surface-every" in err
+    else:
+        skipped = list(note["skipped_frames"])
+        assert 0 in meshed and skipped and sorted(meshed + skipped) == list(range(9))
+        assert note["skipped"] == len(skipped) == len(run["surface_skipped"]) and note["meshed"] == len(meshed)
+        assert f"{len(skipped)} frames skipped" in err and "skipped because the mesher was behind" in note["note"]
+        assert run["writer_waited"] < SLOW  # at most one frame's meshing queued: the run never waits for it
+        for t in skipped:  # a skipped frame holds the mesh before it
+            before = max(m for m in meshed if m < t)
+            assert len(prim.GetAttribute("points").Get(t)) == len(prim.GetAttribute("points").Get(before))
+
+
+def test_surface_command_with_the_preview_method(tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "pysplashsurf", None)
+    scene = small_scene(tmp_path)
+    out = tmp_path / "run.usdc"
+    assert run_cli("run", scene, "--out", out) == 0
+    assert main(["surface", str(out), "--method", "preview", "--quiet"]) == 0
+    _, prim = surface_frames(tmp_path / "run.surface.usdc")
+    assert prim.GetAttribute("points").GetTimeSamples() == [0.0, 1.0, 2.0, 3.0]
+    assert boundary_edges(np.array(prim.GetAttribute("faceVertexIndices").Get(2)).reshape(-1, 3)) == 0
+
+
+@pytest.mark.parametrize("option, value", [("--surface-every", "0"), ("--surface-every", "-2")])
+def test_bad_surface_every_is_refused_before_anything_is_written(tmp_path, capsys, option, value):
+    scene = small_scene(tmp_path)
+    before = _files(tmp_path)
+    assert run_cli("run", scene, "--out", tmp_path / "x.usdc", "--surface", "--surface-method", "preview",
+                   option, value) == 2
+    err = capsys.readouterr().err
+    assert f"warpsph: error: {option}:" in err and "Traceback" not in err
+    assert _files(tmp_path) == before

@@ -2,9 +2,11 @@
 
     warpsph run SCENE.json [--device auto|cpu|cuda] [--out FILE.usdc] [--frames N] [--scale S]
                            [--overwrite] [--checkpoint-every N] [--on-instability stop|reduce-dt] [--dry-run]
-                           [--fields points,velocities,...] [--sync-output] [--surface [--surface-cube C]]
+                           [--fields points,velocities,...] [--sync-output] [--surface [--surface-cube C]
+                           [--surface-method splashsurf|preview] [--surface-every K] [--surface-behind wait|skip]]
     warpsph resume CHECKPOINT.h5 [--device ...] [--frames N]
     warpsph surface OUT.usdc|OUT.particles.h5 [--cube C] [--smoothing L] [--frames A B] [--out NEW.usdc]
+                    [--method splashsurf|preview] [--device cpu|cuda]
 
 --overwrite replaces only files warpsph wrote (a directory or anyone else's file is refused). A
 checkpoint holds the whole scene: resume works from any directory, and resuming again rewrites
@@ -278,20 +280,31 @@ def _simulate(sim, outputs, frames, args, options, append):
         copy += [n for n in ("v", "vorticity") if (n == "v" or n in published) and n not in copy]
     radius = scene.particle_radius
     payload = {"bytes": 0, "particle_frames": 0, "surface_seconds": 0.0}
+    mesher = None
+    if surface is not None:  # meshes on a thread of its own, fed by the writer (bounded: --surface-behind)
+        from .surface import BackgroundMesher, mesher_for
 
-    def write(item):  # on the writer's thread: the surface mesh, the USD frame, the HDF5 frame, the CSV row
-        mesh = None
-        if surface is not None:
-            from .surface import reconstruct
+        mesher = BackgroundMesher(mesher_for(surface, radius, sim.device), every=int(options.get("surface_every", 1)),
+                                  behind=str(options.get("surface_behind", "wait")))
 
+    def write(item):  # on the writer's thread: the USD frame, the meshes done, the HDF5 frame, the CSV row
+        if mesher is not None:
+            for frame, mesh in mesher.ready():
+                cache.write_surface(frame, mesh, save=False)  # saved with this frame
+        payload["bytes"] += write_host_frame(cache, item, radius, fields)
+        if mesher is not None and mesher.wants(item.frame):
             a = item.arrays
-            mesh = reconstruct(a["x"], radius, a.get("v"), a.get("vorticity"), surface)
-            payload["surface_seconds"] += mesh.seconds
-        payload["bytes"] += write_host_frame(cache, item, radius, fields, surface=mesh)
+            mesher.submit(item.frame, {k: a[k] for k in ("x", "v", "vorticity") if k in a})
         payload["particle_frames"] += item.count
         if particles is not None:
             particles.write(item.frame, item.time, item.step, item.arrays)
         diagnostics.write_row(item.row)
+
+    def finish_meshes():  # after the writer: the meshes still queued, and the note in the metadata
+        for frame, mesh in mesher.close():
+            cache.write_surface(frame, mesh, save=True)
+        payload["surface_seconds"] = mesher.seconds
+        cache.note_surface(mesher.note(surface))
 
     writer = FrameWriter(sim, write, copy=copy, background=not getattr(args, "sync_output", False))
     progress = None if args.quiet else Progress(frames)
@@ -356,8 +369,8 @@ def _simulate(sim, outputs, frames, args, options, append):
         for s, handler in previous.items():
             signal.signal(s, handler)
         writer.close()  # writes the frames still queued (a stopped or unstable run keeps them)
-        closing = [_close(diagnostics.close), particles is not None and _close(particles.close),
-                   _close(lambda: cache.finish(outputs.out))]
+        closing = [mesher is not None and _close(finish_meshes), _close(diagnostics.close),
+                   particles is not None and _close(particles.close), _close(lambda: cache.finish(outputs.out))]
     loop_wall = time.perf_counter() - start
     written = "no frames" if writer.written is None else f"frames 0..{writer.written}"
     hint = "" if not outputs.checkpoint.exists() else f"; last checkpoint: {outputs.checkpoint}"
@@ -392,7 +405,9 @@ def _simulate(sim, outputs, frames, args, options, append):
     last_run.update(wall=loop_wall, steps=steps, frames=writer.frames, payload_bytes=payload["bytes"],
                     particle_frames=payload["particle_frames"], disk_bytes=disk, writer_seconds=writer.seconds,
                     writer_waited=writer.waited, background=writer.background, fields=list(fields),
-                    surface_seconds=payload["surface_seconds"] if surface is not None else None)
+                    surface_seconds=payload["surface_seconds"] if surface is not None else None,
+                    surface_meshed=mesher.meshed if mesher is not None else None,
+                    surface_skipped=list(mesher.skipped) if mesher is not None else None)
     if progress is not None and progress.tty:
         print(file=sys.stderr)
     print(f"done: frame {frames}, {steps} steps, {sim.time:.3f} s simulated, {loop_wall:.1f} s wall "
@@ -403,11 +418,27 @@ def _simulate(sim, outputs, frames, args, options, append):
           f"({','.join(fields)}), {_size(disk)} on disk; writing took {writer.seconds:.1f} s "
           f"{'in the background' if writer.background else 'on the simulation thread'}"
           + (f", the simulation waited {writer.waited:.1f} s for it" if writer.background else ""), file=sys.stderr)
-    if surface is not None:
-        print(f"surface: /World/FluidSurface in every frame, {payload['surface_seconds'] / max(writer.frames, 1):.2f} s "
-              f"of meshing per frame (splashsurf, cube {surface.cube:g} r, smoothing length {surface.smoothing:g} r)",
-              file=sys.stderr)
+    if mesher is not None:
+        _report_surface(mesher, surface, loop_wall, writer)
     return 0
+
+
+def _report_surface(mesher, surface, loop_wall, writer):
+    """The end-of-run line on the surface: frames meshed and skipped, seconds per mesh, and what
+    would keep up when the simulation waited for the mesher."""
+    per_mesh = mesher.seconds / max(mesher.meshed, 1)
+    every = f"every {mesher.every}-th frame" if mesher.every > 1 else "every frame"
+    line = (f"surface: /World/FluidSurface ({surface.method}, cube {surface.cube:g} r, smoothing length "
+            f"{surface.smoothing:g} r) in {mesher.meshed} frames ({every}), {per_mesh:.2f} s of meshing per mesh")
+    if mesher.skipped:
+        line += (f"; {len(mesher.skipped)} frames skipped (the mesher was behind; noted in the cache's metadata "
+                 f"warpsph:surface; re-mesh them with warpsph surface)")
+    if mesher.behind == "wait" and writer.background and writer.waited > 0.05 * loop_wall:
+        simulated = (loop_wall - writer.waited) / max(writer.frames, 1)  # seconds of simulation per frame
+        keep_up = max(2, int(np.ceil(per_mesh / max(simulated, 1e-9))))
+        line += (f"; the simulation waited {writer.waited:.1f} s for the writer and mesher: --surface-every {keep_up} "
+                 f"or --surface-behind skip would not make it wait")
+    print(line, file=sys.stderr)
 
 
 def _surface_options(options):
@@ -418,8 +449,13 @@ def _surface_options(options):
     from .surface import SurfaceOptions, require_pysplashsurf
 
     surface = SurfaceOptions(cube=float(options.get("surface_cube", SurfaceOptions.cube)),
-                             smoothing=float(options.get("surface_smoothing", SurfaceOptions.smoothing))).check("--surface-")
-    require_pysplashsurf("--surface")
+                             smoothing=float(options.get("surface_smoothing", SurfaceOptions.smoothing)),
+                             method=str(options.get("surface_method", "splashsurf"))).check("--surface-")
+    every = int(options.get("surface_every", 1))
+    if every < 1:
+        raise SceneError("", "--surface-every", f"expected an integer >= 1 (mesh every K-th frame), got {every}")
+    if surface.method == "splashsurf":
+        require_pysplashsurf("--surface")
     return surface
 
 
@@ -501,7 +537,9 @@ def run_command(args):
     from .scene import load_scene
 
     _check_options(args)
-    surface = {"surface": int(args.surface), "surface_cube": args.surface_cube, "surface_smoothing": args.surface_smoothing}
+    surface = {"surface": int(args.surface), "surface_cube": args.surface_cube, "surface_smoothing": args.surface_smoothing,
+               "surface_every": args.surface_every, "surface_behind": args.surface_behind,
+               "surface_method": args.surface_method}
     _surface_options(surface)  # a bad value or no pysplashsurf: refused before anything is written
     scene = load_scene(args.scene, scale=args.scale)
     frames = scene.output.frames if args.frames is None else args.frames
@@ -551,7 +589,8 @@ def resume_command(args):
     clips = bool(int(options.get("clips", 0)))
     if not (outputs.clips.is_dir() if clips else outputs.out.exists() or outputs.partial.exists()):
         raise SceneError(outputs.out, "", "the cache of this checkpoint's run is missing: it cannot be continued")
-    surface = {k: options[k] for k in ("surface", "surface_cube", "surface_smoothing") if k in options}
+    surface = {k: options[k] for k in ("surface", "surface_cube", "surface_smoothing", "surface_every", "surface_behind",
+                                       "surface_method") if k in options}
     _surface_options(surface)
     sim.on_instability = options.get("on_instability", "stop")
     print(f"warpsph: resuming {sim.scene.name} at frame {sim.frame} (t = {sim.time:.3f} s) on {device} -> {outputs.out}",
@@ -566,12 +605,14 @@ def resume_command(args):
 def surface_command(args):
     from .surface import SurfaceOptions, plan_remesh, remesh
 
-    options = SurfaceOptions(cube=args.cube, smoothing=args.smoothing, iso=args.iso)
+    options = SurfaceOptions(cube=args.cube, smoothing=args.smoothing, iso=args.iso, method=args.method)
     source, frames, out, radius = plan_remesh(args.cache, args.frames, args.out, args.radius, args.overwrite, options)
-    print(f"warpsph: meshing {len(frames)} frames of {args.cache} (r = {radius:.4g} m, cube {options.cube:g} r, "
+    device = _pick_device(args.device) if options.method == "preview" else "cpu"
+    print(f"warpsph: meshing {len(frames)} frames of {args.cache} ({options.method}"
+          + (f" on {device}" if options.method == "preview" else "") + f", r = {radius:.4g} m, cube {options.cube:g} r, "
           f"smoothing length {options.smoothing:g} r) -> {out}", file=sys.stderr)
     log = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
-    done = remesh(source, frames, out, radius, options, log=log)
+    done = remesh(source, frames, out, radius, options, log=log, device=device)
     print(f"wrote {out}: {done['frames']} frames, {done['seconds'] / max(done['frames'], 1):.2f} s per frame, "
           f"{done['triangles'] / max(done['frames'], 1):.0f} triangles per frame", file=sys.stderr)
     return 0
@@ -639,6 +680,15 @@ def build_parser():
                      help="marching-cubes cell of the surface in particle radii (default 0.75; 0.5 is finer)")
     run.add_argument("--surface-smoothing", type=float, default=2.0, metavar="L",
                      help="smoothing length of the surface's colour field in particle radii (default 2.0)")
+    run.add_argument("--surface-method", choices=["splashsurf", "preview"], default="splashsurf",
+                     help="splashsurf (default: smoothed, on the host's cores) or preview (Warp's sparse marching "
+                          "cubes on the simulation's device, iso 0.5, no smoothing: quick looks)")
+    run.add_argument("--surface-every", type=int, default=1, metavar="K",
+                     help="mesh every K-th frame only (default 1); a frame between holds the last mesh")
+    run.add_argument("--surface-behind", choices=["wait", "skip"], default="wait",
+                     help="when the mesher is behind (one frame waits while one is meshed): wait (default: every asked "
+                          "frame gets its mesh, the simulation waits) or skip the frame (the simulation never waits "
+                          "for meshing; skipped frames are counted at the end and in the cache's metadata)")
     run.set_defaults(func=run_command)
     resume = sub.add_parser("resume", help="continue a run from its checkpoint")
     resume.add_argument("checkpoint", help="OUT.checkpoint.h5 written by --checkpoint-every or at Ctrl-C")
@@ -663,7 +713,10 @@ def build_parser():
     mesh.add_argument("--frames", type=int, nargs=2, metavar=("A", "B"), help="mesh frames A..B only (default all)")
     mesh.add_argument("--cube", type=float, default=0.75, help="marching-cubes cell in particle radii (default 0.75)")
     mesh.add_argument("--smoothing", type=float, default=2.0, help="smoothing length in particle radii (default 2.0)")
-    mesh.add_argument("--iso", type=float, default=0.6, help="iso threshold of the colour field (default 0.6)")
+    mesh.add_argument("--iso", type=float, help="iso threshold of the colour field (default 0.6, preview 0.5)")
+    mesh.add_argument("--method", choices=["splashsurf", "preview"], default="splashsurf",
+                      help="splashsurf (default) or preview (Warp's sparse marching cubes, see run --surface-method)")
+    mesh.add_argument("--device", default="cpu", help="device of --method preview: cpu (default), cuda, cuda:N or auto")
     mesh.add_argument("--radius", type=float, help="particle radius in metres (default: the cache's widths / 2)")
     mesh.add_argument("--overwrite", action="store_true", help="replace an existing --out that warpsph wrote")
     mesh.add_argument("--quiet", action="store_true", help="no line per frame")

@@ -32,6 +32,8 @@ from .errors import SceneError
 
 PYSPLASHSURF = "0.14.1.0"
 INSTALL_HINT = f"pip install 'warpsph[surface]' (pysplashsurf=={PYSPLASHSURF})"
+METHODS = ("splashsurf", "preview")
+ISO_DEFAULTS = {"splashsurf": 0.6, "preview": 0.5}
 
 
 @dataclass(frozen=True)
@@ -40,20 +42,29 @@ class SurfaceOptions:
 
     cube: float = 0.75
     smoothing: float = 2.0
-    iso: float = 0.6
+    iso: float | None = None  # None: the method's default (splashsurf 0.6, preview 0.5)
     smoothing_iters: int = 25
     normals_iters: int = 10
     cleanup: bool = True
+    method: str = "splashsurf"  # or "preview": Warp's sparse marching cubes (reconstruct_preview)
+
+    @property
+    def threshold(self):
+        """The iso value of the colour field."""
+        return self.iso if self.iso is not None else ISO_DEFAULTS[self.method]
 
     def check(self, prefix="--"):
         """Raises :class:`SceneError` naming the option when a value is out of range."""
+        if self.method not in METHODS:
+            raise SceneError("", f"{prefix}method" if prefix == "--surface-" else "--method",
+                             f"expected one of {', '.join(METHODS)}, got {self.method!r}")
         if not (np.isfinite(self.cube) and self.cube > 0):
             raise SceneError("", f"{prefix}cube", f"expected a marching-cubes cell size > 0 (in particle radii, "
                                                   f"e.g. 0.5 to 0.75), got {self.cube}")
         if not (np.isfinite(self.smoothing) and self.smoothing > 0):
             raise SceneError("", f"{prefix}smoothing", f"expected a smoothing length > 0 (in particle radii, "
                                                        f"e.g. 2.0), got {self.smoothing}")
-        if not (np.isfinite(self.iso) and self.iso > 0):
+        if not (np.isfinite(self.threshold) and self.threshold > 0):
             raise SceneError("", f"{prefix}iso", f"expected an iso threshold > 0 (e.g. 0.6), got {self.iso}")
         return self
 
@@ -110,7 +121,7 @@ def reconstruct(points, radius, velocities=None, vorticity=None, options=Surface
     result, _ = ps.reconstruction_pipeline(
         points, attributes_to_interpolate=attributes or None, particle_radius=float(radius),
         smoothing_length=float(options.smoothing), cube_size=float(options.cube),  # multiples of the radius in 0.14.1
-        iso_surface_threshold=float(options.iso), multi_threading=threads, subdomain_grid=True,
+        iso_surface_threshold=float(options.threshold), multi_threading=threads, subdomain_grid=True,
         mesh_cleanup=options.cleanup, mesh_smoothing_weights=True, mesh_smoothing_iters=options.smoothing_iters or None,
         compute_normals=True, normals_smoothing_iters=options.normals_iters or None)
     tri = result.mesh
@@ -126,6 +137,241 @@ def reconstruct(points, radius, velocities=None, vorticity=None, options=Surface
         mesh.primvars["vorticity_magnitude"] = np.ascontiguousarray(data["vorticity_magnitude"], np.float32).ravel()
     mesh.seconds = time.perf_counter() - start
     return mesh
+
+
+PREVIEW_BLOCK = 8  # cells per block edge of the preview's sparse grid
+PREVIEW_MAX_BLOCKS = 1 << 24  # the dense block-flag grid; coarser blocks beyond it (a particle flung far away)
+
+
+def reconstruct_preview(points, radius, velocities=None, vorticity=None, options=None, device="cpu"):
+    """A quick surface with Warp's sparse marching cubes (``--surface-method preview``), on ``device``.
+
+    The colour field c(x) = sum_j (2 r)^3 W(|x - x_j|) (cubic spline, support ``2 * smoothing`` r)
+    is sampled at the nodes of the blocks of 8^3 cells of ``cube`` r that some particle's support
+    overlaps, and the cells that straddle ``iso`` (default 0.5) are meshed by
+    ``warp.geometry.sparse_marching_cubes_from_cells`` (shared vertices: watertight). Normals are
+    -grad c, velocities and the vorticity magnitude are interpolated with the kernel (Shepard). No
+    smoothing, no decimation: faster than splashsurf and rougher (the marching-cubes staircase
+    shows at cube >= 1 r). Runs on the calling thread's current stream of ``device``."""
+    import warp as wp
+    from warp.geometry import IsoSurfaceMarchingCubes, sparse_marching_cubes_from_cells
+
+    from .kernels import surface_preview as K
+
+    options = options if options is not None else SurfaceOptions(method="preview")
+    start = time.perf_counter()
+    points = np.ascontiguousarray(points, np.float32).reshape(-1, 3)
+    magnitude = None
+    if vorticity is not None:
+        vorticity = np.asarray(vorticity, np.float32)
+        magnitude = np.linalg.norm(vorticity, axis=1) if vorticity.ndim == 2 else vorticity.ravel()
+    if len(points) == 0:
+        mesh = SurfaceMesh.empty(velocities is not None)
+        if magnitude is not None:
+            mesh.primvars["vorticity_magnitude"] = np.zeros(0, np.float32)
+        return mesh
+    device = wp.get_device(device)
+    support = 2.0 * float(options.smoothing) * float(radius)
+    cell = float(options.cube) * float(radius)
+    volume = (2.0 * float(radius)) ** 3
+    iso = float(options.threshold)
+    lo, hi = points.min(axis=0).astype(np.float64), points.max(axis=0).astype(np.float64)
+    lower = lo - support - cell
+    B = PREVIEW_BLOCK
+    while True:
+        block = B * cell
+        dims = np.maximum(np.ceil((hi + support + cell - lower) / block).astype(np.int64), 1)
+        if int(np.prod(dims)) <= PREVIEW_MAX_BLOCKS:
+            break
+        B *= 2
+    dims_v = wp.vec3i(*map(int, dims))
+    lower_v = wp.vec3(*map(float, lower))
+    with wp.ScopedDevice(device):
+        x = wp.array(points, dtype=wp.vec3)
+        grid = wp.HashGrid(*[int(max(1, min(128, d))) for d in np.ceil((hi - lo) / support + 1)])
+        grid.build(x, support)
+        flags = wp.zeros(int(np.prod(dims)), dtype=wp.int32)
+        wp.launch(K.mark_blocks, len(points), inputs=[x, lower_v, float(block), support, dims_v, flags])
+        offsets = wp.empty_like(flags)
+        wp.utils.array_scan(flags, offsets, inclusive=False)
+        count = int(offsets[-1:].numpy()[0] + flags[-1:].numpy()[0])
+        blocks = wp.empty(max(count, 1), dtype=wp.int32)
+        wp.launch(K.compact, len(flags), inputs=[flags, offsets, blocks])
+        nodes = (B + 1) ** 3
+        values = wp.empty(count * nodes, dtype=float)
+        wp.launch(K.block_field, count * nodes,
+                  inputs=[blocks, dims_v, B, lower_v, cell, grid.id, x, support, volume, values])
+        cell_flags = wp.empty(count * B ** 3, dtype=wp.int32)
+        wp.launch(K.mark_cells, len(cell_flags), inputs=[values, B, iso, cell_flags])
+        cell_offsets = wp.empty_like(cell_flags)
+        wp.utils.array_scan(cell_flags, cell_offsets, inclusive=False)
+        ncells = int(cell_offsets[-1:].numpy()[0] + cell_flags[-1:].numpy()[0]) if len(cell_flags) else 0
+        if ncells == 0:
+            mesh = SurfaceMesh.empty(velocities is not None)
+            if magnitude is not None:
+                mesh.primvars["vorticity_magnitude"] = np.zeros(0, np.float32)
+            mesh.seconds = time.perf_counter() - start
+            return mesh
+        corner = wp.array(np.asarray(IsoSurfaceMarchingCubes.CUBE_CORNER_OFFSETS, np.int32).reshape(8, 3), dtype=wp.vec3i)
+        cells = wp.empty(ncells, dtype=wp.vec3i)
+        corner_values = wp.empty((ncells, 8), dtype=float)
+        wp.launch(K.gather_cells, len(cell_flags),
+                  inputs=[cell_flags, cell_offsets, values, blocks, dims_v, B, corner, cells, corner_values])
+        vertices, indices = sparse_marching_cubes_from_cells(cells, corner_values, origin=lower_v, cell_width=cell,
+                                                             threshold=iso, device=device)
+        nv = len(vertices)
+        v = wp.array(np.ascontiguousarray(velocities, np.float32), dtype=wp.vec3) if velocities is not None else \
+            wp.empty(0, dtype=wp.vec3)
+        scalar = wp.array(np.ascontiguousarray(magnitude, np.float32), dtype=float) if magnitude is not None else \
+            wp.empty(0, dtype=float)
+        normals = wp.zeros(nv, dtype=wp.vec3)
+        vertex_v = wp.zeros(nv if velocities is not None else 0, dtype=wp.vec3)
+        vertex_s = wp.zeros(nv if magnitude is not None else 0, dtype=float)
+        wp.launch(K.vertex_attributes, nv,
+                  inputs=[vertices, grid.id, x, v, scalar, support, volume, normals, vertex_v, vertex_s])
+        faces = indices.numpy().reshape(-1, 3).astype(np.int32)
+        mesh = SurfaceMesh(np.ascontiguousarray(vertices.numpy(), np.float32), faces, normals.numpy())
+    if mesh_volume(mesh.points, faces) < 0:  # outward: counter-clockwise seen from outside
+        mesh.faces = np.ascontiguousarray(faces[:, ::-1])
+    if velocities is not None:
+        mesh.velocities = vertex_v.numpy()
+    if magnitude is not None:
+        mesh.primvars["vorticity_magnitude"] = vertex_s.numpy()
+    mesh.seconds = time.perf_counter() - start
+    return mesh
+
+
+BEHIND = ("wait", "skip")
+
+
+class BackgroundMesher:
+    """Meshes every ``every``-th frame on a thread of its own (``warpsph run --surface``).
+
+    The writer hands it a frame's host arrays after writing the particles (:meth:`submit`) and
+    writes the meshes that are done (:meth:`ready`) into the frames they belong to. One frame waits
+    while one is meshed (``depth``): when the mesher is behind, ``behind="wait"`` blocks the writer
+    (and so, after the writer's few buffer sets, the simulation) and every asked frame gets its
+    mesh; ``behind="skip"`` drops the frame (listed in ``skipped``) and the simulation never waits
+    for meshing. ``mesh(arrays)`` returns a :class:`SurfaceMesh`."""
+
+    def __init__(self, mesh, every=1, behind="wait", depth=1):
+        import queue
+        import threading
+
+        self.mesh, self.every, self.behind = mesh, max(1, int(every)), behind
+        self.jobs = queue.Queue(maxsize=max(1, depth))
+        self.results = queue.Queue()
+        self.skipped = []
+        self.meshed = 0
+        self.seconds = 0.0  # meshing time (on the mesher's thread)
+        self.waited = 0.0  # time the writer waited for a free place in the queue
+        self.error = None  # (frame, exception)
+        self._thread = threading.Thread(target=self._loop, name="warpsph-mesher", daemon=True)
+        self._thread.start()
+
+    def wants(self, frame):
+        return frame % self.every == 0
+
+    def _loop(self):
+        while True:
+            job = self.jobs.get()
+            if job is None:
+                return
+            frame, arrays = job
+            if self.error is not None:
+                continue
+            try:
+                mesh = self.mesh(arrays)
+                self.seconds += mesh.seconds
+                self.results.put((frame, mesh))
+            except BaseException as exc:  # raised on the writer's thread by the next submit or ready
+                self.error = (frame, exc)
+
+    def check(self):
+        if self.error is not None:
+            frame, exc = self.error
+            raise RuntimeError(f"surface mesh of frame {frame}: {exc}") from exc
+
+    def submit(self, frame, arrays):
+        """Queues frame ``frame`` (``arrays``: x, v, vorticity, not reused by the caller); False
+        when it is skipped (``behind="skip"`` and the mesher busy)."""
+        import queue
+
+        self.check()
+        if self.behind == "skip":
+            try:
+                self.jobs.put_nowait((frame, arrays))
+            except queue.Full:
+                self.skipped.append(frame)
+                return False
+            return True
+        start = time.perf_counter()
+        self.jobs.put((frame, arrays))
+        self.waited += time.perf_counter() - start
+        return True
+
+    def ready(self):
+        """The (frame, mesh) pairs done since the last call."""
+        import queue
+
+        done = []
+        while True:
+            try:
+                done.append(self.results.get_nowait())
+            except queue.Empty:
+                break
+        self.meshed += len(done)
+        self.check()
+        return done
+
+    def close(self):
+        """Meshes what is queued, stops the thread and returns the last (frame, mesh) pairs."""
+        if self._thread is not None:
+            self.jobs.put(None)
+            self._thread.join()
+            self._thread = None
+        return self.ready()
+
+    def note(self, options):
+        """The ``warpsph:surface`` metadata of the cache."""
+        text = (f"/World/FluidSurface: {options.method} mesh of every {self.every}-th frame" if self.every > 1
+                else f"/World/FluidSurface: {options.method} mesh of every frame")
+        if self.every > 1 or self.skipped:
+            text += "; a frame without its own mesh holds the mesh of the last meshed frame before it"
+        if self.skipped:
+            text += (f"; {len(self.skipped)} frames were skipped because the mesher was behind the simulation "
+                     f"(--surface-behind skip): re-mesh them with warpsph surface")
+        return {"method": options.method, "every": self.every, "behind": self.behind, "meshed": self.meshed,
+                "skipped": len(self.skipped), "skipped_frames": list(self.skipped), "cube": float(options.cube),
+                "smoothing": float(options.smoothing), "iso": float(options.threshold), "note": text}
+
+
+def mesher_for(options, radius, device="cpu"):
+    """The ``mesh(arrays)`` function of a run: splashsurf on the host or the preview on ``device``
+    (on a stream of its own, so it does not queue behind the simulation's kernels)."""
+    if options.method == "preview":
+        import warp as wp
+
+        state = {}
+
+        def preview(arrays):
+            if "stream" not in state:
+                dev = wp.get_device(device)
+                state["stream"] = wp.Stream(dev) if dev.is_cuda else None
+            if state["stream"] is None:
+                return reconstruct_preview(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options, device)
+            with wp.ScopedStream(state["stream"]):
+                return reconstruct_preview(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options, device)
+
+        return preview
+    return lambda arrays: reconstruct(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options)
+
+
+def mesh_frame(points, radius, velocities=None, vorticity=None, options=SurfaceOptions(), device="cpu"):
+    """One frame's mesh with ``options.method``."""
+    if options.method == "preview":
+        return reconstruct_preview(points, radius, velocities, vorticity, options, device)
+    return reconstruct(points, radius, velocities, vorticity, options)
 
 
 def mesh_volume(points, faces):
@@ -256,7 +502,8 @@ def plan_remesh(cache, frames=None, out=None, radius=None, overwrite=False, opti
     from .io.usd import written_by_warpsph
 
     options.check("--")
-    require_pysplashsurf("surface")
+    if options.method == "splashsurf":
+        require_pysplashsurf("surface")
     if radius is not None and not (np.isfinite(radius) and radius > 0):
         raise SceneError("", "--radius", f"expected a particle radius > 0 in metres, got {radius}")
     source = open_frames(cache)
@@ -291,7 +538,7 @@ def plan_remesh(cache, frames=None, out=None, radius=None, overwrite=False, opti
     return source, chosen, out, radius
 
 
-def remesh(source, frames, out, radius, options=SurfaceOptions(), log=None):
+def remesh(source, frames, out, radius, options=SurfaceOptions(), log=None, device="cpu"):
     """Meshes ``frames`` of ``source`` (:func:`open_frames`) into the new layer ``out``: stage
     metadata of the cache, the cache itself as a sublayer (so ``out`` shows the particles and the
     surface), and ``/World/FluidSurface``. Saved after every frame (as OUT.partial, renamed at the
@@ -322,7 +569,7 @@ def remesh(source, frames, out, radius, options=SurfaceOptions(), log=None):
     try:
         for frame in frames:
             points, velocities, vorticity = source.read(frame)
-            mesh = reconstruct(points, radius, velocities, vorticity, options)
+            mesh = mesh_frame(points, radius, velocities, vorticity, options, device)
             write_surface(stage, frame, mesh)
             layer.Save()
             done["frames"] += 1

@@ -11,7 +11,11 @@ Layout of the stage (``metersPerUnit`` = 1, ``upAxis`` from the scene,
   (:mod:`warpsph.surface`), time-sampled ``points``, ``faceVertexCounts`` (all 3),
   ``faceVertexIndices``, ``normals`` (vertex), ``extent``, ``velocities`` (interpolated from the
   particles) and, with a turbulence model, the primvar ``vorticity_magnitude``;
-  ``subdivisionScheme`` "none"; the vertex count changes from frame to frame;
+  ``subdivisionScheme`` "none"; the vertex count changes from frame to frame. Meshed in the
+  background (``--surface-every K``, frames skipped by ``--surface-behind skip``), a frame
+  without its own sample holds the last mesh before it (USD holds arrays of a different length;
+  value clips interpolate missing values), and the layer's customLayerData ``warpsph:surface``
+  says how it was meshed and which frames were skipped;
 - ``/World/Boundary`` (Points, purpose ``guide``): the static boundary samples, written
   once without time samples;
 - ``/World/Bodies/NAME`` (Mesh), one per obstacle, in metres: a static body in world space; a
@@ -228,6 +232,20 @@ class UsdPointCache:
         self.frames += 1
         return written
 
+    def write_surface(self, frame, mesh, save=False):
+        """The surface mesh of frame ``frame``, meshed after the frame was written (the background
+        mesher); saved with the next frame, or now with ``save``."""
+        write_surface(self.stage, frame, mesh)
+        if save and not self.stage.GetRootLayer().Save():
+            raise OSError(f"{self.path}: USD could not save the layer")
+
+    def note_surface(self, info):
+        """Records how the surface was meshed (method, every K-th frame, frames skipped) in the
+        layer's metadata ``warpsph:surface``."""
+        _note_surface(self.stage.GetRootLayer(), info)
+        if not self.stage.GetRootLayer().Save():
+            raise OSError(f"{self.path}: USD could not save the layer")
+
     def finish(self, final_path):
         """The cache is complete up to its last frame: move it to its final name."""
         if Path(final_path) != self.path and self.path.exists():
@@ -287,8 +305,25 @@ class UsdClipCache:
         self.frames += 1
         return written
 
+    def write_surface(self, frame, mesh, save=True):
+        """The surface mesh of frame ``frame`` into its layer, written before (the background mesher)."""
+        _check_directory(self.dir)
+        stage = Usd.Stage.Open(str(self.frame_path(frame)))
+        write_surface(stage, frame, mesh)
+        if not stage.GetRootLayer().Save():
+            raise OSError(f"{self.frame_path(frame)}: USD could not save the layer")
+
+    def note_surface(self, info):
+        """Kept for the top-level file (:meth:`finish`), and in OUT.clips/surface.json meanwhile."""
+        import json
+
+        self.surface_note = dict(info)
+        (self.dir / "surface.json").write_text(json.dumps(self.surface_note))
+
     def finish(self, final_path=None):
-        """Stitches every frame layer into the top-level file (value clips + topology layer)."""
+        """Stitches every frame layer into the top-level file (value clips + topology layer). A
+        frame layer without the surface mesh (``--surface-every``, frames skipped) holds the mesh of
+        the frame before (interpolateMissingClipValues: meshes of different vertex counts are held)."""
         final = Path(final_path or self.final)
         frames = sorted(self.dir.glob("frame.*.usdc"))
         if not frames:
@@ -299,13 +334,18 @@ class UsdClipCache:
                 stale.unlink()
         layer = Sdf.Layer.CreateNew(str(final))
         numbers = [int(f.name.split(".")[1]) for f in frames]
-        UsdUtils.StitchClips(layer, [str(f) for f in frames], Sdf.Path("/World"), min(numbers), max(numbers))
+        UsdUtils.StitchClips(layer, [str(f) for f in frames], Sdf.Path("/World"), min(numbers), max(numbers), True)
         for helper in helpers:
             written = Sdf.Layer.FindOrOpen(str(helper)) if helper.exists() else None
             if written is not None:
                 _mark(written)
                 written.Save()
         _mark(layer)
+        note = self.dir / "surface.json"
+        if note.exists():
+            import json
+
+            _note_surface(layer, json.loads(note.read_text()))
         stage = Usd.Stage.Open(layer)
         _set_stage_metadata(stage, self.fps, self.up_axis)
         stage.SetDefaultPrim(stage.GetPrimAtPath("/World"))
@@ -317,6 +357,13 @@ class UsdClipCache:
             _define_bodies(stage, [(str(data[f"name_{n}"]), data[f"vertices_{n}"], data[f"faces_{n}"],
                                     bool(data[f"moving_{n}"])) for n in range(int(data["count"]))])
         layer.Save()
+
+
+def _note_surface(layer, info):
+    """``warpsph:surface`` in the layer's customLayerData: method, every, behind, meshed, skipped
+    (a count), skipped_frames and a sentence saying which frames hold the mesh of an earlier one."""
+    info = {k: Vt.IntArray(list(map(int, v))) if isinstance(v, (list, tuple)) else v for k, v in info.items()}
+    layer.customLayerData = {**layer.customLayerData, "warpsph:surface": info}
 
 
 def _check_directory(path):
