@@ -100,7 +100,9 @@ def run_splishsplash(stop, out_dir):
 
 
 # -- warpsph ---------------------------------------------------------------------------------------
-def run_warpsph(scene_file, stop):
+def run_warpsph(scene_file, stop, wall_inset=0.0):
+    import dataclasses
+
     import warp as wp
 
     wp.config.quiet = True
@@ -109,6 +111,11 @@ def run_warpsph(scene_file, stop):
     from warpsph.simulation import Simulation
 
     scene = load_scene(str(scene_file))
+    if wall_inset:  # the walls (not the open top) moved in, to where SPlisHSPlasH's volume maps hold the fluid
+        lo, hi = np.asarray(scene.domain.min), np.asarray(scene.domain.max)
+        hi_inset = np.array([wall_inset, 0.0, wall_inset])
+        scene = dataclasses.replace(scene, domain=dataclasses.replace(
+            scene.domain, min=tuple(float(c) for c in lo + wall_inset), max=tuple(float(c) for c in hi - hi_inset)))
     sim = Simulation(scene, device="cpu")
     samples, steps, pending = [], [], [t for t in TIMES if t <= stop + 1e-9]
     start = time.perf_counter()
@@ -128,7 +135,7 @@ def run_warpsph(scene_file, stop):
             samples.append(summary(t, sim.fluid.x.numpy()[:n], sim.fluid.v.numpy()[:n], sim.particle_mass,
                                    sim.fluid.density.numpy()[:n], sim.rest_density))
     conversion = conversion_of(scene)
-    return {"program": "warpsph", "scene": str(scene_file),
+    return {"program": "warpsph", "scene": str(scene_file), "wall_inset": wall_inset,
             "initial": {"mass": sim.particle_mass, "volume": sim.fluid_volume, "density0": sim.rest_density,
                         "radius": scene.particle_radius, "particles": sim.num_fluid},
             "mapped": conversion.mapped if conversion else None, "notes": conversion.notes if conversion else None,
@@ -167,6 +174,9 @@ def main(argv=None):
     ap.add_argument("--out", default="tools/results/splishsplash_side_by_side.json")
     ap.add_argument("--work", default="/tmp/splishsplash_side_by_side", help="SPlisHSPlasH's output directory")
     ap.add_argument("--splishsplash-json", help="reuse a finished SPlisHSPlasH run (the worker's JSON)")
+    ap.add_argument("--wall-inset", type=float, default=0.0,
+                    help="experiment: move warpsph's walls in by this much [m] (SPlisHSPlasH's volume maps hold the "
+                         "fluid about 2r from its walls, warpsph's boundary particles let it reach the wall plane)")
     ap.add_argument("--worker", choices=["splishsplash"], help=argparse.SUPPRESS)
     ap.add_argument("--worker-out", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -187,13 +197,14 @@ def main(argv=None):
                         "--work", str(work), "--worker-out", str(theirs_file)], env=env, check=True,
                        stdout=subprocess.DEVNULL)
     theirs = json.loads(theirs_file.read_text())
-    ours = run_warpsph(theirs["scene"], args.stop)
+    ours = run_warpsph(theirs["scene"], args.stop, args.wall_inset)
     rows = compare(theirs, ours)
     report = [r for r in rows if r["t"] in REPORT_TIMES]
     keys = ("particles", "front_max_x", "kinetic_energy_per_kg")
     agree = all(abs(r[k]["relative_difference"]) <= TOLERANCE for r in report for k in keys)
     result = {
         "scene": f"pysplishsplash 2.19.0 data/Scenes/{SCENE}", "device": "cpu", "tolerance": TOLERANCE,
+        "warpsph_wall_inset_m": args.wall_inset,
         "agree_within_tolerance": agree, "compared": list(keys), "report_times": list(REPORT_TIMES),
         "initial": {"splishsplash": theirs["initial"], "warpsph": ours["initial"]},
         "iterations": {"splishsplash": iterations(theirs["steps"]), "warpsph": iterations(ours["steps"])},
