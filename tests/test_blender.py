@@ -1,5 +1,6 @@
 """A real client: Blender (bpy 5.0) imports both cache modes with the right points and attributes."""
 
+import importlib.util
 import json
 import os
 import shutil
@@ -51,3 +52,30 @@ def test_blender_imports_the_cache(tmp_path, mode):
         density = np.array(points.GetPrim().GetAttribute("primvars:density").Get(frame))
         assert seen["density_mean"] == pytest.approx(density.mean(), rel=1e-5)
     assert "Boundary" not in report["objects"]  # purpose guide: not rendered, not imported
+
+
+@pytest.mark.skipif(blender_python() is None or importlib.util.find_spec("pysplashsurf") is None,
+                    reason="needs Blender as a Python module ($WARPSPH_BLENDER_PYTHON) and pysplashsurf")
+@pytest.mark.parametrize("mode", ["single", "clips"])
+def test_blender_imports_the_surface_mesh_with_a_changing_vertex_count(tmp_path, mode):
+    """/World/FluidSurface (run --surface --surface-every 2) is a mesh in Blender whose vertex
+    count follows the cache's frame by frame, the mesh of frame 2k held at frame 2k + 1."""
+    scene = tmp_path / "tank.json"
+    scene.write_text(json.dumps(tank_scene(radius=0.03, block=(0.2, 0.3, 0.2), output={"fps": 25, "frames": 4})))
+    out = tmp_path / ("tank.usdc" if mode == "single" else "tank.usda")
+    extra = ["--clips"] if mode == "clips" else []
+    assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "--quiet", "--surface",
+                 "--surface-every", "2"] + extra) == 0
+    result = subprocess.run([blender_python(), str(TOOL), str(out), "--frames", "0", "1", "2", "3", "4"],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout[result.stdout.index("{"):])
+    assert report["objects"].get("FluidSurface") == "MESH"
+    stage = Usd.Stage.Open(str(out))
+    points = UsdGeom.Mesh(stage.GetPrimAtPath("/World/FluidSurface")).GetPointsAttr()
+    counts = {f: report["frames"][str(f)]["surface"]["vertices"] for f in range(5)}
+    assert counts == {f: len(points.Get(f - f % 2)) for f in range(5)}
+    assert len({counts[0], counts[2], counts[4]}) > 1  # the topology changes from frame to frame
+    assert all(report["frames"][str(f)]["surface"]["triangles"] == report["frames"][str(f)]["surface"]["polygons"]
+               for f in range(5))
+    assert "velocity" in report["frames"]["0"]["surface"]["attributes"]

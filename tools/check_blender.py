@@ -5,7 +5,10 @@ Run it with a Python that has Blender as a module (``pip install bpy==5.0.1``, P
     python tools/check_blender.py out/dam_break.usdc --frames 0 10 [--json report.json]
 
 Prints (and writes) JSON: Blender's version, and per frame the point count, the attributes of
-the imported point cloud, and the first point's velocity, radius and density. ``tests/test_blender.py``
+the imported point cloud, and the first point's velocity, radius and density; for a cache with a
+surface mesh (``warpsph run --surface``, ``/World/FluidSurface``) also the mesh's vertex and
+triangle counts per frame as Blender evaluates them (they change from frame to frame), its
+attributes (velocity, vorticity_magnitude) and the modifiers Blender animates it with. ``tests/test_blender.py``
 compares that with what pxr reads from the same file, for the single-file and value-clip modes.
 """
 
@@ -21,6 +24,7 @@ def inspect(path, frames):
     if "FINISHED" not in bpy.ops.wm.usd_import(filepath=str(path)):
         raise SystemExit(f"check_blender: Blender could not import {path}")
     clouds = [o for o in bpy.data.objects if o.type == "POINTCLOUD"]
+    meshes = [o for o in bpy.data.objects if o.type == "MESH" and o.name.startswith("FluidSurface")]
     report = {"blender": bpy.app.version_string, "objects": {o.name: o.type for o in bpy.data.objects}, "frames": {}}
     scene = bpy.context.scene
     for frame in frames:
@@ -39,6 +43,13 @@ def inspect(path, frames):
                     values = [d.value for d in attrs["density"].data]
                     entry["density_mean"] = sum(values) / len(values)
             report["frames"][str(frame)] = entry
+        for obj in meshes:
+            data = obj.evaluated_get(depsgraph).data
+            report["frames"][str(frame)]["surface"] = {
+                "object": obj.name, "vertices": len(data.vertices), "polygons": len(data.polygons),
+                "triangles": sum(1 for p in data.polygons if p.loop_total == 3),
+                "attributes": sorted(a.name for a in data.attributes if not a.name.startswith(".")),
+                "modifiers": [m.type for m in obj.modifiers]}
     return report
 
 
