@@ -40,3 +40,20 @@ def make_sim(data, device="cpu", base_dir=None, **kwargs):
 
 
 SCENES_DIR = os.path.join(os.path.dirname(__file__), "..", "scenes")
+
+
+def fail_frame_writes(monkeypatch, clips, frame, error):
+    """Makes the USD cache (single file or clips) raise ``error`` when it writes ``frame``; returns the cache
+    class and its own write_frame, to put back."""
+    from warpsph.io import usd
+
+    cls = usd.UsdClipCache if clips else usd.UsdPointCache
+    original = cls.write_frame
+
+    def write_frame(self, n, *args, **kwargs):
+        if n == frame:
+            raise error
+        return original(self, n, *args, **kwargs)
+
+    monkeypatch.setattr(cls, "write_frame", write_frame)
+    return cls, original

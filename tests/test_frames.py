@@ -125,17 +125,9 @@ def test_fields_writes_only_the_arrays_asked_and_reports_bytes(tmp_path, capsys)
 
 @pytest.mark.parametrize("clips", [False, True])
 def test_a_writer_that_raises_stops_the_run_and_keeps_the_frames_before(tmp_path, monkeypatch, capsys, clips):
-    from warpsph.io import usd
+    from conftest import fail_frame_writes
 
-    cls = usd.UsdClipCache if clips else usd.UsdPointCache
-    original = cls.write_frame
-
-    def broken_at_frame_3(self, frame, *args, **kwargs):
-        if frame == 3:
-            raise RuntimeError("the renderer's schema went away")
-        return original(self, frame, *args, **kwargs)
-
-    monkeypatch.setattr(cls, "write_frame", broken_at_frame_3)
+    cls, original = fail_frame_writes(monkeypatch, clips, 3, RuntimeError("the renderer's schema went away"))
     scene = write_scene(tmp_path, tank_scene(radius=0.05, output={"frames": 8}))
     out = tmp_path / "o.usdc"
     assert run_cli("run", scene, "--out", out, "--checkpoint-every", 2, *(["--clips"] if clips else [])) == 2

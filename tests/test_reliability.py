@@ -315,17 +315,9 @@ def test_no_cuda_driver_warning_on_a_machine_without_a_gpu(tmp_path):
 def test_a_write_error_is_a_clear_error_and_keeps_the_frames_written(tmp_path, monkeypatch, capsys, clips):
     import errno
 
-    from warpsph.io import usd
+    from conftest import fail_frame_writes
 
-    cls = usd.UsdClipCache if clips else usd.UsdPointCache
-    original = cls.write_frame
-
-    def disk_full_at_frame_3(self, frame, *args, **kwargs):
-        if frame == 3:
-            raise OSError(errno.ENOSPC, "No space left on device")
-        return original(self, frame, *args, **kwargs)
-
-    monkeypatch.setattr(cls, "write_frame", disk_full_at_frame_3)
+    cls, original = fail_frame_writes(monkeypatch, clips, 3, OSError(errno.ENOSPC, "No space left on device"))
     scene = write_scene(tmp_path, tank_scene(radius=0.05, output={"frames": 5}))
     out = tmp_path / "o.usdc"
     assert run_cli("run", scene, "--out", out, "--checkpoint-every", 2, *(["--clips"] if clips else [])) == 2
