@@ -26,7 +26,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-MODES = {"plain": [], "surface": ["--surface"], "surface-sync": ["--surface", "--sync-output"]}
+MODES = {"plain": [], "surface": ["--surface"], "surface-sync": ["--surface", "--sync-output"],
+         "surface-every-4": ["--surface", "--surface-every", "4"], "preview": ["--surface", "--surface-method", "preview"]}
 
 
 def main(argv=None):
