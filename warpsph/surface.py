@@ -347,23 +347,14 @@ class BackgroundMesher:
 
 
 def mesher_for(options, radius, device="cpu"):
-    """The ``mesh(arrays)`` function of a run: splashsurf on the host or the preview on ``device``
-    (on a stream of its own, so it does not queue behind the simulation's kernels)."""
+    """The ``mesh(arrays)`` function of a run, called on the background mesher's thread: splashsurf, or the
+    preview on the CPU. Not on a CUDA device: Warp's current stream belongs to the device, not to the thread,
+    so a preview on a stream of its own changed the stream the simulation captures its step on. On the H100
+    the 1M dam break stopped with "Warp error: unknown stream" at the next graph capture. ``warpsph surface
+    --method preview --device cuda`` meshes a finished cache on the GPU."""
     if options.method == "preview":
-        import warp as wp
-
-        state = {}
-
-        def preview(arrays):
-            if "stream" not in state:
-                dev = wp.get_device(device)
-                state["stream"] = wp.Stream(dev) if dev.is_cuda else None
-            if state["stream"] is None:
-                return reconstruct_preview(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options, device)
-            with wp.ScopedStream(state["stream"]):
-                return reconstruct_preview(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options, device)
-
-        return preview
+        return lambda arrays: reconstruct_preview(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"),
+                                                  options, "cpu")
     return lambda arrays: reconstruct(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options)
 
 
