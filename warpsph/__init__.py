@@ -1,6 +1,42 @@
-"""warpsph: DFSPH fluids on NVIDIA Warp with turbulence refinement models."""
+"""warpsph: DFSPH fluids on NVIDIA Warp with turbulence refinement models.
+
+The public Python API::
+
+    import warpsph
+
+    scene = warpsph.Scene.load("scenes/dam_break.json", scale=0.1)   # or warpsph.Scene.from_dict({...})
+    sim = warpsph.Simulation(scene, device="cpu")                     # "cuda", "cuda:0" or None (default device)
+    with warpsph.io.UsdWriter("out/dam_break.usdc", sim) as usd:
+        sim.run(frames=25, on_frame=usd)                               # on_frame(sim, frame) after each frame
+    x, v = sim.positions(), sim.velocities()                           # numpy copies; sim.fluid.x is the Warp array
+
+``Simulation`` (which imports Warp) and ``io`` (USD needs usd-core) load on first use, so
+``import warpsph`` stays fast. See ``examples/`` for runnable scripts.
+"""
 
 __version__ = "0.1.0"
 
 from .errors import SceneError  # noqa: F401
-from .scene import Scene, load_scene  # noqa: F401
+from .scene import Scene, load_scene, scene_from_dict  # noqa: F401
+
+__all__ = ["Scene", "Simulation", "InstabilityError", "SceneError", "load_scene", "scene_from_dict", "io",
+           "__version__"]
+
+_LAZY = {"Simulation": "warpsph.simulation", "InstabilityError": "warpsph.simulation"}
+
+
+def __getattr__(name):
+    """Lazy attributes: ``Simulation`` imports Warp, ``io`` the writers, on first use."""
+    import importlib
+
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name]), name)
+        globals()[name] = value
+        return value
+    if name == "io":
+        return importlib.import_module("warpsph.io")
+    raise AttributeError(f"module 'warpsph' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

@@ -651,6 +651,9 @@ def validate_command(args):
 def build_parser():
     parser = argparse.ArgumentParser(prog="warpsph", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
+    from . import __version__
+
+    parser.add_argument("--version", action="version", version=f"warpsph {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     run = sub.add_parser("run", help="simulate a scene and write a USD point cache")
     run.add_argument("scene", help="scene file (JSON), e.g. scenes/dam_break.json")

@@ -358,6 +358,21 @@ class Scene:
         base = Path(self.source).parent if self.source else Path(".")
         return base / obstacle.mesh
 
+    @classmethod
+    def load(cls, path, scale: float = 1.0) -> "Scene":
+        """Reads and validates a scene file (warpsph JSON or SPlisHSPlasH); ``scale`` multiplies the
+        particle count (see :func:`load_scene`).
+
+        >>> scene = Scene.load("scenes/dam_break.json", scale=0.1)
+        """
+        return load_scene(path, scale=scale)
+
+    @classmethod
+    def from_dict(cls, data: dict, base_dir=None, scale: float = 1.0) -> "Scene":
+        """Builds and validates a scene from a dict with the keys of a scene file; mesh paths
+        resolve against ``base_dir`` (see :func:`scene_from_dict`)."""
+        return scene_from_dict(data, base_dir=base_dir, scale=scale)
+
 
 # ---------------------------------------------------------------------------------------
 # generic parser driven by the dataclass fields

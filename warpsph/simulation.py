@@ -336,6 +336,29 @@ class Simulation:
         """The particles' rows of a per-particle array, copied to the host."""
         return self.active(array).numpy()
 
+    # public numpy accessors: copies of the active fluid particles (rows 0..num_fluid-1, in the
+    # current sort order; ``ids()`` gives each row's stable id)
+    def positions(self):
+        """Fluid particle positions [m] as a new (num_fluid, 3) float32 numpy array."""
+        return self.host(self.fluid.x)
+
+    def velocities(self):
+        """Fluid particle velocities [m/s] as a new (num_fluid, 3) float32 numpy array."""
+        return self.host(self.fluid.v)
+
+    def densities(self):
+        """Fluid particle densities [kg/m^3] as a new (num_fluid,) float32 numpy array."""
+        return self.host(self.fluid.density)
+
+    def ids(self):
+        """Stable particle ids (int32, unchanged by re-sorting) of the rows of :meth:`positions`."""
+        return self.host(self.fluid.ids)
+
+    def kinetic_energy(self):
+        """Kinetic energy of the fluid [J], summed on the host in float64."""
+        v = self.velocities().astype(np.float64)
+        return 0.5 * self.particle_mass * float(np.sum(v * v))
+
     def array(self, owner, data, dtype):
         a = wp.array(data, dtype=dtype, device=self.device)
         self.allocations[owner] += a.capacity

@@ -426,3 +426,52 @@ def body_meshes(sim):
     space, a moving one in body space (its pose goes into each frame)."""
     return [(b.name, b.to_world(b.vertices) if b.kind == "static" else b.vertices, b.faces, b.kind != "static")
             for b in sim.bodies]
+
+
+class UsdWriter:
+    """The public USD writer: every frame of a :class:`~warpsph.simulation.Simulation` into a USD
+    point cache (layout in this module's docstring), with the domain's boundary samples and the
+    scene's bodies. Call it as the ``on_frame`` of :meth:`Simulation.run`, then :meth:`close`
+    (or use it as a context manager)::
+
+        with UsdWriter("out/dam_break.usdc", sim) as usd:
+            sim.run(frames=25, on_frame=usd)
+
+    ``fields``: the ``--fields`` names to write (``points``, ``velocities``, ``ids``, ``widths``,
+    ``density``, ``vorticity``, ...; None: all). ``clips=True`` writes one layer per frame
+    (:class:`UsdClipCache`, for large runs) instead of a single file (:class:`UsdPointCache`).
+    Frames are written on the calling thread (the CLI writes in the background)."""
+
+    def __init__(self, path, sim, fields=None, clips=False):
+        scene = sim.scene
+        self.path = Path(path)
+        static = sim.num_boundary if sim.moving_bodies is None else sim.moving_bodies.first_sample
+        boundary = sim.boundary.x.numpy()[:static]
+        kind = UsdClipCache if clips else UsdPointCache
+        self.cache = kind(self.path, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
+                          boundary_radius=scene.particle_radius, bodies=body_meshes(sim))
+        self._on_frame = frame_writer(self.cache, list(fields) if fields is not None else None)
+        self.closed = False
+
+    def __call__(self, sim, frame):
+        """Writes frame ``frame`` of ``sim`` (the ``on_frame`` signature)."""
+        self._on_frame(sim, frame)
+
+    @property
+    def frames(self):
+        """Frames written so far."""
+        return self.cache.frames
+
+    def close(self):
+        """Finishes the cache (a clip cache gets its top-level file); returns its path."""
+        if not self.closed:
+            self.cache.finish(self.path)
+            self.closed = True
+        return self.path
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False
