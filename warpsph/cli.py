@@ -648,6 +648,21 @@ def validate_command(args):
     return EXIT_UNSTABLE if any(r.get("unstable") for r in report["rows"]) else 0
 
 
+def sweep_command(args):
+    from .sweep import run_sweep
+
+    devices = args.devices
+    if devices and devices != "auto":
+        devices = [_pick_device(d.strip()) for d in devices.split(",") if d.strip()]
+    elif devices == "auto":
+        devices = [_pick_device("auto")]
+    table = run_sweep(args.sweep, args.out, executor=args.executor, workers=args.workers, devices=devices,
+                      address=args.address, num_gpus=args.num_gpus, num_cpus=args.num_cpus,
+                      max_retries=args.max_retries)
+    print((Path(args.out) / "table.md").read_text(), end="")
+    return 0 if table["complete"] else 1
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog="warpsph", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -737,6 +752,24 @@ def build_parser():
     check.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
     check.add_argument("--json", metavar="OUT.json", help="write the rows and metadata here (atomically, after every row)")
     check.set_defaults(func=validate_command)
+    sweep = sub.add_parser("sweep", help="many validation runs (a sweep file's axes) over processes, GPUs or a Ray "
+                                         "cluster; resumable (one file per cell, then table.json and table.md)")
+    sweep.add_argument("sweep", metavar="SWEEP.json", help="sweep file: base (a validation case), axes, measures "
+                                                           "(see warpsph/sweep.py)")
+    sweep.add_argument("--out", required=True, metavar="DIR", help="output folder (cells/, table.json, table.md); "
+                                                                   "running again skips the finished cells")
+    sweep.add_argument("--executor", choices=["local", "ray"], default="local",
+                       help="local (a process per cell, no extra dependency) or ray (pip install 'warpsph[ray]')")
+    sweep.add_argument("--workers", type=int, default=1, help="local: cells at once (default 1)")
+    sweep.add_argument("--devices", metavar="D[,D...]",
+                       help="local: devices given to the worker slots in turn, e.g. cuda:0,cuda:1 or auto "
+                            "(default: the sweep file's device, else cpu)")
+    sweep.add_argument("--address", help="ray: the cluster to join (e.g. auto or ray://host:10001); default a local instance")
+    sweep.add_argument("--num-gpus", type=float, default=0.0,
+                       help="ray: GPUs per cell (0.25 packs four cells on a GPU; 0: CPU cells, default)")
+    sweep.add_argument("--num-cpus", type=float, default=1.0, help="ray: CPUs per cell (default 1)")
+    sweep.add_argument("--max-retries", type=int, default=3, help="ray: retries of a cell lost with its worker (default 3)")
+    sweep.set_defaults(func=sweep_command)
     for p in (run, resume):
         p.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
         p.add_argument("--frames", type=int, help="last frame to simulate (default: the scene's output.frames)")
