@@ -196,6 +196,14 @@ def load_sweep(source):
         raise SceneError(file, "axes", "needs a resolution (an axis or in fixed)")
     if "method" not in keys:
         fixed["method"] = "dfsph"
+    for values in itertools.product(*[v for _, v in axes]):  # keys checked together (min <= max iterations, ...)
+        overrides = {k: v for k, v in [*zip([k for k, _ in axes], values), *fixed.items()] if "." in k}
+        try:
+            from .scene import scene_from_dict
+
+            scene_from_dict(_tiny_scene(overrides))
+        except SceneError as exc:
+            raise SceneError(file, "axes", f"the cell {overrides}: {exc.key}: {exc.reason}") from None
     measures = data.get("measures", list(DEFAULT_MEASURES))
     known = COMMON_MEASURES + CASE_MEASURES[case]
     if not isinstance(measures, list) or not measures:
@@ -276,7 +284,7 @@ def run_cell(cell, device="cpu"):
         params = cell["params"]
         models = METHODS[params["method"]]
         overrides = {k: v for k, v in params.items() if "." in k}
-        record.update(device_info(device))
+        record.update(device_info(device))  # "device": the device's name, "device_alias": cpu, cuda:0, ...
         row = {"case": cell["case"], "method": params["method"], "resolution": params["resolution"],
                "error_units": ERRORS[cell["case"]][0]}
         with _scene_overrides(overrides):
@@ -347,7 +355,7 @@ def assemble(spec, out):
             row["unstable"] = r.get("unstable")
         if status == "failed":
             row["error"] = record.get("error")
-        row["device"] = record.get("device")
+        row["device"] = record.get("device_alias", record.get("device"))
         rows.append(row)
     table = {"sweep": spec["name"], "case": spec["case"], "axes": axis_names, "fixed": spec["fixed"],
              "measures": spec["measures"], "counts": counts, "complete": counts["done"] + counts["unstable"] == len(rows),
