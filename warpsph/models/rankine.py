@@ -10,7 +10,14 @@ from . import Model, register
 @register("rankine")
 class RankineModel(Model):
     """Per step: omega^n = curl v (shared field, fluid only), d omega = omega^n - omega^{n-1},
-    v += sum_j r_c^2/(2r) d omega_j x e_theta, before advection. Two launches."""
+    v += sum_j r_c^2/(2r) d omega_j x e_theta, before advection. Two launches.
+
+    beta is the paper's intensity knob (eq 11: r_c = beta r_c^max, 0 <= beta <= 1, Fig 7's sweep). warpsph
+    bounds the largest core, r_c^max = min(sqrt(4 1.25643 nu dt), 0.7 r) (``kernels.rankine.core_radius``:
+    the paper keeps the core inside a particle, and above about 0.9 r the feedback ran away), and applies beta
+    after that bound, so the feedback (eq 15, proportional to r_c^2) grows as beta^2 over the whole range.
+    Bounding beta r_c^max instead made every beta above 0.7 r / r_c^max (about 0.44 at the viscous time-step
+    limit) the same model."""
 
     needs_vorticity = True
     scratch_columns = 3
