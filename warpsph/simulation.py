@@ -338,21 +338,25 @@ class Simulation:
 
     # public numpy accessors: copies of the active fluid particles (rows 0..num_fluid-1, in the
     # current sort order; ``ids()`` gives each row's stable id)
+    def _copy(self, array):
+        out = self.host(array)  # on the CPU, Warp's numpy() is a view of the particles' memory
+        return out.copy() if self.device.is_cpu else out
+
     def positions(self):
         """Fluid particle positions [m] as a new (num_fluid, 3) float32 numpy array."""
-        return self.host(self.fluid.x)
+        return self._copy(self.fluid.x)
 
     def velocities(self):
         """Fluid particle velocities [m/s] as a new (num_fluid, 3) float32 numpy array."""
-        return self.host(self.fluid.v)
+        return self._copy(self.fluid.v)
 
     def densities(self):
         """Fluid particle densities [kg/m^3] as a new (num_fluid,) float32 numpy array."""
-        return self.host(self.fluid.density)
+        return self._copy(self.fluid.density)
 
     def ids(self):
         """Stable particle ids (int32, unchanged by re-sorting) of the rows of :meth:`positions`."""
-        return self.host(self.fluid.ids)
+        return self._copy(self.fluid.ids)
 
     def kinetic_energy(self):
         """Kinetic energy of the fluid [J], summed on the host in float64."""
