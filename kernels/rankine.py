@@ -36,10 +36,11 @@ def compute_vorticity_change(
     previous: wp.array(dtype=wp.vec3),
     change: wp.array(dtype=wp.vec3),
 ):
-    """d omega = omega^n - omega^{n-1} (line 3), zero on the first step; omega^n is kept for the next."""
+    """d omega = omega^n - omega^{n-1} (line 3), zero on the first step and on a particle's first step after
+    an emitter added it (omega^{n-1} NaN, ``models.NO_HISTORY``); omega^n is kept for the next."""
     i = wp.tid()
     w = vorticity[i]
-    if has_previous != 0:
+    if has_previous != 0 and not wp.isnan(previous[i][0]):
         change[i] = w - previous[i]
     else:
         change[i] = wp.vec3(0.0)

@@ -25,9 +25,10 @@ def compute_vorticity_loss(
 ):
     """V_i d zeta_i with the dissipated vorticity d zeta = zeta^{n+1} - curl v~ (eq 12), written over
     the target zeta^{n+1} (read here only; the target pass writes the next one), so the stream-function
-    pass reads one vector per neighbour; zero before the first target exists."""
+    pass reads one vector per neighbour; zero before the first target exists, for everyone on the first step
+    and for a particle that an emitter just added (target NaN, ``models.NO_HISTORY``)."""
     i = wp.tid()
-    if has_target != 0:
+    if has_target != 0 and not wp.isnan(target_then_loss[i][0]):
         target_then_loss[i] = (particle_mass / density[i]) * (target_then_loss[i] - vorticity[i])
     else:
         target_then_loss[i] = wp.vec3(0.0)

@@ -3,7 +3,8 @@
 Every per-particle array is allocated for ``Simulation.capacity`` particles (the initial fill
 plus what the emitters can add over the scene's duration); the first ``num_fluid`` rows hold the
 particles. An emitter appends lattice layers at the end of the rows (zeroing every registered
-per-particle array there, so the solvers' warm start and the models' history start from nothing)
+per-particle array there, so the solvers' warm start starts from nothing, and marking the models'
+history there as absent, so VR and Rankine skip a new particle's first correction)
 with new, never reused ids; a sink compacts the rows (a stable sort on "inside a sink"), so the
 neighbour structures, the models' state and the USD ``ids`` stay consistent. Both run on the host
 side of the step, before the neighbour search, so the captured solver graph is only rebuilt when
@@ -92,6 +93,8 @@ class Inflow:
         sim.fluid.x[n: n + k].assign(x)
         sim.fluid.v[n: n + k].assign(np.tile(velocity, (k, 1)))
         sim.fluid.ids[n: n + k].assign(np.arange(self.next_id, self.next_id + k, dtype=np.int32))
+        for model in getattr(sim, "models", ()):
+            model.emitted(sim, n, k)  # no history: skip their first correction
         self.next_id += k
         sim.num_fluid = n + k
         return True

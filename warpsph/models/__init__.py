@@ -7,6 +7,8 @@ Every model has the same small interface (after SPlisHSPlasH's ``NonPressureForc
   and zeroed where an emitter adds particles);
 - ``step(sim)`` runs in the non-pressure phase of the step, after the divergence
   solve, adding to ``sim.fluid.acceleration`` or refining ``sim.fluid.v`` directly;
+- ``emitted(sim, first, count)`` marks rows ``first .. first + count - 1``, just added by an emitter
+  (zeroed), as new to the model (``NO_HISTORY``), so it does not take their zeroed state for history;
 - ``reorder(sim, order)`` permutes the model's per-particle state when the fluid is
   re-sorted by cell;
 - ``fields()`` returns the per-particle arrays it publishes for output, by name;
@@ -22,7 +24,16 @@ allocates none of their arrays.
 
 from __future__ import annotations
 
+import math
+
+import warp as wp
+
 REGISTRY: dict = {}
+
+# History of a particle an emitter just added: the models read NaN in their carried vector (``wp.isnan``
+# of its first component) as "none yet" and skip the particle's first correction, as they skip everyone's
+# on the first step. The marker travels with the particle through re-sorting, sinks and checkpoints.
+NO_HISTORY = wp.vec3(math.nan, math.nan, math.nan)
 
 
 def register(name):
@@ -48,6 +59,9 @@ class Model:
 
     def step(self, sim):
         raise NotImplementedError
+
+    def emitted(self, sim, first, count):
+        pass
 
     def reorder(self, sim, order):
         pass

@@ -9,7 +9,7 @@ from warpsph.kernels.vorticity_refinement import (
     compute_vorticity_loss,
 )
 
-from . import Model, register
+from . import NO_HISTORY, Model, register
 
 
 @register("vorticity_refinement")
@@ -39,6 +39,11 @@ class VorticityRefinementModel(Model):
         sim.launch(compute_target_vorticity, n,
                    [f.x, f.v, f.density, nb, field.vorticity, mass, self.viscosity, H, sim.dt, self.target])
         self.has_target = 1
+
+    def emitted(self, sim, first, count):
+        """An emitted particle has no target zeta^{n+1}: with the zero it was given, its first step would
+        remove all of its vorticity (d zeta = 0 - curl v~)."""
+        self.target[first: first + count].fill_(NO_HISTORY)
 
     def reorder(self, sim, order):
         sim.permute(self.target, order)
