@@ -507,6 +507,19 @@ def load_scene(path, scale: float = 1.0) -> Scene:
     return rescale(dataclasses.replace(scene, source=str(path)), scale)
 
 
+def with_overrides(data: dict, overrides=None) -> dict:
+    """A copy of the scene dict ``data`` with the dotted keys of ``overrides`` set, e.g.
+    {"solver.density_max_error": 0.05, "time.cfl": 0.4} (studies and sweeps change one key of a scene)."""
+    data = json.loads(json.dumps(data))
+    for path, value in (overrides or {}).items():
+        node = data
+        *parents, last = path.split(".")
+        for part in parents:
+            node = node.setdefault(part, {})
+        node[last] = value
+    return data
+
+
 def scene_from_dict(data: dict, base_dir=None, scale: float = 1.0) -> Scene:
     """Builds a scene from a dict (for scripts and tests); mesh paths resolve against ``base_dir``."""
     file = Path(base_dir or ".") / "<dict>"

@@ -41,7 +41,6 @@ import os
 import sys
 import time
 import traceback
-from contextlib import contextmanager
 from pathlib import Path
 
 from .errors import SceneError
@@ -71,20 +70,11 @@ TIMING_MEASURES = ("wall_s", "setup_s", "elapsed_s")  # differ from run to run: 
 
 def _tiny_scene(overrides):
     """A minimal scene dict with ``overrides`` ({"solver.x": v, "time.y": w}) set, for checking them."""
+    from .scene import with_overrides
+
     data = {"name": "sweep-check", "particle_radius": 0.1, "domain": {"min": [0, 0, 0], "max": [1, 1, 1]},
             "fluid_blocks": [{"start": [0, 0, 0], "end": [0.5, 0.5, 0.5]}]}
-    return apply_overrides(data, overrides)
-
-
-def apply_overrides(data, overrides):
-    """``data`` (a scene dict, changed in place and returned) with the dotted keys of ``overrides`` set."""
-    for path, value in overrides.items():
-        node = data
-        *parents, last = path.split(".")
-        for part in parents:
-            node = node.setdefault(part, {})
-        node[last] = value
-    return data
+    return with_overrides(data, overrides)
 
 
 def load_sweep(source):
@@ -246,27 +236,6 @@ def cell_id(case, params, axis_names):
 
 # --- one cell ------------------------------------------------------------------------------------------
 
-@contextmanager
-def _scene_overrides(overrides):
-    """The validation cases build their scenes with warpsph.scene.scene_from_dict (imported at call time):
-    within this block it sets ``overrides`` (dotted "solver."/"time." keys) in every scene dict first."""
-    if not overrides:
-        yield
-        return
-    from . import scene as scene_module
-
-    original = scene_module.scene_from_dict
-
-    def patched(data, *args, **kwargs):
-        return original(apply_overrides(json.loads(json.dumps(data)), overrides), *args, **kwargs)
-
-    scene_module.scene_from_dict = patched
-    try:
-        yield
-    finally:
-        scene_module.scene_from_dict = original
-
-
 def run_cell(cell, device="cpu"):
     """Runs one cell (in this process) on ``device``; returns its record: status "done" with the row,
     "unstable" with the health check's diagnostic (a result), or "failed" with the traceback."""
@@ -287,18 +256,17 @@ def run_cell(cell, device="cpu"):
         record.update(device_info(device))  # "device": the device's name, "device_alias": cpu, cuda:0, ...
         row = {"case": cell["case"], "method": params["method"], "resolution": params["resolution"],
                "error_units": ERRORS[cell["case"]][0]}
-        with _scene_overrides(overrides):
-            if cell.get("warm_up", True):
-                t0 = time.perf_counter()
-                warm_up(models, device)
-                record["warmup_s"] = time.perf_counter() - t0
-            try:
-                row.update(ROWS[cell["case"]](models, params["resolution"], device))
-                record["status"] = "done"
-            except InstabilityError as exc:  # as warpsph validate records it
-                row.update(particles=None, error_pct=None, wall_s=None, steps=exc.step, unstable=str(exc),
-                           unstable_time=exc.time)
-                record["status"] = "unstable"
+        if cell.get("warm_up", True):
+            t0 = time.perf_counter()
+            warm_up(models, device, overrides)
+            record["warmup_s"] = time.perf_counter() - t0
+        try:
+            row.update(ROWS[cell["case"]](models, params["resolution"], device, overrides))
+            record["status"] = "done"
+        except InstabilityError as exc:  # as warpsph validate records it
+            row.update(particles=None, error_pct=None, wall_s=None, steps=exc.step, unstable=str(exc),
+                       unstable_time=exc.time)
+            record["status"] = "unstable"
         wp.synchronize_device(device)
         row["error_pct"] = _finite(row.get("error_pct"))
         record["row"] = row

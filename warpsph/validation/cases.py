@@ -84,11 +84,12 @@ def _finite(v):
 
 # --- the cases: (models, resolution, device) -> the row's measurements ----------------------------------
 
-def taylor_green_row(models, resolution, device):
+def taylor_green_row(models, resolution, device, overrides=None):
     from . import taylor_green as tg
 
     start = time.perf_counter()
-    sim, ke0 = tg.build(models, resolution, tg.NU, tg.T_END, device, FRAMES, pack_steps=tg.PACK_STEPS)
+    sim, ke0 = tg.build(models, resolution, tg.NU, tg.T_END, device, FRAMES, pack_steps=tg.PACK_STEPS,
+                        overrides=overrides)
     setup = time.perf_counter() - start
     rows = []
     wall = timed_run(sim, lambda cb: sim.run(frames=FRAMES, on_frame=cb), lambda s, f: rows.append(tg.measure(s, ke0, tg.NU)))
@@ -103,13 +104,13 @@ def taylor_green_row(models, resolution, device):
             "error_pct_frames": [100.0 * r["l1_speed_error"] / float(tg.peak_speed(r["time"], tg.NU)) for r in rows]}
 
 
-def lamb_oseen_row(models, resolution, device):
+def lamb_oseen_row(models, resolution, device, overrides=None):
     from . import lamb_oseen as lo
 
     core = lo.CORE_RADIUS * resolution / lo.L  # build takes the core in spacings
     start = time.perf_counter()
     sim, p, edges = lo.build(models, resolution, lo.NU, lo.T_END, core, lo.U_PEAK, lo.DEPTH, device, FRAMES,
-                             pack_steps=PACK_STEPS)
+                             pack_steps=PACK_STEPS, overrides=overrides)
     setup = time.perf_counter() - start
     rows = []
     wall = timed_run(sim, lambda cb: sim.run(frames=FRAMES, on_frame=cb),
@@ -124,11 +125,11 @@ def lamb_oseen_row(models, resolution, device):
             "error_pct_frames": [100.0 * r["l1_relative"] for r in rows]}
 
 
-def hydrostatic_row(models, resolution, device):
+def hydrostatic_row(models, resolution, device, overrides=None):
     from .hydrostatic import SIDE, hydrostatic
 
     start = time.perf_counter()
-    r = hydrostatic(radius=SIDE / (2 * resolution), device=device, models=models)
+    r = hydrostatic(radius=SIDE / (2 * resolution), device=device, models=models, overrides=overrides)
     total = time.perf_counter() - start
     return {"particles": r["particles"], "error_pct": 100.0 * abs(r["density_error_mean"]), "wall_s": r["wall_s"],
             "steps": r["steps"], "setup_s": total - r["wall_s"], "radius": r["radius"], "T": r["T"],
@@ -139,12 +140,12 @@ def hydrostatic_row(models, resolution, device):
             "probe_pressure_rms_error_pct": 100.0 * r["probe_pressure_rms_error_relative"]}
 
 
-def dam_front_row(models, resolution, device):
+def dam_front_row(models, resolution, device, overrides=None):
     from .dam_front import DEPTH, T_END, compare, dam_front
 
     timing = {}
     start = time.perf_counter()
-    T, Z, sim = dam_front(resolution, device, T_END, models=models, depth=DEPTH, timing=timing)
+    T, Z, sim = dam_front(resolution, device, T_END, models=models, depth=DEPTH, timing=timing, overrides=overrides)
     total = time.perf_counter() - start
     c = compare(T, Z)
     return {"particles": sim.num_fluid, "error_pct": c["shifted_rms"], "wall_s": timing["wall_s"],
@@ -157,12 +158,12 @@ ROWS = {"taylor-green": taylor_green_row, "lamb-oseen": lamb_oseen_row, "hydrost
         "dam-front": dam_front_row}
 
 
-def warm_up(models, device):
+def warm_up(models, device, overrides=None):
     """Loads every kernel module a method uses outside the timed rows: a tiny vortex, a few steps (the second
     captures the CUDA graph) and one measurement."""
     from . import lamb_oseen as lo
 
-    sim, p, edges = lo.build(models, resolution=8, core=1.0, device=device, frames=FRAMES)
+    sim, p, edges = lo.build(models, resolution=8, core=1.0, device=device, frames=FRAMES, overrides=overrides)
     for _ in range(3):
         sim.step()
     lo.measure(sim, p, edges, sim.time)

@@ -28,10 +28,12 @@ T_END = 6.0  # the run's end in T = t sqrt(2 g / a)
 DEPTH = 4  # tank depth in particles
 
 
-def dam_front(resolution=10, device="cpu", T_end=T_END, samples_per_T=8, models=(), depth=DEPTH, timing=None):
+def dam_front(resolution=10, device="cpu", T_end=T_END, samples_per_T=8, models=(), depth=DEPTH, timing=None,
+              overrides=None):
     """Runs the dam break; returns arrays T and Z/a, and the simulation. ``timing`` (a dict) receives
-    ``wall_s``: the run alone, device synchronised, the per-frame front measurement subtracted."""
-    from warpsph.scene import scene_from_dict
+    ``wall_s``: the run alone, device synchronised, the per-frame front measurement subtracted.
+    ``overrides``: dotted scene keys to set (:func:`warpsph.scene.with_overrides`)."""
+    from warpsph.scene import scene_from_dict, with_overrides
     from warpsph.simulation import Simulation
 
     d = A / resolution
@@ -45,7 +47,7 @@ def dam_front(resolution=10, device="cpu", T_end=T_END, samples_per_T=8, models=
         "fluid": {"viscosity": 1.0e-6},  # water: the experiment's fluid
         "output": {"fps": fps}, "models": list(models),
     }
-    sim = Simulation(scene_from_dict(data), device=device)
+    sim = Simulation(scene_from_dict(with_overrides(data, overrides)), device=device)
     import warp as wp
 
     T, Z = [], []

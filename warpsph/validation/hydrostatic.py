@@ -21,10 +21,10 @@ SIDE = 0.4  # m: the water cube
 T_END = 1.5  # s: settled time (gravity ramped in over the first 0.2 s)
 
 
-def hydrostatic(radius=0.02, T=T_END, device="cpu", ramp=0.2, models=()):
+def hydrostatic(radius=0.02, T=T_END, device="cpu", ramp=0.2, models=(), overrides=None):
     """Runs the tank; returns the measurements (with ``wall_s``: the stepping alone, device synchronised, and
-    ``steps``)."""
-    from warpsph.scene import scene_from_dict
+    ``steps``). ``overrides``: dotted scene keys to set (:func:`warpsph.scene.with_overrides`)."""
+    from warpsph.scene import scene_from_dict, with_overrides
     from warpsph.simulation import Simulation
     from warpsph.solver import DENSITY
 
@@ -32,7 +32,7 @@ def hydrostatic(radius=0.02, T=T_END, device="cpu", ramp=0.2, models=()):
     data = {"name": "hydrostatic", "particle_radius": radius, "gravity": [0, 0, 0],
             "domain": {"min": [0, 0, 0], "max": [side, 1.5 * side, side]},
             "fluid_blocks": [{"start": [0, 0, 0], "end": [side, side, side]}], "models": list(models)}
-    sim = Simulation(scene_from_dict(data), device=device)
+    sim = Simulation(scene_from_dict(with_overrides(data, overrides)), device=device)
     import warp as wp
 
     wp.synchronize_device(sim.device)

@@ -171,11 +171,12 @@ def measure(sim, p, edges, t):
 
 
 def build(models, resolution=24, nu=0.01, T=0.5, core=3.0, u_peak=0.5, depth=6, device="cpu", frames=10,
-          r_max=0.35, solver=None, pack_steps=0):
+          r_max=0.35, solver=None, pack_steps=0, overrides=None):
     """The simulation at t = 0 with the vortex's velocity; returns (simulation, set-up with the bins, bin
     edges). ``solver``: scene "solver" keys (e.g. {"density_max_error": 0.05}); None: the defaults.
-    ``pack_steps`` > 0: the scene's ``initial_packing`` of that many steps instead of the lattice."""
-    from warpsph.scene import scene_from_dict
+    ``pack_steps`` > 0: the scene's ``initial_packing`` of that many steps instead of the lattice.
+    ``overrides``: dotted scene keys to set (:func:`warpsph.scene.with_overrides`)."""
+    from warpsph.scene import scene_from_dict, with_overrides
     from warpsph.simulation import Simulation
 
     p = setup(resolution, nu, core, u_peak, depth)
@@ -188,7 +189,7 @@ def build(models, resolution=24, nu=0.01, T=0.5, core=3.0, u_peak=0.5, depth=6, 
         data["solver"] = dict(solver)
     if pack_steps:
         data["initial_packing"] = {"steps": pack_steps}
-    sim = Simulation(scene_from_dict(data), device=device)
+    sim = Simulation(scene_from_dict(with_overrides(data, overrides)), device=device)
     x0 = sim.fluid.x.numpy().astype(np.float64)
     dx, dy = x0[:, 0] - p["centre"][0], x0[:, 1] - p["centre"][1]
     r = np.hypot(dx, dy)

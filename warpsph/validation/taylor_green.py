@@ -56,16 +56,17 @@ def scene_data(models, resolution, nu, T, frames, solver=None):
     return data
 
 
-def build(models, resolution=20, nu=0.01, T=0.5, device="cpu", frames=10, solver=None, pack_steps=0):
+def build(models, resolution=20, nu=0.01, T=0.5, device="cpu", frames=10, solver=None, pack_steps=0, overrides=None):
     """The vortex at t = 0: (simulation, KE(0)). ``pack_steps`` > 0 starts from the scene's
-    ``initial_packing`` of that many steps instead of the cubic lattice; the velocity is the analytic field at the particles."""
-    from warpsph.scene import scene_from_dict
+    ``initial_packing`` of that many steps instead of the cubic lattice; the velocity is the analytic field at the particles.
+    ``overrides``: dotted scene keys to set (:func:`warpsph.scene.with_overrides`)."""
+    from warpsph.scene import scene_from_dict, with_overrides
     from warpsph.simulation import Simulation
 
     data = scene_data(models, resolution, nu, T, frames, solver)
     if pack_steps:
         data["initial_packing"] = {"steps": pack_steps, "jitter": PACK_JITTER}
-    sim = Simulation(scene_from_dict(data), device=device)
+    sim = Simulation(scene_from_dict(with_overrides(data, overrides)), device=device)
     x0 = sim.host(sim.fluid.x)  # float32 arithmetic, as the recorded runs (tests/test_confined.py) had it
     sim.active(sim.fluid.v).assign(analytic_velocity(x0, 0.0, nu).astype(np.float32))
     return sim, float((sim.host(sim.fluid.v).astype(np.float64) ** 2).sum())
