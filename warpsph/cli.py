@@ -414,6 +414,9 @@ def _simulate(sim, outputs, frames, args, options, append):
           f"({steps / max(loop_wall, 1e-9):.1f} steps/s); mean iterations: divergence "
           f"{stats['divergence_iterations']:.2f}, density {stats['density_iterations']:.2f}; wrote {outputs.out} and "
           f"{outputs.stats.name}", file=sys.stderr)
+    if stats["removed_in_sinks"] or stats["removed_outside"]:
+        print(f"removed: {stats['removed_in_sinks']} particles in sinks, {stats['removed_outside']} that left the open "
+              f"domain; {sim.num_fluid} remain", file=sys.stderr)
     print(f"output: {writer.frames} frames, {per_particle:.1f} B per particle per frame of USD arrays "
           f"({','.join(fields)}), {_size(disk)} on disk; writing took {writer.seconds:.1f} s "
           f"{'in the background' if writer.background else 'on the simulation thread'}"

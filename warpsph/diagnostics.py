@@ -15,7 +15,7 @@ import warp as wp
 from warpsph.models.vorticity import curl_of
 
 COLUMNS = ["frame", "time", "steps", "particles", "dt", "kinetic_energy", "potential_energy", "rotational_energy", "enstrophy",
-           "density_error_mean", "density_error_max", "divergence_iterations", "density_iterations"]
+           "density_error_mean", "density_error_max", "divergence_iterations", "density_iterations", "removed"]
 
 
 class Diagnostics:
@@ -94,6 +94,8 @@ class Diagnostics:
             "density_error_max": float(sums[dk.ERROR_MAX]) if n else 0.0,
             "divergence_iterations": d[0] / d[1] if d[1] else 0.0,
             "density_iterations": d[2] / d[3] if d[3] else 0.0,
+            # particles removed since the start: inside sinks and outside an open domain
+            "removed": sim.inflow.removed_in_sinks + sim.inflow.removed_outside if sim.inflow is not None else 0,
         }
 
 
@@ -139,7 +141,7 @@ def _keep_rows(path, last):
         return False
     tmp = path.with_name(path.name + ".tmp")
     with open(tmp, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore")
+        writer = csv.DictWriter(f, fieldnames=COLUMNS, extrasaction="ignore", restval="0")  # older files: no "removed"
         writer.writeheader()
         writer.writerows(rows)
     tmp.replace(path)

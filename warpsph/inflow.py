@@ -37,7 +37,8 @@ def layer_points(emitter, spacing):
 
 
 class Inflow:
-    """The scene's emitters and sinks, and how much they have emitted."""
+    """The scene's emitters and sinks (an open domain is a sink everywhere outside its box), how
+    much they have emitted and how many particles they have removed."""
 
     def __init__(self, scene, initial_count):
         self.scene = scene
@@ -57,6 +58,8 @@ class Inflow:
         self.next_id = initial_count
         self._sinks = None
         self._warned = False
+        self.removed_in_sinks = 0  # particles removed so far, inside sinks
+        self.removed_outside = 0  # and outside an open domain
 
     # -- inflow -------------------------------------------------------------------------------------------
     def emit(self, sim, time):
@@ -101,24 +104,35 @@ class Inflow:
 
     # -- outflow -------------------------------------------------------------------------------------------
     def drain(self, sim):
-        """Removes the particles inside the sinks (one host read of their count per step)."""
-        if not self.scene.sinks or sim.num_fluid == 0:
+        """Removes the particles inside the sinks, and outside an open domain (one host read of
+        their counts per step)."""
+        domain = self.scene.domain
+        if not (self.scene.sinks or domain.is_open) or sim.num_fluid == 0:
             return
         if self._sinks is None:
-            self._sinks = (wp.array([s.min for s in self.scene.sinks], dtype=wp.vec3, device=sim.device),
-                           wp.array([s.max for s in self.scene.sinks], dtype=wp.vec3, device=sim.device),
-                           wp.zeros(1, dtype=wp.int32, device=sim.device))
-        lo, hi, removed = self._sinks
+            sinks = self.scene.sinks
+            # along periodic axes particles wrap around: nothing leaves there
+            lo = [-1e30 if "xyz"[k] in domain.periodic else v for k, v in enumerate(domain.min)]
+            hi = [1e30 if "xyz"[k] in domain.periodic else v for k, v in enumerate(domain.max)]
+            box = lambda key: np.asarray([getattr(s, key) for s in sinks], np.float32).reshape(-1, 3)
+            self._sinks = (wp.array(box("min"), dtype=wp.vec3, device=sim.device),
+                           wp.array(box("max"), dtype=wp.vec3, device=sim.device),
+                           wp.zeros(2, dtype=wp.int32, device=sim.device), wp.vec3(*lo), wp.vec3(*hi))
+        lo, hi, removed, domain_lo, domain_hi = self._sinks
         n = sim.num_fluid
         keys = wp.empty(2 * n, dtype=wp.int32, device=sim.device)  # radix sort needs 2n
         order = wp.empty(2 * n, dtype=wp.int32, device=sim.device)
         removed.zero_()
-        sim.launch(mark_particles_in_sinks, n, [sim.fluid.x, lo, hi, keys, order, removed])
-        count = int(removed.numpy()[0])
+        sim.launch(mark_particles_in_sinks, n,
+                   [sim.fluid.x, lo, hi, int(domain.is_open), domain_lo, domain_hi, keys, order, removed])
+        in_sinks, outside = (int(c) for c in removed.numpy())
+        count = in_sinks + outside
         if count:
             wp.utils.radix_sort_pairs(keys, order, n)
             sim.reorder_particles(order)
             sim.num_fluid = n - count
+            self.removed_in_sinks += in_sinks
+            self.removed_outside += outside
 
     def drive(self, sim, time):
         """Particles in an active emitter's box, extended to DRIVE_LENGTH spacings downstream of its
@@ -144,8 +158,11 @@ class Inflow:
 
     # -- state ---------------------------------------------------------------------------------------------
     def state(self):
-        return {"inflow.next_id": self.next_id, "inflow.emitted_layers": np.asarray(self.emitted_layers, np.int64)}
+        return {"inflow.next_id": self.next_id, "inflow.emitted_layers": np.asarray(self.emitted_layers, np.int64),
+                "inflow.removed_in_sinks": self.removed_in_sinks, "inflow.removed_outside": self.removed_outside}
 
     def restore(self, flags):
         self.next_id = int(flags["inflow.next_id"])
         self.emitted_layers = [int(v) for v in np.atleast_1d(flags["inflow.emitted_layers"])]
+        self.removed_in_sinks = int(flags.get("inflow.removed_in_sinks", 0))  # checkpoints before the counts: 0
+        self.removed_outside = int(flags.get("inflow.removed_outside", 0))

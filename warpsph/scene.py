@@ -34,11 +34,14 @@ def _positive():
 @dataclass(frozen=True)
 class Box:
     """The domain: walls of boundary particles on its faces, except across ``periodic`` axes,
-    where particles leaving one face enter at the opposite one."""
+    where particles leaving one face enter at the opposite one. ``walls: false`` makes it open:
+    no walls, and particles that leave it (across a non-periodic face) are removed and counted,
+    so that a scene whose boundaries are its bodies can run."""
 
     min: Vec3
     max: Vec3
     periodic: typing.Tuple[str, ...] = ()  # e.g. ["x", "z"]
+    walls: bool = True  # false: an open domain
 
     def validate(self, file, key):
         if any(lo >= hi for lo, hi in zip(self.min, self.max)):
@@ -51,6 +54,11 @@ class Box:
     def period(self):
         """Extent along each periodic axis, 0 along the others."""
         return tuple(hi - lo if "xyz"[k] in self.periodic else 0.0 for k, (lo, hi) in enumerate(zip(self.min, self.max)))
+
+    @property
+    def is_open(self):
+        """Whether particles can leave it (no walls, and a face that is not periodic)."""
+        return not self.walls and len(self.periodic) < 3
 
 
 @dataclass(frozen=True)

@@ -131,7 +131,7 @@ def count_particles(scene: Scene):
     d = scene.particle_diameter
     fluid = sum(int(np.prod(np.floor((np.subtract(b.end, b.start)) / d + 1e-6))) for b in scene.fluid_blocks)
     ext = np.subtract(scene.domain.max, scene.domain.min) + 2 * WALL_OFFSET * scene.particle_radius
-    walls = int(2 * (ext[0] * ext[1] + ext[1] * ext[2] + ext[0] * ext[2]) / d**2)
+    walls = int(2 * (ext[0] * ext[1] + ext[1] * ext[2] + ext[0] * ext[2]) / d**2) if scene.domain.walls else 0
     return fluid, walls
 
 
@@ -154,7 +154,7 @@ def sample_scene(scene: Scene):
     # walls stand off 1.2 r from the faces; along periodic axes they span the domain exactly
     offset = np.where(np.asarray(scene.domain.period) > 0, 0.0, WALL_OFFSET * scene.particle_radius)
     bodies = [sampling.sample_box_walls(np.asarray(scene.domain.min) - offset, np.asarray(scene.domain.max) + offset, d,
-                                        scene.domain.periodic)]
+                                        scene.domain.periodic) if scene.domain.walls else np.zeros((0, 3), np.float32)]
     size = float(np.linalg.norm(np.subtract(scene.domain.max, scene.domain.min)))
     rigid = [load_body(o, scene.mesh_path(o), d, size, f"{Path(o.mesh).stem}_{n}", scene.fluid.density)
              for n, o in enumerate(scene.obstacles)]
@@ -204,7 +204,8 @@ class Simulation:
             body = np.concatenate([body] + [np.full(len(b.samples), index[id(b)], np.int32) for b in moving])
         self.num_fluid = len(fluid_x)
         self.num_boundary = len(boundary_x)
-        self.inflow = Inflow(scene, self.num_fluid) if scene.emitters or scene.sinks else None
+        # emitters, sinks, and the removal of what leaves an open domain
+        self.inflow = Inflow(scene, self.num_fluid) if scene.emitters or scene.sinks or scene.domain.is_open else None
         # per-particle arrays hold the fluid at its largest: the initial particles and what emitters add
         self.capacity = self.num_fluid + (self.inflow.room if self.inflow is not None else 0)
         self._per_particle = []
@@ -477,6 +478,8 @@ class Simulation:
             self.health_first.fill_(2**31 - 1)
             lo = np.asarray(self.scene.domain.min) - ESCAPE_MARGIN * self.scene.particle_radius
             hi = np.asarray(self.scene.domain.max) + ESCAPE_MARGIN * self.scene.particle_radius
+            if not self.scene.domain.walls:  # an open domain: particles may leave (the next step removes them)
+                lo, hi = np.full(3, -1e30), np.full(3, 1e30)
             self.launch(check_particles, n, [f.x, f.v, f.density, wp.vec3(*lo), wp.vec3(*hi),
                                              DENSITY_HARD_LIMIT * self.rest_density, self.health_counts,
                                              self.health_first])
@@ -596,7 +599,8 @@ class Simulation:
         return self
 
     def statistics(self):
-        """Solver iterations per solve and the last average errors."""
+        """Solver iterations per solve, the last average errors and the particles removed so far
+        (inside sinks; outside an open domain)."""
         div_it, div_n, dens_it, dens_n = self.pressure_solver.iteration_totals()
         div_err, dens_err = self.pressure_solver.last_errors()
         return {
@@ -605,6 +609,8 @@ class Simulation:
             "density_iterations": dens_it / max(dens_n, 1),
             "divergence_error": div_err,
             "density_error": dens_err,
+            "removed_in_sinks": self.inflow.removed_in_sinks if self.inflow is not None else 0,
+            "removed_outside": self.inflow.removed_outside if self.inflow is not None else 0,
         }
 
     def fields(self):
