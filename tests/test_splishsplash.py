@@ -261,16 +261,22 @@ def test_extra_phases_are_refused_and_run_anyway_from_the_file(scenes):
     assert len(scene.fluid_blocks) == 2  # both blocks, as the first phase
 
 
-def test_run_anyway_argument_and_no_container_is_an_error(scenes):
+def test_run_anyway_argument_and_no_container_is_an_open_domain(scenes):
+    """Without a container (no mapInvert body) the scene runs in an open domain around its fluid and bodies:
+    no walls, particles that leave it are removed (and counted)."""
     data = edited(Configuration__sim2D=True)
     with pytest.warns(SplishSplashWarning, match="sim2D"):
         out = convert(data, write(scenes, data), run_anyway=True)
     assert out["fluid_blocks"]
     data = edited(RigidBodies=[])
     c = translate(data, write(scenes, data))
-    assert c.errors and "no container" in c.errors[0]
-    with pytest.raises(SceneError, match="(?s)cannot run this scene.*no container"):
-        convert(data, write(scenes, data), run_anyway=True)
+    assert not c.errors and any("no container" in m for m in c.mapped)
+    domain = c.scene["domain"]
+    assert domain["walls"] is False
+    for block in c.scene["fluid_blocks"]:
+        assert all(lo < s and e < hi for lo, s, e, hi in zip(domain["min"], block["start"], block["end"], domain["max"]))
+    scene = load_scene(write(scenes, data))
+    assert not scene.domain.walls
 
 
 def test_every_key_is_accounted_for(scenes):

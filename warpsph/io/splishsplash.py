@@ -221,6 +221,8 @@ class _Reader:
         self.fluid_blocks()
         self.bodies()
         self.emitters()
+        if "domain" not in scene:
+            self.open_domain()
         for key in ("FluidModels", "AnimationFields"):
             if d.get(key):
                 n = len(d[key])
@@ -574,12 +576,36 @@ class _Reader:
             self.no_effect(key, [k for k in body if k in BODY_NO_EFFECT], "rendering and boundary-map settings")
             self.no_effect(key, [k for k in body if k not in BODY_READ | BODY_NO_EFFECT | BODY_PBD_CONTACT],
                            "not read by SPlisHSPlasH either")
-        if domain is None:
-            self.c.errors.append("RigidBodies: no container: warpsph needs a wall box (a body with mapInvert) as its "
-                                 "domain (open domains are not supported yet)")
-        else:
+        if domain is not None:
             self.c.scene["domain"] = domain
         self.c.scene["obstacles"] = obstacles
+
+    def open_domain(self):
+        """A scene without a container (no body with mapInvert): an open domain (no walls; particles that leave
+        it are removed and counted) around every body, fluid block and emitter, with a margin of a quarter of
+        its extent (at least 8 particle radii) on each side."""
+        scene = self.c.scene
+        corners = []
+        for block in scene.get("fluid_blocks", []):
+            corners += [block["start"], block["end"]]
+        for e in scene.get("emitters", []):
+            corners += [e["min"], e["max"]]
+        for o in scene.get("obstacles", []):
+            lo, hi = _box_bounds({"geometryFile": o["mesh"], "scale": [1, 1, 1], "translation": [0, 0, 0]},
+                                 self.base, self.file, "RigidBodies")
+            box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+            from ..sampling import rotation_matrix
+
+            rotated = (box * o["scale"]) @ rotation_matrix(o["rotation_axis"], o["rotation_angle"]).T + o["translation"]
+            corners += rotated.tolist()
+        if not corners:
+            self.c.errors.append("RigidBodies: no container and nothing to bound an open domain with")
+            return
+        lo, hi = np.min(corners, axis=0), np.max(corners, axis=0)
+        margin = np.maximum(0.25 * (hi - lo), 8.0 * self.radius)
+        domain = {"min": (lo - margin).tolist(), "max": (hi + margin).tolist(), "walls": False}
+        scene["domain"] = domain
+        self.mapped("RigidBodies (no container)", "domain (open: no walls, particles leaving it removed)", domain)
 
     # ---------------------------------------------------------------------------------------------
     def emitters(self):
