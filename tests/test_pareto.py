@@ -3,15 +3,11 @@ check that cannot pass by construction (the finer resolution of the same vortex 
 
 import json
 import math
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tools"))
-
-from pareto import CORE_RADIUS, ERROR_KEY, TIME_KEY, main, pareto_flags, study  # noqa: E402
+from warpsph.validation.pareto import CORE_RADIUS, ERROR_KEY, TIME_KEY, main, pareto_flags, study
 
 RESOLUTIONS = (12, 16)
 DEPTH = 6

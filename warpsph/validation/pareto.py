@@ -1,0 +1,617 @@
+"""Cost against accuracy (issue #5): wall time per simulated second against the error, per method,
+resolution and solver tolerance, and the Pareto front of those points.
+
+    python tools/pareto.py --device cpu --resolutions 24 36 --tolerances 0.05 0.01 --out tools/results/pareto_cpu.json
+    python tools/pareto.py --device cuda --resolutions 96 192 384 --tolerances 0.05 0.01 --out tools/results/pareto_h100.json
+    python tools/pareto.py --plot-only RESULTS.json [--out tools/results/pareto_h100.json]   # PNG (and table) here
+
+The question it answers: for a given error budget, which method and resolution is cheapest?
+
+Error (``--case``): ``lamb-oseen`` (default), the Lamb-Oseen vortex of warpsph/validation/lamb_oseen.py (its set-up,
+measurements and summary; the functions are imported, not copied). The physical problem is the same at every
+resolution: box L = 1 m, initial core radius sqrt(4 nu t0) = ``--core-radius`` metres (0.125 m, as
+``warpsph validate lamb-oseen``: 3 spacings at 24 particles across), peak speed 0.5 m/s, nu = 0.01, T = 0.5 s. Only the box
+depth is counted in spacings (6, quasi-2D: the flow does not depend on z). The primary error is the L1
+error of u_theta at T, in % of the analytic peak speed at T; the peak-vorticity ratio (against the same
+fit of the analytic field), the effective viscosity and the kinetic energy ratio are recorded too.
+``taylor-green``: the Taylor-Green vortex of warpsph/validation/taylor_green.py (L = 1, U = 1, nu = 0.01, T = 0.3 s,
+6 spacings deep, periodic) with the default solver, started from its particle packing (``--pack-steps``, set-up,
+not timed): the error
+is the L1 error of the velocity magnitude at T in % of the analytic peak speed at T; the kinetic energy error
+KE(T)/KE_exact(T) - 1 is recorded too.
+
+Optionally (``--dam-front R ...``, R in particles across the column width a) the Martin & Moyce dam-break
+front of warpsph/validation/dam_front.py per method and tolerance: the RMS of Z/a after the best time shift,
+with its own time per simulated second.
+
+Timing: ``wall_per_sim_s`` = seconds of wall time per simulated second, around ``Simulation.run`` with
+the device synchronised before and after; the per-frame measurements (11 frames) are timed on their own
+(device synchronised at their start and end) and subtracted. Set-up (sampling, boundary volumes) is not
+included, and every method runs a small warm-up simulation first so that no kernel compilation or module
+load lands in a timed run (the CUDA graph capture of the run's own second step does: it is part of every
+run). Recorded per point: fluid particles, steps, mean density and divergence iterations, ms per step.
+
+Solver tolerance: the scene's ``solver.density_max_error`` (average density error in %; the divergence
+tolerance stays at its default 0.1 %/s).
+
+Writes JSON (every point, device, Warp version, commit) after every point, so a run cut off by a time
+limit keeps what it finished; a markdown table beside it (``*.md``, with the Pareto-optimal points
+marked: no other point has both a lower error and a lower time), and a PNG when matplotlib imports.
+Points run from the coarsest resolution up.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import gc
+import json
+import math
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from warpsph.validation.lamb_oseen import CORE_RADIUS as LAMB_OSEEN_CORE_RADIUS
+
+# name -> (label, scene "models" list)
+METHODS = {
+    "dfsph": ("DFSPH", []),
+    "vr": ("DFSPH+VR α=1", [{"type": "vorticity_refinement", "alpha": 1.0}]),
+    "rankine0.6": ("DFSPH+Rankine β=0.6", [{"type": "rankine", "beta": 0.6}]),
+    "rankine1": ("DFSPH+Rankine β=1", [{"type": "rankine", "beta": 1.0}]),
+    "micropolar": ("DFSPH+micropolar ν_t=0.05", [{"type": "micropolar", "transfer_coefficient": 0.05}]),
+}
+
+CASES = ("lamb-oseen", "taylor-green")
+CORE_RADIUS = LAMB_OSEEN_CORE_RADIUS  # m: 3 spacings at 24 particles across L = 1 m
+ERROR_KEY, TIME_KEY = "error_percent", "wall_per_sim_s"
+DAM_ERROR_KEY, DAM_TIME_KEY = "dam_rms", "dam_wall_per_sim_s"
+
+
+# --- the Pareto front -------------------------------------------------------------------------------
+
+def pareto_flags(points, x=TIME_KEY, y=ERROR_KEY):
+    """Per point: True when no other point has both a lower ``x`` and a lower ``y`` (strictly), False
+    when one has, None when the point has no finite ``x`` and ``y`` (unstable, or not measured).
+    Sort and sweep: a point is dominated iff the least ``y`` among the points of strictly smaller ``x``
+    is below its own."""
+    def value(p, key):
+        v = p.get(key)
+        return float(v) if isinstance(v, (int, float)) and math.isfinite(v) else None
+
+    flags = [None] * len(points)
+    valid = sorted((value(p, x), value(p, y), n) for n, p in enumerate(points)
+                   if value(p, x) is not None and value(p, y) is not None)
+    best = math.inf  # least y among the points of strictly smaller x
+    k = 0
+    while k < len(valid):
+        group = [v for v in valid[k:] if v[0] == valid[k][0]]  # equal x: they do not dominate each other
+        for _, yv, n in group:
+            flags[n] = not best < yv
+        best = min(best, min(v[1] for v in group))
+        k += len(group)
+    return flags
+
+
+def mark_pareto(points):
+    for p, flag in zip(points, pareto_flags(points)):
+        p["pareto"] = flag
+    if any(DAM_ERROR_KEY in p for p in points):
+        for p, flag in zip(points, pareto_flags(points, DAM_TIME_KEY, DAM_ERROR_KEY)):
+            p["dam_pareto"] = flag
+    return points
+
+
+# --- timing -----------------------------------------------------------------------------------------
+
+def timed_run(sim, run, on_frame=None):
+    """Calls ``run(callback)`` (which must run ``sim`` and call ``callback(sim, frame)`` per frame) with the
+    device synchronised around it; ``on_frame``'s time (synchronised at its start and end) is subtracted.
+    Returns (wall seconds of the run alone, seconds spent in on_frame)."""
+    import warp as wp
+
+    device = sim.device
+    spent = [0.0]
+
+    def callback(s, frame):
+        wp.synchronize_device(device)  # the run's own work ends here
+        start = time.perf_counter()
+        if on_frame is not None:
+            on_frame(s, frame)
+        wp.synchronize_device(device)
+        spent[0] += time.perf_counter() - start
+
+    wp.synchronize_device(device)
+    start = time.perf_counter()
+    run(callback)
+    wp.synchronize_device(device)
+    return time.perf_counter() - start - spent[0], spent[0]
+
+
+def warm_up(models, device, case="lamb-oseen"):
+    """Loads (compiles) every kernel module a method uses, outside the timed runs: a tiny vortex, a few
+    steps (the second captures the CUDA graph) and one measurement."""
+    if case == "taylor-green":
+        from warpsph.validation import taylor_green as tg
+
+        sim, ke0 = tg.build(models, resolution=8, device=device, solver=taylor_green_solver(0.05), pack_steps=2)
+        for _ in range(3):
+            sim.step()
+        tg.measure(sim, ke0, 0.01)
+    else:
+        from warpsph.validation.lamb_oseen import build, measure
+
+        sim, p, edges = build(models, resolution=8, core=1.0, device=device, frames=10)
+        for _ in range(3):
+            sim.step()
+        measure(sim, p, edges, sim.time)
+    sim.check_health()
+    sim.statistics()
+
+
+def solver_stats(sim):
+    s = sim.statistics()
+    return {"steps": sim.step_count, "mean_density_iterations": s["density_iterations"],
+            "mean_divergence_iterations": s["divergence_iterations"]}
+
+
+# --- the two error measures ---------------------------------------------------------------------------
+
+def lamb_oseen_point(models, resolution, tolerance, device, core_radius=CORE_RADIUS, nu=0.01, T=0.5, u_peak=0.5,
+                     depth=6, frames=10, on_instability="stop"):
+    """One vortex run: error, timing and solver statistics (a dict; ``unstable`` when it blew up)."""
+    from warpsph.validation.lamb_oseen import L, build, kinetic_ratios, measure, summary
+    from warpsph.simulation import InstabilityError
+
+    core = core_radius * resolution / L  # the validation tool takes the core in spacings
+    start = time.perf_counter()
+    sim, p, edges = build(models, resolution, nu, T, core, u_peak, depth, device, frames,
+                          solver={"density_max_error": tolerance})
+    sim.on_instability = on_instability  # "reduce-dt": a failed frame is redone with dt halved (its cost counts)
+    out = {"particles": sim.num_fluid, "boundary_particles": sim.num_boundary, "spacing": p["spacing"],
+           "core_spacings": core, "core_radius_m": p["core_radius_0"], "setup_s": time.perf_counter() - start}
+    rows = []
+    try:
+        wall, measuring = timed_run(sim, lambda cb: sim.run(frames=frames, on_frame=cb),
+                                    lambda s, f: rows.append(measure(s, p, edges, s.time)))
+    except InstabilityError as exc:
+        out.update(unstable=str(exc), unstable_step=exc.step, unstable_time=exc.time, **solver_stats(sim))
+        return out
+    s = summary(kinetic_ratios(rows), nu)
+    simulated = rows[-1]["time"]
+    out.update(solver_stats(sim))
+    out.update(simulated_s=simulated, wall_s=wall, measure_s=measuring, wall_per_sim_s=wall / simulated,
+               ms_per_step=1e3 * wall / max(sim.step_count, 1), error_percent=100.0 * s["l1_relative_end"],
+               l1_error_m_per_s=s["l1_error_end"], omega_ratio=s["omega_ratio_end"],
+               omega_curl_ratio=s["omega_curl_ratio_end"], omega_decay=s["omega_decay"],
+               omega_decay_exact=s["omega_decay_exact"], nu_effective=s["nu_effective"], r_peak=s["r_peak_end"],
+               r_peak_exact=s["r_peak_exact_end"], ke_ratio=s["ke_ratio_end"],
+               centre_offset=s["centre_offset_end"],
+               # the error's history and the final u_theta profile (annuli of one spacing), to see where it comes from
+               frames={"time": [r["time"] for r in rows], "error_percent": [100.0 * r["l1_relative"] for r in rows],
+                       "omega_ratio": [r["omega_ratio"] for r in rows], "ke_ratio": [r["ke_ratio"] for r in rows]},
+               profile_end={"r": [round(v, 6) for v in p["r_bins"]], "u_theta": [round(v, 6) for v in rows[-1]["u_theta"]],
+                            "u_theta_exact": [round(v, 6) for v in rows[-1]["u_theta_exact"]]})
+    del sim
+    return out
+
+
+def taylor_green_solver(tolerance):
+    """The Taylor-Green scene's "solver" keys: the default solver at the point's tolerance."""
+    return {"density_max_error": tolerance}
+
+
+def taylor_green_point(models, resolution, tolerance, device, nu=0.01, T=0.3, frames=10, on_instability="stop",
+                       pack_steps=None):
+    """One Taylor-Green run (default solver, packed start): error, timing and solver statistics."""
+    from warpsph.validation import taylor_green as tg
+    from warpsph.simulation import InstabilityError
+
+    pack_steps = tg.PACK_STEPS if pack_steps is None else pack_steps
+    start = time.perf_counter()
+    sim, ke0 = tg.build(models, resolution, nu, T, device, frames, taylor_green_solver(tolerance), pack_steps)
+    sim.on_instability = on_instability
+    out = {"particles": sim.num_fluid, "spacing": 1.0 / resolution, "pack_steps": pack_steps,
+           "setup_s": time.perf_counter() - start}
+    rows = []
+    try:
+        wall, measuring = timed_run(sim, lambda cb: sim.run(frames=frames, on_frame=cb),
+                                    lambda s, f: rows.append(tg.measure(s, ke0, nu)))
+    except InstabilityError as exc:
+        out.update(unstable=str(exc), unstable_step=exc.step, unstable_time=exc.time, **solver_stats(sim))
+        return out
+    end = rows[-1]
+    errors = [100.0 * r["l1_speed_error"] / float(tg.peak_speed(r["time"], nu)) for r in rows]
+    ke_errors = [100.0 * (r["ke_ratio"] / r["ke_ratio_exact"] - 1.0) for r in rows]
+    density = sim.host(sim.fluid.density)
+    out.update(solver_stats(sim))
+    out.update(simulated_s=end["time"], wall_s=wall, measure_s=measuring, wall_per_sim_s=wall / end["time"],
+               ms_per_step=1e3 * wall / max(sim.step_count, 1), error_percent=errors[-1],
+               ke_ratio=end["ke_ratio"], ke_ratio_exact=end["ke_ratio_exact"], ke_error_percent=ke_errors[-1],
+               mean_density_ratio=float(density.mean() / sim.rest_density),
+               max_density_ratio=float(density.max() / sim.rest_density),
+               frames={"time": [r["time"] for r in rows], "error_percent": errors, "ke_error_percent": ke_errors})
+    del sim
+    return out
+
+
+@contextlib.contextmanager
+def _dam_front_hooks(tolerance, log):
+    """warpsph.validation.dam_front.dam_front builds its scene and runs it inside; this injects the solver tolerance
+    into its scene dict and times its ``run`` like :func:`timed_run` (patched for the call only)."""
+    import warpsph.scene as scene_module
+    from warpsph.simulation import Simulation
+
+    scene_from_dict, run = scene_module.scene_from_dict, Simulation.run
+
+    def with_solver(data, *args, **kwargs):
+        data = {**data, "solver": {**data.get("solver", {}), "density_max_error": tolerance}}
+        return scene_from_dict(data, *args, **kwargs)
+
+    def timed(self, frames=None, on_frame=None, until_time=None):
+        log["wall_s"], log["measure_s"] = timed_run(
+            self, lambda cb: run(self, frames=frames, on_frame=cb, until_time=until_time), on_frame)
+        return self
+
+    scene_module.scene_from_dict, Simulation.run = with_solver, timed
+    try:
+        yield log
+    finally:
+        scene_module.scene_from_dict, Simulation.run = scene_from_dict, run
+
+
+def dam_front_point(models, resolution, tolerance, device, T_end=6.0, depth=4):
+    from warpsph.validation.dam_front import compare, dam_front
+    from warpsph.simulation import InstabilityError
+
+    log = {}
+    try:
+        with _dam_front_hooks(tolerance, log):
+            T, Z, sim = dam_front(resolution, device, T_end, models=models, depth=depth)
+    except InstabilityError as exc:
+        return {"dam_resolution": resolution, "dam_unstable": str(exc)}
+    c = compare(T, Z)
+    simulated = sim.time
+    return {"dam_resolution": resolution, "dam_particles": sim.num_fluid, "dam_steps": sim.step_count,
+            "dam_simulated_s": simulated, "dam_wall_s": log["wall_s"], DAM_TIME_KEY: log["wall_s"] / simulated,
+            "dam_mean_density_iterations": sim.statistics()["density_iterations"],
+            DAM_ERROR_KEY: c["shifted_rms"], "dam_time_shift_T": c["time_shift_T"], "dam_raw_rms": c["raw_rms"]}
+
+
+# --- report -----------------------------------------------------------------------------------------
+
+def commit():
+    """The commit (and uncommitted simulator files): warpsph's commit_info, so WARPSPH_COMMIT overrides git's where
+    the checkout's .git is absent or stale (a copy of the working tree on another machine); PARETO_COMMIT, the
+    older name, still does."""
+    from warpsph.validation.cases import commit_info
+
+    if os.environ.get("PARETO_COMMIT") and not os.environ.get("WARPSPH_COMMIT"):
+        return {"commit": os.environ["PARETO_COMMIT"], "commit_from": "PARETO_COMMIT"}
+    return commit_info()
+
+
+def device_info(device):
+    import warp as wp
+
+    d = wp.get_device(device)
+    info = {"device": d.name if d.is_cuda else "cpu", "device_alias": d.alias, "warp": wp.__version__,
+            "python": platform.python_version(), "host": platform.node(), "cpu_count": os.cpu_count()}
+    if not d.is_cuda:
+        try:
+            model = [line.split(":", 1)[1].strip() for line in open("/proc/cpuinfo") if line.startswith("model name")]
+            info["cpu"] = f"{model[0]} ({len(model)} threads)" if model else platform.processor()
+        except OSError:
+            info["cpu"] = platform.processor()
+    return info
+
+
+def fmt(v, spec):
+    return "—" if v is None or (isinstance(v, float) and not math.isfinite(v)) else format(v, spec)
+
+
+def markdown(report):
+    points = report["points"]
+    dam = any("dam_resolution" in p for p in points)
+    s = report["setup"]
+    tg = report.get("case_key") == "taylor-green"
+    if tg:
+        mode = (f"confined mode, transport velocity {s['transport_velocity']:g}" if s.get("transport_velocity")
+                else "default solver")  # older reports ran the confined mode
+        flow = (f"Taylor-Green vortex (L = 1 m, U = 1 m/s, nu = {s['nu']:g}, T = {s['T']:g} s, periodic, depth 6 spacings; "
+                f"{mode}, packed start of {s['pack_steps']} steps)")
+        legend = ("error = L1 error of |u| at T in % of the analytic peak speed at T; KE error = KE(T)/KE_exact(T) - 1 "
+                  "(above 0: the method kept more energy than the analytic decay); mean ρ = mean density / ρ0 at T; ")
+    else:
+        flow = (f"Lamb-Oseen vortex (L = {s['L']:g} m, core radius {s['core_radius_m']:g} m, peak speed {s['u_peak']:g} m/s, "
+                f"nu = {s['nu']:g}, T = {s['T']:g} s, depth {s['depth_spacings']} spacings)")
+        legend = ("error = L1 error of u_theta at T in % of the analytic peak speed; ω ratio = peak vorticity / analytic; "
+                  "KE ratio = kinetic energy at T / at 0 (analytic decay keeps it below 1: above 1 the method injected energy); ")
+    head = (f"{flow} on {report['device']}, Warp {report['warp']}, commit {report['commit']}"
+            + (f" (uncommitted: {', '.join(report['uncommitted'])})" if report.get("uncommitted") else "") + ".\n"
+            + legend + "s/s = wall seconds per simulated second (run only, synchronised). Pareto: no other point has "
+            "both a lower error and a lower time.\n\n")
+    measures = ["KE error %", "mean ρ"] if tg else ["ω ratio", "KE ratio"]
+    cols = ["method", "resolution", "particles", "tolerance %", "error %", *measures, "steps", "density it.",
+            "ms/step", "s wall / s sim", "Pareto"]
+    if dam:
+        cols += ["dam res.", "dam RMS Z/a", "dam s/s", "dam Pareto"]
+    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for p in sorted(points, key=lambda p: (p.get(TIME_KEY) is None, p.get(TIME_KEY) or 0.0)):
+        if "unstable" in p:
+            cells = [p["label"], p["resolution"], f"{p['particles']:,}", p["tolerance"], f"unstable: {p['unstable']}",
+                     "", "", fmt(p.get("steps"), "d"), "", "", "", ""]
+        else:
+            if tg:
+                values = [fmt(p["ke_error_percent"], "+.2f"), fmt(p["mean_density_ratio"], ".4f")]
+            else:
+                values = [fmt(p["omega_ratio"], ".3f"), fmt(p["ke_ratio"], ".3f") + (" (gain!)" if p["ke_ratio"] > 1 else "")]
+            cells = [p["label"], p["resolution"], f"{p['particles']:,}", p["tolerance"], fmt(p[ERROR_KEY], ".2f"),
+                     *values, p["steps"], fmt(p["mean_density_iterations"], ".2f"),
+                     fmt(p["ms_per_step"], ".2f"), fmt(p[TIME_KEY], ".3g"), "**yes**" if p.get("pareto") else ""]
+        if dam:
+            cells += [p.get("dam_resolution", ""), p.get("dam_unstable") or fmt(p.get(DAM_ERROR_KEY), ".3f"),
+                      fmt(p.get(DAM_TIME_KEY), ".3g"), "**yes**" if p.get("dam_pareto") else ""]
+        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+    front = [p for p in points if p.get("pareto")]
+    front.sort(key=lambda p: p[TIME_KEY])
+    tail = ["", "Pareto front, cheapest first (for an error budget E, take the first row with error ≤ E):", ""]
+    tail += [f"- {p[ERROR_KEY]:.2f} % at {p[TIME_KEY]:.3g} s/s: {p['label']}, resolution {p['resolution']} "
+             f"({p['particles']:,} particles), tolerance {p['tolerance']} %" for p in front]
+    return head + "\n".join(lines) + "\n" + "\n".join(tail) + "\n"
+
+
+def plot(report, out):
+    """PNG: error against time per simulated second, a line per method and tolerance through its
+    resolutions, the Pareto front in black (and the dam front in a second panel when measured)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import LogLocator, ScalarFormatter
+
+    points = [p for p in report["points"] if p.get(TIME_KEY) is not None]
+    dam = [p for p in report["points"] if p.get(DAM_TIME_KEY) is not None]
+    if report.get("case_key") == "taylor-green":
+        panels = [(TIME_KEY, ERROR_KEY, "pareto", "L1 error of |u| at T [% of peak speed]",
+                   "Taylor–Green vortex (packed start)", points)]
+    else:
+        panels = [(TIME_KEY, ERROR_KEY, "pareto", "L1 error of u_θ at T [% of peak speed]",
+                   "Lamb–Oseen vortex", points)]
+    if dam:
+        panels.append((DAM_TIME_KEY, DAM_ERROR_KEY, "dam_pareto", "RMS error of front Z/a (shifted)",
+                       "Martin & Moyce dam front", dam))
+    fig, axes = plt.subplots(1, len(panels), figsize=(7.5 * len(panels), 8.0 if len(panels) == 1 else 6.5),
+                             squeeze=False)
+    methods = list(dict.fromkeys(p["method"] for p in report["points"]))
+    tolerances = sorted({p["tolerance"] for p in report["points"]}, reverse=True)
+    markers = ["o", "s", "^", "D", "v"]
+    colours = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for ax, (xk, yk, flag, ylabel, title, pts) in zip(axes[0], panels):
+        for m, method in enumerate(methods):
+            for t, tol in enumerate(tolerances):
+                res_key = "dam_resolution" if yk == DAM_ERROR_KEY else "resolution"
+                line = sorted((p for p in pts if p["method"] == method and p["tolerance"] == tol),
+                              key=lambda p: p[res_key])  # a line through the resolutions, coarsest first
+                if not line:
+                    continue
+                ax.plot([p[xk] for p in line], [p[yk] for p in line], marker=markers[t % len(markers)],
+                        ls="-" if t == 0 else "--", color=colours[m % len(colours)], ms=6, alpha=0.85,
+                        label=f"{line[0]['label']}, tol {tol:g} %")
+                for p in line:
+                    ax.annotate(str(p[res_key]), (p[xk], p[yk]), fontsize=7, xytext=(3, 3), textcoords="offset points")
+        front = sorted((p for p in pts if p.get(flag)), key=lambda p: p[xk])
+        if front:
+            xs = [p[xk] for p in front]
+            ys = [p[yk] for p in front]
+            ax.step(xs + [max(p[xk] for p in pts) * 1.5], ys + [ys[-1]], where="post", color="k", lw=1.2,
+                    label="Pareto front")
+            ax.plot(xs, ys, "o", mfc="none", mec="k", ms=11, mew=1.2)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        for axis in (ax.xaxis, ax.yaxis):  # plain numbers on the log axes
+            axis.set_major_formatter(ScalarFormatter())
+            axis.set_minor_locator(LogLocator(subs=(2, 3, 5)))
+            axis.set_minor_formatter(ScalarFormatter())
+        ax.tick_params(which="minor", labelsize=7)
+        ax.set_xlabel("wall time per simulated second [s]")
+        ax.set_ylabel(ylabel)
+        ax.set_title(title + " (numbers: resolution)", fontsize=10)
+        ax.grid(True, which="both", alpha=0.3)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    one = len(panels) == 1  # one panel: a narrower legend and a two-line title
+    fig.legend(handles, labels, loc="lower center", ncol=2 if one else 4, fontsize=7, frameon=False)
+    fig.suptitle(f"{report['device']}, Warp {report['warp']}, commit {report['commit']};" + ("\n" if one else " ")
+                 + "tolerance = solver density_max_error; circled: Pareto-optimal", fontsize=9)
+    fig.tight_layout(rect=(0, 0.2 if one else 0.1, 1, 1))
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return Path(out)
+
+
+def write(report, out, png=False):
+    """JSON and markdown at ``out`` (and ``.md``); the PNG (``.png``) when asked and matplotlib imports."""
+    out = Path(out)
+    mark_pareto(report["points"])
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(out.name + ".tmp")
+    tmp.write_text(json.dumps(report, indent=2, ensure_ascii=False) + "\n")
+    tmp.replace(out)  # a run killed while writing keeps the previous complete file
+    out.with_suffix(".md").write_text(markdown(report))
+    if png:
+        try:
+            plot(report, out.with_suffix(".png"))
+        except ImportError as exc:
+            print(f"no PNG ({exc}); draw it elsewhere with --plot-only {out}", flush=True)
+
+
+# --- driver -----------------------------------------------------------------------------------------
+
+def study(methods, resolutions, tolerances, device="cpu", out=None, core_radius=CORE_RADIUS, nu=0.01, T=None,
+          u_peak=0.5, depth=6, frames=10, dam_resolutions=(), dam_T_end=6.0, png=True, quiet=False,
+          on_instability="stop", case="lamb-oseen", pack_steps=None):
+    """Runs every (resolution, tolerance, method) point, coarsest first; returns the report (and writes it
+    to ``out`` after every point). ``case``: "lamb-oseen" or "taylor-green" (then ``core_radius``,
+    ``u_peak`` and ``depth`` do not apply; ``T`` None means 0.3 s there, 0.5 s for Lamb-Oseen)."""
+    import warp as wp
+
+    from warpsph.validation.lamb_oseen import L
+
+    wp.config.log_level = wp.LOG_WARNING
+    wp.init()
+    say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
+    tg = case == "taylor-green"
+    if tg:
+        from warpsph.validation import taylor_green
+
+        T = taylor_green.T_END if T is None else T
+        depth = 6
+        pack_steps = taylor_green.PACK_STEPS if pack_steps is None else pack_steps
+        setup = {"L": L, "u_peak": 1.0, "nu": nu, "T": T, "depth_spacings": depth, "frames": frames,
+                 "solver": taylor_green_solver("per point"),
+                 "pack_steps": pack_steps, "pack_jitter_spacings": taylor_green.PACK_JITTER}
+        description = "Taylor-Green vortex, periodic box, quasi-2D, default solver (warpsph/validation/taylor_green.py)"
+        error = "L1 error of |u| at T, % of the analytic peak speed at T"
+    else:
+        T = 0.5 if T is None else T
+        setup = {"L": L, "core_radius_m": core_radius, "nu": nu, "T": T, "u_peak": u_peak, "depth_spacings": depth,
+                 "frames": frames}
+        description = "Lamb-Oseen vortex, box periodic in z, quasi-2D, no gravity (warpsph/validation/lamb_oseen.py)"
+        error = "L1 error of u_theta at T, % of the analytic peak speed at T"
+    setup.update(dam_resolutions=list(dam_resolutions), dam_T_end=dam_T_end, on_instability=on_instability)
+    report = {"benchmark": "pareto", "case": description, "case_key": case,
+              **device_info(device), **commit(), "command": " ".join([Path(sys.argv[0]).name] + sys.argv[1:]),
+              "setup": setup, "error": error,
+              "time": "wall seconds per simulated second, run only (device synchronised, per-frame measurement "
+                      "subtracted, set-up and kernel compilation excluded)",
+              "tolerance": "solver.density_max_error [%]", "pareto": "no other point has both lower error and lower time",
+              "methods": {name: {"label": METHODS[name][0], "models": METHODS[name][1]} for name in methods},
+              "points": []}
+    started = time.perf_counter()
+    for name in methods:
+        t0 = time.perf_counter()
+        warm_up(METHODS[name][1], device, case)
+        report.setdefault("warmup_s", {})[name] = time.perf_counter() - t0
+    say(f"device {report['device']}, Warp {report['warp']}; warm-up {sum(report['warmup_s'].values()):.1f} s")
+    grid = [(res, tol, name) for res in sorted(resolutions) for tol in tolerances for name in methods]
+    dams = list(dam_resolutions) + [None] * max(0, len(resolutions) - len(dam_resolutions))
+    dam_of = dict(zip(sorted(resolutions), dams))
+    for k, (res, tol, name) in enumerate(grid, 1):
+        label, models = METHODS[name]
+        say(f"[{k}/{len(grid)}] {label}, resolution {res} ({res * res * depth:,} particles), tolerance {tol} % ...")
+        point = {"method": name, "label": label, "models": models, "resolution": res, "tolerance": tol}
+        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+        if tg:
+            point.update(taylor_green_point(models, res, tol, device, nu, T, frames, on_instability, pack_steps))
+        else:
+            point.update(lamb_oseen_point(models, res, tol, device, core_radius, nu, T, u_peak, depth, frames,
+                                          on_instability))
+        if load is not None:  # host load before and after: other processes on the machine skew the timings
+            point["load_average"] = [round(load, 2), round(os.getloadavg()[0], 2)]
+        if "unstable" in point:
+            say(f"    unstable: {point['unstable']}")
+        else:
+            detail = (f"KE error {point['ke_error_percent']:+.2f} %, mean density {point['mean_density_ratio']:.4f}" if tg
+                      else f"omega ratio {point['omega_ratio']:.3f}")
+            say(f"    error {point[ERROR_KEY]:.2f} %, {detail}, {point['steps']} steps, "
+                f"{point['mean_density_iterations']:.2f} density it., {point['wall_s']:.2f} s wall "
+                f"({point[TIME_KEY]:.3g} s/s, {point['ms_per_step']:.2f} ms/step; measuring {point['measure_s']:.2f} s)")
+        if dam_of.get(res):
+            point.update(dam_front_point(models, dam_of[res], tol, device, dam_T_end))
+            if "dam_unstable" in point:
+                say(f"    dam front: unstable: {point['dam_unstable']}")
+            else:
+                say(f"    dam front (resolution {point['dam_resolution']}, {point['dam_particles']:,} particles): RMS "
+                    f"{point[DAM_ERROR_KEY]:.3f} a, {point['dam_steps']} steps, {point[DAM_TIME_KEY]:.3g} s/s")
+        report["points"].append(point)
+        report["elapsed_s"] = time.perf_counter() - started
+        report["complete"] = k == len(grid)
+        gc.collect()
+        if out:
+            write(report, out, png=png and k == len(grid))
+    mark_pareto(report["points"])
+    return report
+
+
+def merge(reports):
+    """One report from several runs of the same set-up on the same device (e.g. one per tolerance, each
+    within a time limit): their points in order; a point given twice (method, resolution, tolerance) is
+    kept from the later file."""
+    first = reports[0]
+    for r in reports[1:]:
+        for key in ("setup", "device", "warp"):
+            if r[key] != first[key]:
+                raise SystemExit(f"cannot merge runs with a different {key}: {first[key]} / {r[key]}")
+    if len(reports) == 1:
+        return first
+    points = {}
+    for r in reports:
+        for p in r["points"]:
+            points[(p["method"], p["resolution"], p["tolerance"])] = p
+    merged = dict(first)
+    merged.update(points=list(points.values()), complete=all(r.get("complete") for r in reports),
+                  methods={k: v for r in reports for k, v in r["methods"].items()},
+                  commit=", ".join(dict.fromkeys(r["commit"] for r in reports)),
+                  command=[r["command"] for r in reports], elapsed_s=sum(r.get("elapsed_s", 0.0) for r in reports))
+    return merged
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--resolutions", type=int, nargs="+", default=[24, 36],
+                        help="particles across L = 1 m (fluid particles: resolution^2 x depth)")
+    parser.add_argument("--tolerances", type=float, nargs="+", default=[0.05, 0.01],
+                        help="solver.density_max_error [%%]")
+    parser.add_argument("--methods", nargs="+", default=list(METHODS), choices=list(METHODS))
+    parser.add_argument("--core-radius", type=float, default=CORE_RADIUS, help="initial core radius sqrt(4 nu t0) [m]")
+    parser.add_argument("--nu", type=float, default=0.01)
+    parser.add_argument("--case", choices=CASES, default="lamb-oseen", help="the flow whose error is measured")
+    parser.add_argument("--T", type=float, help="simulated time [s] (default: 0.5 Lamb-Oseen, 0.3 Taylor-Green)")
+    parser.add_argument("--pack-steps", type=int, help="Taylor-Green: steps of the particle packing (default "
+                                                      "warpsph.validation.taylor_green.PACK_STEPS)")
+    parser.add_argument("--u-peak", type=float, default=0.5, help="initial peak speed [m/s]")
+    parser.add_argument("--depth", type=int, default=6, help="box depth in particle spacings")
+    parser.add_argument("--frames", type=int, default=10)
+    parser.add_argument("--dam-front", type=int, nargs="+", default=[], metavar="R",
+                        help="also the dam-break front, at R particles across a, one R per resolution (the "
+                             "coarsest resolution's points get the first R; resolutions without one skip it)")
+    parser.add_argument("--dam-T-end", type=float, default=6.0, help="dam break to T = t sqrt(2g/a)")
+    parser.add_argument("--on-instability", choices=["stop", "reduce-dt"], default="stop",
+                        help="stop: record the point as unstable; reduce-dt: redo a failed frame with dt halved "
+                             "(up to 4 times, as warpsph run --on-instability reduce-dt)")
+    parser.add_argument("--out", help="JSON file (markdown .md beside it, PNG .png when matplotlib imports)")
+    parser.add_argument("--plot-only", metavar="RESULTS", nargs="+",
+                        help="draw the PNG (and table) of JSON made elsewhere; with --out, write JSON, table and PNG "
+                             "there; several files (same set-up and device, e.g. one per tolerance) are merged")
+    parser.add_argument("--no-plot", action="store_true")
+    args = parser.parse_args(argv)
+    if args.plot_only:
+        report = merge([json.loads(Path(f).read_text()) for f in args.plot_only])
+        if len(args.plot_only) > 1 and not args.out:
+            parser.error("merging several files needs --out")
+        out = Path(args.out or args.plot_only[0])
+        if args.out:
+            write(report, out)
+        else:
+            mark_pareto(report["points"])
+        png = plot(report, out.with_suffix(".png"))
+        print(f"wrote {png}" + (f", {out}, {out.with_suffix('.md')}" if args.out else ""))
+        return 0
+    if not args.out:
+        parser.error("--out is required (or --plot-only)")
+    if len(args.dam_front) > len(args.resolutions):
+        parser.error("give at most one --dam-front resolution per --resolutions entry")
+    report = study(args.methods, args.resolutions, args.tolerances, args.device, args.out, args.core_radius, args.nu,
+                   args.T, args.u_peak, args.depth, args.frames, args.dam_front, args.dam_T_end, png=not args.no_plot,
+                   on_instability=args.on_instability, case=args.case, pack_steps=args.pack_steps)
+    print(markdown(report), flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
