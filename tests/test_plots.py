@@ -38,3 +38,22 @@ def test_plot_energy_slice_and_preview(tmp_path):
     assert slice_from_cache(runs[1], 3, "z", slab)[1] > 10  # the slab holds particles
     assert main(["plot", "slice", runs[1], "--frame", "99", "--out", str(slab)]) == 2  # no such frame
     assert main(["plot", "energy", str(tmp_path / "missing.usdc"), "--out", str(energy)]) == 2
+
+
+def test_validation_figures_regenerate_from_the_committed_json(tmp_path):
+    """The result PNGs are not kept: each validation report's JSON alone draws its figures again."""
+    pytest.importorskip("matplotlib", reason="the PNG needs matplotlib (the test extra installs it)")
+    import json
+    from pathlib import Path
+
+    from warpsph.plots import draw_figures
+    from warpsph.validation import dam_front, hydrostatic, lamb_oseen, taylor_green
+
+    results = Path(__file__).resolve().parent.parent / "tools" / "results"
+    for name, module, count in (("taylor_green_cpu_res16", taylor_green, 1), ("lamb_oseen_cpu_res24", lamb_oseen, 2),
+                                ("hydrostatic_cpu_r0.02", hydrostatic, 1), ("dam_front_martin_moyce_cpu_res10", dam_front, 1)):
+        report = json.loads((results / f"{name}.json").read_text())
+        pngs = draw_figures(tmp_path / f"{name}.json", module.figures(report))
+        assert len(pngs) == count
+        for png in pngs:
+            assert Path(png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -9,12 +9,8 @@ import json
 from warpsph.plots import _pyplot
 
 
-def main():
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("results")
-    parser.add_argument("--out", required=True)
-    args = parser.parse_args()
-    runs = json.load(open(args.results))
+def plot(runs, out):
+    """The figure of the benchmark's runs (a list, one per size) as the PNG ``out``."""
     n = [r["fluid_particles"] for r in runs]
     ms = [r["ms_per_step"] for r in runs]
     plt = _pyplot()
@@ -26,8 +22,16 @@ def main():
     ax.set_title(f"{runs[0]['scene']} on {runs[0]['device']}")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(args.out, dpi=120)
-    print(args.out)
+    fig.savefig(out, dpi=120)
+    return out
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("results")
+    parser.add_argument("--out", required=True)
+    args = parser.parse_args()
+    print(plot(json.load(open(args.results)), args.out))
 
 
 if __name__ == "__main__":

@@ -89,13 +89,22 @@ def xy_plot(out, curves, xlabel, ylabel, figsize=(6, 4)):
     return _save(fig, out)
 
 
-def write_report(report, out, curves, xlabel, ylabel, figsize=(6, 4)):
-    """A validation report as JSON at ``out`` and, when matplotlib is present, its figure beside it."""
+def draw_figures(out, figures):
+    """The PNGs of a validation report at ``out`` (OUT.json -> OUT{suffix}.png), from its ``figures(report)``:
+    a list of (suffix, curves, xlabel, ylabel, figsize). Returns the paths."""
+    out = Path(out)
+    return [xy_plot(out.with_name(out.stem + suffix + ".png"), curves, xlabel, ylabel, figsize)
+            for suffix, curves, xlabel, ylabel, figsize in figures]
+
+
+def write_report(report, out, figures):
+    """A validation report as JSON at ``out`` and, when matplotlib is present, its figures beside it (the
+    JSON alone regenerates them: ``python tools/plot_results.py OUT.json``)."""
     import json
 
     Path(out).write_text(json.dumps(report, indent=2) + "\n")
     try:
-        xy_plot(Path(out).with_suffix(".png"), curves, xlabel, ylabel, figsize)
+        draw_figures(out, figures)
     except SceneError:  # no matplotlib: the JSON is the result
         pass
 

@@ -91,6 +91,14 @@ def compare(T, Z, reference=MARTIN_MOYCE):
     }
 
 
+def figures(report):
+    """The report's figure, from the report alone: the front Z/a against T, raw and time-shifted, and the
+    experiment."""
+    T, Z, shift = np.asarray(report["T"]), np.asarray(report["Z_over_a"]), report["time_shift_T"]
+    return [("", [(T, Z, "-", f"warpsph ({report['particles']} particles)"), (T - shift, Z, "--", f"shifted by {shift:+.2f}"),
+                  (MARTIN_MOYCE[:, 0], MARTIN_MOYCE[:, 1], "ko", "Martin & Moyce 1952")], "T = t sqrt(2g/a)", "Z / a", (6, 4))]
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--resolution", type=int, default=10, help="particles across the column width a")
@@ -111,10 +119,7 @@ def main(argv=None):
     if args.out:
         from warpsph.plots import write_report
 
-        write_report(result, args.out, [(T, Z, "-", f"warpsph ({sim.num_fluid} particles)"),
-                                        (T - result["time_shift_T"], Z, "--", f"shifted by {result['time_shift_T']:+.2f}"),
-                                        (MARTIN_MOYCE[:, 0], MARTIN_MOYCE[:, 1], "ko", "Martin & Moyce 1952")],
-                     "T = t sqrt(2g/a)", "Z / a")
+        write_report(result, args.out, figures(result))
 
 if __name__ == "__main__":
     main()

@@ -71,6 +71,13 @@ def hydrostatic(radius=0.02, T=T_END, device="cpu", ramp=0.2, models=(), overrid
     }
 
 
+def figures(report):
+    """The report's figure, from the report alone: the probe's pressure against rho g (H - y)."""
+    return [("", [(report["probe_pressure"], report["probe_y"], "o", "warpsph"),
+                  (report["probe_pressure_exact"], report["probe_y"], "k-", "rho g (H - y)")],
+             "pressure [Pa]", "y [m]", (4, 5))]
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--radius", type=float, default=0.02)
@@ -89,9 +96,7 @@ def main(argv=None):
     if args.out:
         from warpsph.plots import write_report
 
-        write_report(result, args.out, [(result["probe_pressure"], result["probe_y"], "o", "warpsph"),
-                                        (result["probe_pressure_exact"], result["probe_y"], "k-", "rho g (H - y)")],
-                     "pressure [Pa]", "y [m]", figsize=(4, 5))
+        write_report(result, args.out, figures(result))
 
 if __name__ == "__main__":
     main()

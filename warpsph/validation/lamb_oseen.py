@@ -238,6 +238,21 @@ def summary(rows, nu):
             "ke_ratio_end": last["ke_ratio"], "centre_offset_end": last["centre_offset"]}
 
 
+def figures(report):
+    """The report's figures, from the report alone: u_theta(r) at T per method against the analytic profile
+    (and the initial one), and the peak vorticity over time (suffix ``_vorticity``)."""
+    T, gamma, nu, t0 = report["T"], report["gamma"], report["nu"], report["t0"]
+    runs = [(name, res["frames"]) for name, res in report["methods"].items() if "frames" in res]
+    r = np.linspace(1e-3, 0.35 * L, 100)
+    profile = [(report["r_bins"], frames[-1]["u_theta"], "-", name) for name, frames in runs]
+    profile += [(r, analytic_u_theta(r, T, gamma, nu, t0), "k--", f"analytic t = {T:g} s"),
+                (r, analytic_u_theta(r, 0.0, gamma, nu, t0), "k:", "initial")]
+    t = np.linspace(0, T, 50)
+    peak = [([f["time"] for f in frames], [f["omega_fit"] for f in frames], "-o", name) for name, frames in runs]
+    peak.append((t, analytic_peak_vorticity(t, gamma, nu, t0), "k--", "analytic"))
+    return [("", profile, "r [m]", "u_theta [m/s]", (6, 4)), ("_vorticity", peak, "t [s]", "peak vorticity [1/s]", (6, 4))]
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--resolution", type=int, default=24, help="particles across L = 1 m")
@@ -276,23 +291,9 @@ def main(argv=None):
               f"r_peak {s['r_peak_end']:.3f} (exact {s['r_peak_exact_end']:.3f}), KE {s['ke_ratio_end']:.3f}, "
               f"nu_eff {s['nu_effective']:.4f}")
     if args.out:
-        from warpsph.plots import write_report, xy_plot
+        from warpsph.plots import write_report
 
-        r_bins = report.get("r_bins", p.get("r_bins", []))
-        curves = [(r_bins, res["frames"][-1]["u_theta"], "-", name)
-                  for name, res in report["methods"].items() if "frames" in res]
-        r = np.linspace(1e-3, 0.35 * L, 100)
-        curves.append((r, analytic_u_theta(r, args.T, p["gamma"], p["nu"], p["t0"]), "k--", f"analytic t = {args.T:g} s"))
-        curves.append((r, analytic_u_theta(r, 0.0, p["gamma"], p["nu"], p["t0"]), "k:", "initial"))
-        write_report(report, args.out, curves, "r [m]", "u_theta [m/s]")
-        t = np.linspace(0, args.T, 50)
-        curves = [([f["time"] for f in res["frames"]], [f["omega_fit"] for f in res["frames"]], "-o", name)
-                  for name, res in report["methods"].items() if "frames" in res]
-        curves.append((t, analytic_peak_vorticity(t, p["gamma"], p["nu"], p["t0"]), "k--", "analytic"))
-        try:
-            xy_plot(Path(args.out).with_name(Path(args.out).stem + "_vorticity.png"), curves, "t [s]", "peak vorticity [1/s]")
-        except Exception as exc:  # no matplotlib: the JSON is the result
-            print(f"no vorticity plot: {exc}")
+        write_report(report, args.out, figures(report))
 
 
 if __name__ == "__main__":

@@ -90,6 +90,15 @@ def taylor_green(models, resolution=20, nu=0.01, T=0.5, device="cpu", frames=10,
     return rows, sim
 
 
+def figures(report):
+    """The report's figure, from the report alone: KE(t)/KE(0) per method against the analytic decay."""
+    curves = [([r["time"] for r in res["frames"]], [r["ke_ratio"] for r in res["frames"]], "-", name)
+              for name, res in report["methods"].items() if "frames" in res]
+    t = np.linspace(0, report["T"], 50)
+    curves.append((t, np.exp(-16 * np.pi**2 * report["nu"] * t), "k--", "analytic"))
+    return [("", curves, "t [s]", "KE / KE(0)", (6, 4))]
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--resolution", type=int, default=20, help="particles across L")
@@ -128,11 +137,7 @@ def main(argv=None):
     if args.out:
         from warpsph.plots import write_report
 
-        curves = [([r["time"] for r in res["frames"]], [r["ke_ratio"] for r in res["frames"]], "-", name)
-                  for name, res in report["methods"].items() if "frames" in res]
-        t = np.linspace(0, args.T, 50)
-        curves.append((t, np.exp(-16 * np.pi**2 * args.nu * t), "k--", "analytic"))
-        write_report(report, args.out, curves, "t [s]", "KE / KE(0)")
+        write_report(report, args.out, figures(report))
 
 if __name__ == "__main__":
     main()
