@@ -78,9 +78,8 @@ def apply_pressure_acceleration(
 # 4096 left most of an H100 idle (0.09 ms for 1M values, five times a step).
 REDUCE_THREADS = wp.constant(16384)
 
-# Free-surface particles and their neighbours (``surface`` flag != 0) keep p >= 0; the bulk is signed
-# and its Jacobi step relaxed by this factor (the signed solve diverged at 0.6 and above on Taylor-Green,
-# docs/notes/solver.md).
+# Where the pressure is signed (not :func:`clamped`) the Jacobi step is relaxed by this factor (the signed
+# solve diverged at 0.6 and above on Taylor-Green, docs/notes/solver.md).
 BULK_RELAXATION = wp.constant(0.5)
 
 
@@ -104,8 +103,8 @@ def pressure_source(s: float, is_clamped: bool):
 
 @wp.func
 def relaxed_stiffness(source: float, is_clamped: bool, factor: float, scale: float):
-    """Jacobi step k_i = omega s_i factor_i / scale (omega 1 at the free surface, BULK_RELAXATION in the
-    bulk; scale dt^2 for the density solver, dt for the divergence solver)."""
+    """Jacobi step k_i = omega s_i factor_i / scale (omega 1 where the pressure is clamped, BULK_RELAXATION
+    where it is signed; scale dt^2 for the density solver, dt for the divergence solver)."""
     omega = BULK_RELAXATION
     if is_clamped:
         omega = 1.0

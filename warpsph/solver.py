@@ -7,12 +7,12 @@ is made on the device (:func:`update_solver_status`) and the loop is a
 ``wp.capture_while``: on CUDA inside a captured graph no iteration waits on the host.
 
 One solver serves free-surface and confined flow. Each step the free surface is detected per
-particle (:func:`classify_free_surface`, from the divergence of position of the density pass):
-the surface and the band within one support radius of it keep p >= 0 as in SPlisHSPlasH, the bulk
-has signed pressure (relaxed Jacobi), so a vortex keeps its low-pressure core. A box without
-free surface (periodic or walled all round) removes the mean of its source. Particle shifting
-(:func:`compute_shift`, Lind et al. 2012) after the position update keeps the bulk from pairing up
-under negative pressure; at the surface it is tangential or off, so surfaces stay sharp.
+particle (:func:`classify_free_surface`, from the divergence of position and the density of the
+density pass). A scene with free-surface particles keeps p >= 0 everywhere, as SPlisHSPlasH does
+(:func:`clamped` says why). A box without free surface (periodic or walled all round) has signed
+pressure (relaxed Jacobi), so a vortex keeps its low-pressure core, and the mean of its source is
+removed. Particle shifting (:func:`compute_shift`, Lind et al. 2012) there keeps the particles from
+pairing up under negative pressure; beside walls it is tangential.
 """
 
 from __future__ import annotations
@@ -66,7 +66,7 @@ class DFSPHSolver:
         if self.shifting > 0.0:  # grad C from the density pass; the shift after the solves (the pool is free again)
             self.concentration_gradient = sim.per_particle("pressure", wp.vec3)
             self.shift = sim.scratch(wp.vec3, 0)
-        self.surface = sim.per_particle("pressure", wp.int32)  # BULK / BAND / SURFACE
+        self.surface = sim.per_particle("pressure", wp.int32)  # BULK / BAND / SURFACE / WALL
         self.surface_count = z("pressure", 1, dtype=wp.int32)
         # accumulated stiffness of the last solve of each kind, for the warm start
         self.pressure_sum = [sim.per_particle("pressure"), sim.per_particle("pressure")]
@@ -87,7 +87,8 @@ class DFSPHSolver:
             sim.permute(a, order)
 
     def detect_free_surface(self):
-        """Flags the surface, its band and the bulk from the density pass's divergence of position."""
+        """Flags the surface, its band, the wall-side bulk and the bulk, and counts the surface particles, from
+        the density pass's divergence of position and density."""
         sim = self.sim
         self.surface_count.zero_()
         sim.launch(classify_free_surface, sim.num_fluid,
