@@ -31,7 +31,6 @@ particles, as SPlisHSPlasH prints); denseMode 1 and 2 (staggered lattices) are r
 from __future__ import annotations
 
 import json
-import math
 import os
 import warnings
 from dataclasses import dataclass, field
@@ -664,7 +663,7 @@ class _Reader:
             out.append(emitter)
         # maxEmitterParticles: SPlisHSPlasH stops emitting when the material's count is reached
         events.sort()
-        emitted, layers = 0, [0] * len(out)
+        emitted = 0
         for t, i, count in events:
             if emitted + count > cap:
                 if emitted < cap:

@@ -49,7 +49,6 @@ spacings at t = 0.15 s), then collapses again, and the kinetic energy drops fast
 """
 
 import argparse
-from pathlib import Path
 
 import numpy as np
 

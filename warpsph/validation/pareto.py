@@ -53,8 +53,6 @@ import sys
 import time
 from pathlib import Path
 
-import numpy as np
-
 from warpsph.validation.lamb_oseen import CORE_RADIUS as LAMB_OSEEN_CORE_RADIUS
 
 # name -> (label, scene "models" list)
