@@ -346,16 +346,13 @@ class BackgroundMesher:
                 "smoothing": float(options.smoothing), "iso": float(options.threshold), "note": text}
 
 
-def mesher_for(options, radius, device="cpu"):
+def mesher_for(options, radius):
     """The ``mesh(arrays)`` function of a run, called on the background mesher's thread: splashsurf, or the
     preview on the CPU. Not on a CUDA device: Warp's current stream belongs to the device, not to the thread,
     so a preview on a stream of its own changed the stream the simulation captures its step on. On the H100
     the 1M dam break stopped with "Warp error: unknown stream" at the next graph capture. ``warpsph surface
     --method preview --device cuda`` meshes a finished cache on the GPU."""
-    if options.method == "preview":
-        return lambda arrays: reconstruct_preview(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"),
-                                                  options, "cpu")
-    return lambda arrays: reconstruct(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options)
+    return lambda arrays: mesh_frame(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options, "cpu")
 
 
 def mesh_frame(points, radius, velocities=None, vorticity=None, options=SurfaceOptions(), device="cpu"):
