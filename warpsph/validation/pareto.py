@@ -53,6 +53,7 @@ import sys
 import time
 from pathlib import Path
 
+from warpsph.validation.cases import timed_run
 from warpsph.validation.lamb_oseen import CORE_RADIUS as LAMB_OSEEN_CORE_RADIUS
 
 # name -> (label, scene "models" list)
@@ -105,30 +106,6 @@ def mark_pareto(points):
 
 
 # --- timing -----------------------------------------------------------------------------------------
-
-def timed_run(sim, run, on_frame=None):
-    """Calls ``run(callback)`` (which must run ``sim`` and call ``callback(sim, frame)`` per frame) with the
-    device synchronised around it; ``on_frame``'s time (synchronised at its start and end) is subtracted.
-    Returns (wall seconds of the run alone, seconds spent in on_frame)."""
-    import warp as wp
-
-    device = sim.device
-    spent = [0.0]
-
-    def callback(s, frame):
-        wp.synchronize_device(device)  # the run's own work ends here
-        start = time.perf_counter()
-        if on_frame is not None:
-            on_frame(s, frame)
-        wp.synchronize_device(device)
-        spent[0] += time.perf_counter() - start
-
-    wp.synchronize_device(device)
-    start = time.perf_counter()
-    run(callback)
-    wp.synchronize_device(device)
-    return time.perf_counter() - start - spent[0], spent[0]
-
 
 def warm_up(models, device, case="lamb-oseen"):
     """Loads (compiles) every kernel module a method uses, outside the timed runs: a tiny vortex, a few
