@@ -25,8 +25,8 @@ def test_git_commit_without_the_variable(monkeypatch):
 
 def test_tools_record_the_commit_through_commit_info():
     """No tool asks git itself: each records warpsph's commit_info (so WARPSPH_COMMIT reaches every report)."""
-    sources = [ROOT / "tools" / f"{name}.py" for name in ("bench_job", "bench_dam_break", "profile_kernels", "probe_floor")]
-    sources.append(ROOT / "warpsph" / "validation" / "pareto.py")  # tools/pareto.py is its thin wrapper
+    sources = [ROOT / "tools" / f"{name}.py" for name in ("profile_kernels", "probe_floor")]
+    sources += [ROOT / "warpsph" / "validation" / f"{name}.py" for name in ("bench_job", "bench", "pareto")]
     for source in sources:
         name, text = source.stem, source.read_text()
         assert "rev-parse" not in text, name

@@ -17,8 +17,7 @@ from pathlib import Path
 
 import warp as wp
 
-from bench_dam_break import make_scene
-
+from warpsph.validation.bench import make_scene
 from warpsph.validation.cases import commit_info
 
 

@@ -1,9 +1,9 @@
 """Cost against accuracy (issue #5): wall time per simulated second against the error, per method,
 resolution and solver tolerance, and the Pareto front of those points.
 
-    python tools/pareto.py --device cpu --resolutions 24 36 --tolerances 0.05 0.01 --out tools/results/pareto_cpu.json
-    python tools/pareto.py --device cuda --resolutions 96 192 384 --tolerances 0.05 0.01 --out tools/results/pareto_h100.json
-    python tools/pareto.py --plot-only RESULTS.json [--out tools/results/pareto_h100.json]   # PNG (and table) here
+    warpsph pareto --device cpu --resolutions 24 36 --tolerances 0.05 0.01 --out tools/results/pareto_cpu.json
+    warpsph pareto --device cuda --resolutions 96 192 384 --tolerances 0.05 0.01 --out tools/results/pareto_h100.json
+    warpsph pareto --plot-only RESULTS.json [--out tools/results/pareto_h100.json]   # PNG (and table) here
 
 The question it answers: for a given error budget, which method and resolution is cheapest?
 
@@ -53,7 +53,8 @@ import sys
 import time
 from pathlib import Path
 
-from warpsph.validation.cases import timed_run
+from warpsph.errors import SceneError
+from warpsph.validation.cases import MIN_RESOLUTION, timed_run
 from warpsph.validation.lamb_oseen import CORE_RADIUS as LAMB_OSEEN_CORE_RADIUS
 
 # name -> (label, scene "models" list)
@@ -535,9 +536,9 @@ def merge(reports):
     return merged
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--device", default="cpu")
+def add_arguments(parser):
+    """The study's options (``warpsph pareto`` and ``main``)."""
+    parser.add_argument("--device", default="cpu", help="cpu (default), cuda or cuda:N")
     parser.add_argument("--resolutions", type=int, nargs="+", default=[24, 36],
                         help="particles across L = 1 m (fluid particles: resolution^2 x depth)")
     parser.add_argument("--tolerances", type=float, nargs="+", default=[0.05, 0.01],
@@ -563,12 +564,51 @@ def main(argv=None):
     parser.add_argument("--plot-only", metavar="RESULTS", nargs="+",
                         help="draw the PNG (and table) of JSON made elsewhere; with --out, write JSON, table and PNG "
                              "there; several files (same set-up and device, e.g. one per tolerance) are merged")
-    parser.add_argument("--no-plot", action="store_true")
+    parser.add_argument("--no-plot", action="store_true", help="no PNG")
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(parser)
     args = parser.parse_args(argv)
+    try:
+        return command(args)
+    except SceneError as exc:
+        parser.error(str(exc))
+
+
+def check_arguments(args):
+    """SceneError naming the option for a value the study cannot run with."""
+    if args.plot_only:
+        if len(args.plot_only) > 1 and not args.out:
+            raise SceneError("", "--out", "merging several --plot-only files needs --out")
+        for f in args.plot_only:
+            if not Path(f).is_file():
+                raise SceneError(f, "--plot-only", "no such file")
+    elif not args.out:
+        raise SceneError("", "--out", "required (or --plot-only)")
+    if args.out and (not str(args.out) or Path(args.out).is_dir()):
+        raise SceneError(args.out, "--out", "is a directory; --out names the JSON file to write")
+    if len(args.dam_front) > len(args.resolutions):
+        raise SceneError("", "--dam-front", "give at most one --dam-front resolution per --resolutions entry")
+    for option, values in (("--resolutions", args.resolutions), ("--dam-front", args.dam_front)):
+        if any(n < MIN_RESOLUTION for n in values):
+            raise SceneError("", option, f"expected integers >= {MIN_RESOLUTION}, got {' '.join(map(str, values))}")
+    for option, values in (("--tolerances", args.tolerances), ("--nu", [args.nu]), ("--core-radius", [args.core_radius]),
+                           ("--T", [] if args.T is None else [args.T]), ("--dam-T-end", [args.dam_T_end])):
+        if any(not v > 0 for v in values):
+            raise SceneError("", option, f"expected values > 0, got {' '.join(f'{v:g}' for v in values)}")
+    for option, value, low in (("--depth", args.depth, 1), ("--frames", args.frames, 1),
+                               ("--pack-steps", 0 if args.pack_steps is None else args.pack_steps, 0)):
+        if value < low:
+            raise SceneError("", option, f"expected an integer >= {low}, got {value}")
+
+
+def command(args):
+    """Runs the study (or, with ``--plot-only``, draws a finished one) for the parsed options."""
+    check_arguments(args)
     if args.plot_only:
         report = merge([json.loads(Path(f).read_text()) for f in args.plot_only])
-        if len(args.plot_only) > 1 and not args.out:
-            parser.error("merging several files needs --out")
         out = Path(args.out or args.plot_only[0])
         if args.out:
             write(report, out)
@@ -577,10 +617,6 @@ def main(argv=None):
         png = plot(report, out.with_suffix(".png"))
         print(f"wrote {png}" + (f", {out}, {out.with_suffix('.md')}" if args.out else ""))
         return 0
-    if not args.out:
-        parser.error("--out is required (or --plot-only)")
-    if len(args.dam_front) > len(args.resolutions):
-        parser.error("give at most one --dam-front resolution per --resolutions entry")
     report = study(args.methods, args.resolutions, args.tolerances, args.device, args.out, args.core_radius, args.nu,
                    args.T, args.u_peak, args.depth, args.frames, args.dam_front, args.dam_T_end, png=not args.no_plot,
                    on_instability=args.on_instability, case=args.case, pack_steps=args.pack_steps)

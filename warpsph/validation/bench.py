@@ -1,11 +1,12 @@
 """Benchmark: a scene (default the dam break) at ~N fluid particles, ms per step in total and per stage.
 
-    python tools/bench_dam_break.py --device cuda --particles 1e6 --out tools/results/bench_dam_break_h100.json
-    python tools/bench_dam_break.py --device cuda --particles 125e3 1e6 4e6 --out tools/results/scaling_h100.json
-    python tools/bench_dam_break.py --scene scenes/propeller.json --particles 1.29e6 --warmup 200 ...
+    warpsph bench steps --device cuda --particles 1e6 --out tools/results/bench_dam_break_h100.json
+    warpsph bench steps --device cuda --particles 125e3 1e6 4e6 --out tools/results/scaling_h100.json
+    warpsph bench steps --scene scenes/propeller.json --particles 1.29e6 --warmup 200 ...
 
 With several ``--particles`` the JSON holds one result per size and a markdown table (step time,
-stages in %, iterations, neighbour passes k, bytes per particle, steps/s) is written beside it.
+stages in %, iterations, neighbour passes k, bytes per particle, steps/s) is written beside it;
+``warpsph plot results OUT.json`` draws the step time against the particle count.
 
 Runs ``--warmup`` steps, then ``--steps`` steps with a synchronised per-stage timer
 (stage times), then ``--steps`` steps as the production stepper runs them (CUDA graph
@@ -24,27 +25,68 @@ import json
 import time
 from pathlib import Path
 
-import warp as wp
-
+from warpsph.errors import SceneError
 from warpsph.validation.cases import commit_info
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
+DEFAULT_SCENE = ROOT / "scenes" / "dam_break.json"
+MODELS = ["none", "vorticity_refinement", "rankine", "micropolar", "all"]
 
 
-def main():
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--scene", default=str(ROOT / "scenes" / "dam_break.json"))
-    parser.add_argument("--device", default="cuda")
+def add_arguments(parser):
+    """The benchmark's options (``warpsph bench steps`` and ``main``)."""
+    parser.add_argument("--scene", default=str(DEFAULT_SCENE), help="scene file (default the dam break)")
+    parser.add_argument("--device", default="cuda", help="cpu, cuda or cuda:N (default cuda)")
     parser.add_argument("--particles", type=float, nargs="+", default=[1e6], help="target fluid particle count(s)")
-    parser.add_argument("--warmup", type=int, default=100)
-    parser.add_argument("--steps", type=int, default=50)
-    parser.add_argument("--density-error", type=float, help="override solver.density_max_error [%]")
-    parser.add_argument("--model", choices=["none", "vorticity_refinement", "rankine", "micropolar", "all"], default="none",
+    parser.add_argument("--warmup", type=int, default=100, help="steps before the timed ones (default 100)")
+    parser.add_argument("--steps", type=int, default=50, help="timed steps, per timer (default 50)")
+    parser.add_argument("--density-error", type=float, help="override solver.density_max_error [%%]")
+    parser.add_argument("--model", choices=MODELS, default="none",
                         help="turbulence model to enable with its default parameters (all: the three at once)")
     parser.add_argument("--sort-interval", type=int, help="override solver.sort_interval (0: never re-sort)")
     parser.add_argument("--out", help="JSON file to write")
-    args = parser.parse_args()
 
+
+def check_scene(scene):
+    if not Path(scene).is_file():
+        raise SceneError(scene, "--scene", "no such scene file")
+
+
+def check_out(out):
+    if out is not None and (not str(out) or Path(out).is_dir()):
+        raise SceneError(out, "--out", "is a directory; --out names the file to write")
+
+
+def check_arguments(args):
+    """SceneError naming the option for a value the benchmark cannot run with."""
+    check_scene(args.scene)
+    check_out(args.out)
+    for option, value, low in (("--warmup", args.warmup, 0), ("--steps", args.steps, 1)):
+        if value < low:
+            raise SceneError("", option, f"expected an integer >= {low}, got {value}")
+    if any(not p > 0 for p in args.particles):
+        raise SceneError("", "--particles", "expected particle counts > 0")
+    if args.density_error is not None and not args.density_error > 0:
+        raise SceneError("", "--density-error", f"expected a percentage > 0, got {args.density_error}")
+    if args.sort_interval is not None and args.sort_interval < 0:
+        raise SceneError("", "--sort-interval", f"expected an integer >= 0, got {args.sort_interval}")
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return command(args)
+    except SceneError as exc:
+        parser.error(str(exc))
+
+
+def command(args):
+    """Runs the benchmark for the parsed options; prints each size's result, writes ``--out``."""
+    import warp as wp
+
+    check_arguments(args)
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
     load_modules(args, wp.get_device(args.device))
@@ -57,6 +99,7 @@ def main():
         Path(args.out).write_text(json.dumps(results[0] if len(results) == 1 else results, indent=2) + "\n")
         if len(results) > 1:
             Path(args.out).with_suffix(".md").write_text(markdown_table(results))
+    return 0
 
 
 def neighbour_passes(result, models):
@@ -120,6 +163,8 @@ def make_scene(args, particles):
 def load_modules(args, device):
     """A few steps of the same scene at ~2K particles, once before the sizes, so that loading the
     kernels' modules (code, kernel stacks) is not counted as a large run's memory."""
+    import warp as wp
+
     from warpsph.simulation import Simulation
 
     small = Simulation(make_scene(args, 2e3), device=device)
@@ -130,6 +175,9 @@ def load_modules(args, device):
 
 
 def run(args, particles):
+    """One size: the result dict (the JSON of a single ``--particles``)."""
+    import warp as wp
+
     from warpsph.simulation import Simulation
 
     scene = make_scene(args, particles)
@@ -201,6 +249,27 @@ def run(args, particles):
     result["k_passes"] = neighbour_passes(result, names)
     del sim
     return result
+
+
+def scaling_plot(runs, out):
+    """Step time against particle count of a multi-size result (a list, one per size) as the PNG ``out``."""
+    from warpsph.plots import _pyplot
+
+    n = [r["fluid_particles"] for r in runs]
+    ms = [r["ms_per_step"] for r in runs]
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(5, 4))
+    ax.loglog(n, ms, "o-", label="ms per step")
+    if len(n) > 1:
+        ax.loglog(n, [ms[1] * k / n[1] for k in n], "--", color="gray", label="linear through 1M")
+    ax.set_xlabel("fluid particles")
+    ax.set_ylabel("ms per step")
+    ax.set_title(f"{runs[0]['scene']} on {runs[0]['device']}")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out, dpi=120)
+    plt.close(fig)
+    return out
 
 
 if __name__ == "__main__":

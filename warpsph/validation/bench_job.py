@@ -1,7 +1,7 @@
 """Benchmark of the whole job (#24): `warpsph run` with its USD output against the solver alone.
 
-    python tools/bench_job.py --device cuda --particles 1e6 --frames 25 --out tools/results/bench_job_h100.json
-    python tools/bench_job.py --device cpu --particles 2e4 --frames 5          # a CPU-sized check
+    warpsph bench job --device cuda --particles 1e6 --frames 25 --out tools/results/bench_job_h100.json
+    warpsph bench job --device cpu --particles 2e4 --frames 5          # a CPU-sized check
 
 For a scene (default the dam break) scaled to ~N fluid particles it measures
 
@@ -19,26 +19,30 @@ tree is a copy whose .git is absent or stale). Goal of #24: loop wall <= 1.2 x s
 alone, time to first step <= 2 s with a warm kernel cache, at 1M particles on an H100. The start-up of a
 first run on a fresh copy of the tree also compiles the Python bytecode of warpsph and of wheels installed
 with --no-compile (``bytecode_cached`` in the JSON says whether it was there): measure it on a second run,
-or after ``python -m compileall -q warpsph kernels SITE-PACKAGES``.
+or after ``python -m compileall -q warpsph kernels SITE-PACKAGES``. The clock of the time to the first step
+starts at the first line of ``python tools/bench_job.py``; through ``warpsph bench job`` it starts when the
+command line is parsed (``import warpsph`` before that is not counted).
 """
 
 from __future__ import annotations
 
 import time
 
-T0 = time.perf_counter()  # before the imports: the time to the first step counts them
+T0 = time.perf_counter()  # before the imports: the time to the first step counts them (main's t0 overrides it)
 
 import argparse  # noqa: E402
 import contextlib  # noqa: E402
 import functools  # noqa: E402
 import gc  # noqa: E402
 import json  # noqa: E402
+import re  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 from collections import defaultdict  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-ROOT = Path(__file__).resolve().parent.parent
+from warpsph.errors import SceneError  # noqa: E402
+from warpsph.validation.bench import DEFAULT_SCENE, check_out, check_scene  # noqa: E402
 
 
 class Stages:
@@ -90,15 +94,19 @@ def bytecode_cached(packages):
     return out
 
 
-def startup(args):
-    """The time to the first step, by stage (functions wrapped from the outside: no source edits);
-    returns the result and the --scale that gives ~args.particles."""
+def startup(args, t0=None):
+    """The time to the first step (from ``t0``, default this module's import), by stage (functions wrapped from
+    the outside: no source edits); returns the result and the --scale that gives ~args.particles."""
+    t0 = T0 if t0 is None else t0
     bytecode = bytecode_cached((("warp", "_src/context.py"), ("warpsph", "simulation.py"), ("pxr", "__init__.py")))
     t_import = time.perf_counter()
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
+    if args.device.startswith("cuda") and not wp.is_cuda_available():
+        raise SceneError("", "--device", f"'{args.device}' was asked for but this machine has no CUDA device; "
+                                         "use --device cpu")
     t_init = time.perf_counter()
     from warpsph import sampling, simulation
     from warpsph.neighbours import NeighbourSearch
@@ -145,8 +153,8 @@ def startup(args):
     t_first = time.perf_counter()
     result = {
         "particles": sim.num_fluid, "boundary": sim.num_boundary,
-        "time_to_first_step_s": t_first - T0, "bytecode_cached": bytecode,
-        "stages_s": {"python start and imports before warp": t_import - T0, "import warp + wp.init": t_init - t_import,
+        "time_to_first_step_s": t_first - t0, "bytecode_cached": bytecode,
+        "stages_s": {"python start and imports before warp": t_import - t0, "import warp + wp.init": t_init - t_import,
                      "import warpsph": t_warpsph - t_init, "load_scene": t_scene - t_warpsph,
                      "Simulation() in all": t_sim - start, **dict(stages.seconds)},
     }
@@ -196,10 +204,10 @@ def job(args, scale, mode, folder):
             "fields": r["fields"]}
 
 
-def main():
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--scene", default=str(ROOT / "scenes" / "dam_break.json"))
-    parser.add_argument("--device", default="cuda")
+def add_arguments(parser):
+    """The benchmark's options (``warpsph bench job`` and ``main``)."""
+    parser.add_argument("--scene", default=str(DEFAULT_SCENE), help="scene file (default the dam break)")
+    parser.add_argument("--device", default="cuda", help="cpu, cuda or cuda:N (default cuda)")
     parser.add_argument("--particles", type=float, default=1e6, help="target fluid particle count")
     parser.add_argument("--frames", type=int, default=25, help="output frames (at the scene's fps: 25 = 1 s for the dam break)")
     parser.add_argument("--modes", nargs="+", choices=["background", "sync"], default=["background", "sync"])
@@ -208,11 +216,38 @@ def main():
     parser.add_argument("--startup-only", action="store_true", help="measure the start-up only")
     parser.add_argument("--keep", help="write the caches into this folder (default: a temporary one, removed)")
     parser.add_argument("--out", help="JSON file to write")
-    args = parser.parse_args()
 
+
+def check_arguments(args):
+    """SceneError naming the option for a value the benchmark cannot run with."""
+    check_scene(args.scene)
+    check_out(args.out)
+    if not re.fullmatch(r"cpu|cuda(:\d+)?", args.device):
+        raise SceneError("", "--device", f"expected cpu, cuda or cuda:N, got '{args.device}'")
+    if not args.particles > 0:
+        raise SceneError("", "--particles", f"expected a particle count > 0, got {args.particles:g}")
+    if args.frames < 1:
+        raise SceneError("", "--frames", f"expected an integer >= 1, got {args.frames}")
+    if args.keep and Path(args.keep).exists() and not Path(args.keep).is_dir():
+        raise SceneError(args.keep, "--keep", "is a file; --keep names a folder")
+
+
+def main(argv=None, t0=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return command(args, t0)
+    except SceneError as exc:
+        parser.error(str(exc))
+
+
+def command(args, t0=None):
+    """Runs the benchmark for the parsed options (``t0``: the clock start of the time to the first step)."""
+    check_arguments(args)
     result = {"scene": args.scene, "device": args.device, "target_particles": args.particles, "frames": args.frames,
               "argv": sys.argv[1:]}
-    result["startup"], scale = startup(args)
+    result["startup"], scale = startup(args, t0)
     import warp as wp
 
     from warpsph.validation.cases import commit_info  # after the start-up: its imports and git are not timed
@@ -235,6 +270,7 @@ def main():
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(json.dumps(result, indent=2) + "\n")
         print(f"wrote {args.out}")
+    return 0
 
 
 if __name__ == "__main__":

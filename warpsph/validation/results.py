@@ -1,7 +1,7 @@
 """Regenerates the figures of result files from their JSON (the PNGs are not kept in the repository).
 
-    python tools/plot_results.py tools/results/*.json            # each OUT.json -> OUT*.png beside it
-    python tools/plot_results.py --out-dir /tmp/figs tools/results/stress_h100_dam_break.json
+    warpsph plot results tools/results/*.json            # each OUT.json -> OUT*.png beside it
+    warpsph plot results --out-dir /tmp/figs tools/results/stress_h100_dam_break.json
 
 Knows the validation reports (Taylor-Green, Lamb-Oseen, hydrostatic, Martin & Moyce dam front: their
 ``figures(report)``), the Pareto studies, the stress matrices and the multi-size benchmarks; other JSON files
@@ -13,7 +13,7 @@ import json
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # the sibling tools (stress, plot_scaling)
+from warpsph.errors import SceneError
 
 
 def figures_of(report):
@@ -32,24 +32,34 @@ def figures_of(report):
     return None
 
 
+def read_report(path):
+    """The JSON of a result file; SceneError for a missing or unreadable one."""
+    try:
+        return json.loads(Path(path).read_text())
+    except FileNotFoundError:
+        raise SceneError(path, "", "no such result file") from None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise SceneError(path, "", f"not a JSON result file ({exc})") from None
+
+
 def plot(path, out_dir=None):
     """The PNGs of one result file; returns their paths ([] when the kind is unknown)."""
     path = Path(path)
-    report = json.loads(path.read_text())
+    report = read_report(path)
     out = (Path(out_dir) / path.name) if out_dir else path
     png = out.with_suffix(".png")
     if isinstance(report, list) and report and "ms_per_step" in report[0]:
-        import plot_scaling
+        from warpsph.validation.bench import scaling_plot
 
-        return [plot_scaling.plot(report, png)]
+        return [scaling_plot(report, png)]
     if isinstance(report, dict) and "points" in report:
         from warpsph.validation.pareto import plot as pareto_plot
 
         return [pareto_plot(report, png)]
     if isinstance(report, dict) and "cells" in report and "axes" in report:
-        import stress
+        from warpsph.validation.stress import heat_map
 
-        stress.heat_map(report, png)
+        heat_map(report, png)
         return [png]
     figures = figures_of(report)
     if figures is None:
@@ -59,15 +69,32 @@ def plot(path, out_dir=None):
     return draw_figures(out, figures(report))
 
 
-def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("results", nargs="+", help="result JSON files")
+def add_arguments(parser):
+    """The command's options (``warpsph plot results`` and ``main``)."""
+    parser.add_argument("results", nargs="+", metavar="RESULT.json", help="result JSON files")
     parser.add_argument("--out-dir", help="write the PNGs here instead of beside the JSON")
-    args = parser.parse_args(argv)
+
+
+def command(args):
+    """Draws every file's figures; prints a line per file."""
+    if args.out_dir:
+        if Path(args.out_dir).exists() and not Path(args.out_dir).is_dir():
+            raise SceneError(args.out_dir, "--out-dir", "is a file; --out-dir names a folder")
+        Path(args.out_dir).mkdir(parents=True, exist_ok=True)
     for path in args.results:
         pngs = plot(path, args.out_dir)
         print(f"{path}: " + (", ".join(str(p) for p in pngs) if pngs else "no figure for this kind of file"))
     return 0
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return command(args)
+    except SceneError as exc:
+        parser.error(str(exc))
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """Numerical-stability stress matrix: one scene, one parameter changed per cell, does it blow up?
 
-    python tools/stress.py --scale 0.05 --seconds 4 --out tools/results/stress_cpu_dam_break
-    python tools/stress.py --axes alpha cfl --scale 0.05 --seconds 1.0 --out /tmp/stress   # a tiny run
+    warpsph stress --scale 0.05 --seconds 4 --out tools/results/stress_cpu_dam_break
+    warpsph stress --axes alpha cfl --scale 0.05 --seconds 1.0 --out /tmp/stress   # a tiny run
 
 Every cell is the scene as plain DFSPH (the scene's own models removed) with one change:
 
@@ -22,7 +22,8 @@ the end relative to the plain cell's: the VR paper's Fig 7 criterion (a dam brea
 not keep, or add, energy the plain solver lets go). Also the mean kinetic energy over the last quarter
 of the run (less sensitive to the phase of a slosh).
 
-Writes OUT.json, OUT.md (a table) and OUT.png (heat map; needs matplotlib).
+Writes OUT.json, OUT.md (a table) and OUT.png (heat map; needs matplotlib; ``warpsph plot results OUT.json``
+draws it again).
 """
 
 import argparse
@@ -33,6 +34,8 @@ from pathlib import Path
 
 import numpy as np
 
+from warpsph.errors import SceneError
+
 AXES = {  # name -> (default values, label)
     "alpha": ([0.0, 1.0, 1.2, 1.3, 2.0], "VR alpha"),
     "beta": ([0.0, 0.6, 1.0], "Rankine beta"),
@@ -42,7 +45,7 @@ AXES = {  # name -> (default values, label)
 }
 MODEL_AXES = {"alpha": ("vorticity_refinement", "alpha"), "beta": ("rankine", "beta"),
               "nu_t": ("micropolar", "transfer_coefficient")}
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 
 
 def cell_scene(base, axis=None, value=None, dt_ref=None):
@@ -257,18 +260,44 @@ def write(report, out):
         print(f"no heat map: {exc}")
 
 
-def main():
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--scene", default=str(REPO / "scenes" / "dam_break.json"))
+def add_arguments(parser):
+    """The matrix's options (``warpsph stress`` and ``main``)."""
+    parser.add_argument("--scene", default=str(REPO / "scenes" / "dam_break.json"), help="scene file (default the dam break)")
     parser.add_argument("--scale", type=float, default=0.05, help="particle-count scale (load_scene)")
     parser.add_argument("--seconds", type=float, default=2.0, help="simulated time per cell [s]")
     parser.add_argument("--axes", nargs="+", choices=list(AXES), default=list(AXES))
     for axis, (defaults, label) in AXES.items():
         parser.add_argument("--" + axis.replace("_", "-"), nargs="+", type=float, dest=axis,
                             help=f"{label} values (default {' '.join(f'{v:g}' for v in defaults)})")
-    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--device", default="cpu", help="cpu (default), cuda or cuda:N")
     parser.add_argument("--out", help="output prefix: OUT.json, OUT.md, OUT.png")
-    args = parser.parse_args()
+
+
+def check_arguments(args):
+    """SceneError naming the option for a value the matrix cannot run with."""
+    if not Path(args.scene).is_file():
+        raise SceneError(args.scene, "--scene", "no such scene file")
+    for option, value in (("--scale", args.scale), ("--seconds", args.seconds)):
+        if not value > 0:
+            raise SceneError("", option, f"expected a number > 0, got {value:g}")
+    for axis in ("cfl", "fixed_dt"):
+        if any(not v > 0 for v in getattr(args, axis) or ()):
+            raise SceneError("", "--" + axis.replace("_", "-"), "expected values > 0")
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return command(args)
+    except SceneError as exc:
+        parser.error(str(exc))
+
+
+def command(args):
+    """Runs the matrix for the parsed options; prints the table, writes ``--out``."""
+    check_arguments(args)
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING
@@ -278,6 +307,7 @@ def main():
     print(markdown(report))
     if args.out:
         write(report, args.out)
+    return 0
 
 
 if __name__ == "__main__":
