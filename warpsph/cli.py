@@ -666,6 +666,16 @@ def sweep_command(args):
     return 0 if table["complete"] else 1
 
 
+def study_command(module, device=True):
+    """The command of a study module (warpsph.validation: bench, bench_job, pareto, stress, results): its
+    ``command(args)`` after ``--device`` is checked (``device`` False: not here; bench job times Warp's start)."""
+    def command(args):
+        if device and not getattr(args, "plot_only", None):
+            args.device = _pick_device(args.device)
+        return module.command(args)
+    return command
+
+
 def build_parser():
     parser = argparse.ArgumentParser(prog="warpsph", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -773,6 +783,24 @@ def build_parser():
     sweep.add_argument("--num-cpus", type=float, default=1.0, help="ray: CPUs per cell (default 1)")
     sweep.add_argument("--max-retries", type=int, default=3, help="ray: retries of a cell lost with its worker (default 3)")
     sweep.set_defaults(func=sweep_command)
+    from .validation import bench, bench_job, pareto, results, stress
+
+    def study(subparsers, name, module, text, device=True):
+        p = subparsers.add_parser(name, help=text, description=module.__doc__,
+                                  formatter_class=argparse.RawDescriptionHelpFormatter)
+        module.add_arguments(p)
+        p.set_defaults(func=study_command(module, device))
+
+    benches = sub.add_parser("bench", help="benchmarks: ms per step and per stage (steps); the whole job with its "
+                                           "output, and the time to the first step (job)")
+    benches = benches.add_subparsers(dest="kind", required=True)
+    study(benches, "steps", bench, "a scene at ~N fluid particles: ms per step in total and per stage, memory")
+    study(benches, "job", bench_job, "warpsph run with its USD output against the solver alone; the start-up",
+          device=False)
+    study(sub, "pareto", pareto, "cost against accuracy per method, resolution and solver tolerance; the Pareto front")
+    study(sub, "stress", stress, "stability matrix: the scene as plain DFSPH with one parameter changed per cell")
+    study(kinds, "results", results, "the figures of result JSON files (validation, Pareto, stress, benchmark sizes)",
+          device=False)
     for p in (run, resume):
         p.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
         p.add_argument("--frames", type=int, help="last frame to simulate (default: the scene's output.frames)")
