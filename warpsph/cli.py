@@ -483,21 +483,22 @@ def _refusal(outputs, overwrite):
 
 
 FIELD_BYTES = {"points": 12, "velocities": 12, "ids": 8, "widths": 4, "density": 4, "vorticity": 12,
-               "vorticity_magnitude": 4, "angular_velocity": 12}
+               "vorticity_magnitude": 4}
 
 
 def disk_bytes(scene, num_fluid, frames, particles_h5=False, fields=None, clips=False):
     """Disk the outputs of a run take (an estimate): per frame and fluid particle the USD cache's
     arrays (``fields``, a --fields string; None: all), ids and widths once in a single-file cache
     without emitters or sinks (every frame otherwise), and with --particles-h5 every array again."""
-    from .simulation import MODEL_NAMES
+    from .models import plugin_of
 
-    names = {MODEL_NAMES[type(m)] for m in scene.models}
-    available = ["points", "velocities", "ids", "widths", "density"] + (["vorticity", "vorticity_magnitude"] if names else [])
-    available += ["angular_velocity"] if "micropolar" in names else []
+    model_fields = {name: size for m in scene.models for name, size in plugin_of(m).output_fields.items()}
+    sizes = {**FIELD_BYTES, **model_fields}
+    available = ["points", "velocities", "ids", "widths", "density"] + (["vorticity", "vorticity_magnitude"] if scene.models else [])
+    available += list(model_fields)
     asked = available if not fields else [f.strip() for f in fields.split(",") if f.strip()]
     once = sum(FIELD_BYTES[f] for f in ("ids", "widths") if f in asked)
-    every = sum(FIELD_BYTES.get(f, 4) for f in asked if f not in ("ids", "widths"))
+    every = sum(sizes.get(f, 4) for f in asked if f not in ("ids", "widths"))
     if clips or scene.emitters or scene.sinks:
         every, once = every + once, 0
     usd = num_fluid * ((frames + 1) * every + once)
@@ -651,6 +652,20 @@ def validate_command(args):
     return EXIT_UNSTABLE if any(r.get("unstable") for r in report["rows"]) else 0
 
 
+def schema_command(args):
+    import json
+
+    from .scene import reference_markdown, scene_json_schema
+
+    text = reference_markdown() if args.markdown else json.dumps(scene_json_schema(), indent=2) + "\n"
+    if args.out:
+        Path(args.out).write_text(text, encoding="utf-8")
+        print(f"wrote {args.out}")
+    else:
+        sys.stdout.write(text)
+    return 0
+
+
 def sweep_command(args):
     from .sweep import run_sweep
 
@@ -783,6 +798,11 @@ def build_parser():
     sweep.add_argument("--num-cpus", type=float, default=1.0, help="ray: CPUs per cell (default 1)")
     sweep.add_argument("--max-retries", type=int, default=3, help="ray: retries of a cell lost with its worker (default 3)")
     sweep.set_defaults(func=sweep_command)
+    schema = sub.add_parser("schema", help="the scene file's JSON Schema (for editors), or with --markdown the "
+                                           "scene reference: every key, type, unit, default and range")
+    schema.add_argument("--markdown", action="store_true", help="the scene reference as markdown instead")
+    schema.add_argument("--out", help="write it to this file instead of stdout")
+    schema.set_defaults(func=schema_command)
     from .validation import bench, bench_job, pareto, results, stress
 
     def study(subparsers, name, module, text, device=True):

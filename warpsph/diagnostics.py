@@ -43,7 +43,6 @@ class Diagnostics:
     def reduce(self, sim):
         """The device reductions of :mod:`warpsph.kernels.diagnostics` as a float64 numpy array."""
         from warpsph.kernels import diagnostics as dk
-        from warpsph.models.micropolar import MicropolarModel
 
         if self._out is None:
             self._out = sim.zeros("diagnostics", dk.SLOTS, dtype=wp.float64)
@@ -56,7 +55,8 @@ class Diagnostics:
         f = sim.fluid
         with wp.ScopedDevice(sim.device):
             zeta = self._vorticity_of(sim)
-            spin = next((m.omega for m in sim.turbulence_models if isinstance(m, MicropolarModel)), self._empty)
+            spinning = [m.spin() for m in sim.turbulence_models if m.spin() is not None]
+            spin = spinning[0][0] if spinning else self._empty
             self._out.assign(self._init)
             sim.launch(dk.reduce_frame_diagnostics, min(n, int(dk.REDUCE_THREADS)),
                        [f.x, f.v, f.density, zeta, spin, n, wp.vec3d(*sim.scene.domain.min), wp.vec3d(*sim.scene.gravity),
@@ -65,14 +65,13 @@ class Diagnostics:
 
     def measure(self, sim, frame):
         from warpsph.kernels import diagnostics as dk
-        from warpsph.models.micropolar import MicropolarModel
 
         m = sim.particle_mass
         sums = self.reduce(sim)
         rotational = 0.0
-        micropolar = [model for model in sim.turbulence_models if isinstance(model, MicropolarModel)]
-        if micropolar:  # sum_i 1/2 m I |omega_i|^2 with micro-inertia I = 1 / Theta^-1
-            rotational = 0.5 * m / micropolar[0].params.inverse_inertia * float(sums[dk.SPIN_SQ])
+        spinning = [model.spin() for model in sim.turbulence_models if model.spin() is not None]
+        if spinning:  # sum_i 1/2 m I |omega_i|^2 with the model's micro-inertia I (micropolar: 1 / Theta^-1)
+            rotational = 0.5 * m * spinning[0][1] * float(sums[dk.SPIN_SQ])
         elif sim.turbulence_models:  # VR / Rankine: particle spin zeta/2, inertia of a sphere 2/5 m r^2
             inertia = 0.4 * m * sim.scene.particle_radius ** 2
             rotational = 0.5 * inertia * 0.25 * float(sums[dk.VORTICITY_SQ])

@@ -16,17 +16,20 @@ SORT = 2 * 8 + 12 + 8  # keys and order (2N each) and a gather copy: held only w
 NEIGHBOUR_ROWS = 4 * 4  # counts and offsets of both lists
 NEIGHBOUR_LISTS = 4 * (32 + 8)  # initial capacity: 32 fluid, 8 boundary neighbours a particle
 BOUNDARY = 12 + 12 + 4 + 4  # x, v, volume and cell-sorted id per boundary sample
-MODEL = {"vorticity_refinement": 48, "rankine": 24 + 12, "micropolar": 24 + 12}
+SHARED_VORTICITY = 12  # the vorticity field of v~, once for all models that read it
 
 
 def estimate_bytes(scene, num_fluid, num_boundary):
     """Device bytes a simulation of ``scene`` allocates (an estimate, slightly high)."""
-    from warpsph.simulation import MODEL_NAMES
+    from warpsph.models import plugin_of
 
     per_fluid = FLUID_STATE + SOLVER + SORT + NEIGHBOUR_ROWS + NEIGHBOUR_LISTS
     from warpsph.neighbours import grid_geometry
 
-    per_fluid += sum(MODEL[MODEL_NAMES[type(m)]] for m in scene.models)
+    plugins = [plugin_of(m) for m in scene.models]
+    per_fluid += sum(p.bytes_per_particle for p in plugins)  # each model's own arrays
+    per_fluid += SHARED_VORTICITY if any(p.needs_vorticity for p in plugins) else 0
+    per_fluid += 4 * max([p.scratch_columns for p in plugins] + [0])  # the scratch pool, if wider than the solver's
     _, dims = grid_geometry(scene.domain, 4.0 * scene.particle_radius, num_fluid + num_boundary)
     cell_tables = 2 * 4 * int(np.prod(dims))  # the fluid's and the boundary's
     return num_fluid * per_fluid + num_boundary * BOUNDARY + cell_tables

@@ -1,4 +1,4 @@
-"""Scene schema: frozen dataclasses, validated once on load.
+"""Scene schema: frozen pydantic dataclasses (strict, no unknown keys), validated once on load.
 
 A scene is a JSON file. Every key is checked against the dataclasses below: an unknown
 key, a wrong type or a value out of range raises :class:`SceneError` naming the file
@@ -10,45 +10,54 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import functools
 import json
 import math
 import typing
 import warnings
-from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, Literal, Optional, Tuple
+
+from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
+from pydantic.dataclasses import dataclass as pydantic_dataclass
 
 from .errors import SceneError
 
-Vec3 = typing.Tuple[float, float, float]
+Vec3 = Tuple[float, float, float]
+
+# strict: no coercion ("3" is not a number, 2.0 not an integer, true not 1); an unknown key is an error
+CONFIG = ConfigDict(strict=True, extra="forbid", allow_inf_nan=False)
 
 
-def _check(expect, test):
-    """Field metadata: a range check and the words that say what it expects."""
-    return {"expect": expect, "test": test}
+def schema(cls):
+    """Class decorator: a frozen, strictly validated pydantic dataclass of the scene schema."""
+    return pydantic_dataclass(frozen=True, config=CONFIG)(cls)
 
 
-def _positive():
-    return _check("a number > 0", lambda v: v > 0)
+def key(default: Any = ..., doc: str = "", unit: typing.Optional[str] = None, **limits):
+    """A schema field: its default (``...``: required), what it means, its unit and its range
+    (pydantic's gt / ge / lt / le). They go into the JSON Schema (``warpsph schema``) and the docs."""
+    return Field(default, description=doc or None, json_schema_extra={"unit": unit} if unit else None, **limits)
 
 
-@dataclass(frozen=True)
+@schema
 class Box:
     """The domain: walls of boundary particles on its faces, except across ``periodic`` axes,
     where particles leaving one face enter at the opposite one. ``walls: false`` makes it open:
     no walls, and particles that leave it (across a non-periodic face) are removed and counted,
     so that a scene whose boundaries are its bodies can run."""
 
-    min: Vec3
-    max: Vec3
-    periodic: typing.Tuple[str, ...] = ()  # e.g. ["x", "z"]
-    walls: bool = True  # false: an open domain
+    min: Vec3 = key(doc="lower corner", unit="m")
+    max: Vec3 = key(doc="upper corner", unit="m")
+    periodic: Tuple[Literal["x", "y", "z"], ...] = key((), doc='axes across which the box wraps, e.g. ["x", "z"]')
+    walls: bool = key(True, doc="false: an open domain (no walls; particles that leave are removed)")
 
     def validate(self, file, key):
         if any(lo >= hi for lo, hi in zip(self.min, self.max)):
             raise SceneError(file, key, f"min {list(self.min)} must be below max {list(self.max)} on every axis")
         for n, axis in enumerate(self.periodic):
-            if axis not in ("x", "y", "z") or axis in self.periodic[:n]:
-                raise SceneError(file, f"{key}.periodic[{n}]", f'expected distinct axes "x", "y" or "z", got {json.dumps(axis)}')
+            if axis in self.periodic[:n]:
+                raise SceneError(file, f"{key}.periodic[{n}]", f'expected distinct axes "x", "y" or "z", got {json.dumps(axis)} twice')
 
     @property
     def period(self):
@@ -61,51 +70,53 @@ class Box:
         return not self.walls and len(self.periodic) < 3
 
 
-@dataclass(frozen=True)
+@schema
 class Fluid:
-    density: float = field(default=1000.0, metadata=_positive())  # rest density [kg/m^3]
-    viscosity: float = field(default=0.05, metadata=_check("a number >= 0", lambda v: v >= 0))  # nu [m^2/s], eq 4
-    # nu between fluid and boundary samples [m^2/s] (friction with walls and bodies; SPlisHSPlasH's
-    # viscosityBoundary, default 0 there too): the fluid drags along moving bodies and they feel it
-    boundary_viscosity: float = field(default=0.0, metadata=_check("a number >= 0", lambda v: v >= 0))
+    """The fluid's material."""
+
+    density: float = key(1000.0, doc="rest density rho0", unit="kg/m^3", gt=0)
+    viscosity: float = key(0.05, doc="kinematic viscosity nu of the artificial viscosity (VR paper eq 4)", unit="m^2/s", ge=0)
+    boundary_viscosity: float = key(
+        0.0, doc="nu between fluid and boundary samples (SPlisHSPlasH's viscosityBoundary): friction with walls and "
+                 "bodies; the fluid drags moving bodies along and they feel it", unit="m^2/s", ge=0)
 
 
-@dataclass(frozen=True)
+@schema
 class FluidBlock:
     """An axis-aligned box filled with particles on a lattice of spacing 2r."""
 
-    start: Vec3
-    end: Vec3
-    velocity: Vec3 = (0.0, 0.0, 0.0)  # initial velocity [m/s]
+    start: Vec3 = key(doc="lower corner", unit="m")
+    end: Vec3 = key(doc="upper corner", unit="m")
+    velocity: Vec3 = key((0.0, 0.0, 0.0), doc="initial velocity", unit="m/s")
 
     def validate(self, file, key):
         if any(lo >= hi for lo, hi in zip(self.start, self.end)):
             raise SceneError(file, key, f"start {list(self.start)} must be below end {list(self.end)} on every axis")
 
 
-@dataclass(frozen=True)
+@schema
 class Keyframe:
     """A body's offset from its placement at one time; linear in between, held outside."""
 
-    time: float  # [s]
-    translation: Vec3  # [m]
+    time: float = key(doc="time", unit="s")
+    translation: Vec3 = key(doc="offset from the placement", unit="m")
 
 
-@dataclass(frozen=True)
+@schema
 class Motion:
     """Prescribed motion of a kinematic body: the sum of a keyframed path, a constant-acceleration
     drift (from ``start``: falling blocks) and a spin about ``axis`` through ``center``."""
 
-    keyframes: typing.Tuple[Keyframe, ...] = ()
-    velocity: Vec3 = (0.0, 0.0, 0.0)  # [m/s] from ``start`` on
-    acceleration: Vec3 = (0.0, 0.0, 0.0)  # [m/s^2] from ``start`` on
-    start: float = field(default=0.0, metadata=_check("a number >= 0", lambda v: v >= 0))  # [s]
-    end: typing.Optional[float] = None  # [s] the drift stops here (a dropped block reaching the floor); null: never
-    angular_velocity: float = 0.0  # [rad/s] about ``axis`` (right-handed)
-    axis: Vec3 = (0.0, 1.0, 0.0)
-    center: typing.Optional[Vec3] = None  # [m] a point on the axis at the placement; null: the mesh's centre
-    spin_start: float = field(default=0.0, metadata=_check("a number >= 0", lambda v: v >= 0))  # [s]
-    spin_up: float = field(default=0.0, metadata=_check("a number >= 0", lambda v: v >= 0))  # [s] ramp to full speed
+    keyframes: Tuple[Keyframe, ...] = key((), doc="keyframed path, times increasing")
+    velocity: Vec3 = key((0.0, 0.0, 0.0), doc="drift velocity from start on", unit="m/s")
+    acceleration: Vec3 = key((0.0, 0.0, 0.0), doc="drift acceleration from start on", unit="m/s^2")
+    start: float = key(0.0, doc="when the drift starts", unit="s", ge=0)
+    end: Optional[float] = key(None, doc="when the drift stops (a dropped block reaching the floor); null: never", unit="s")
+    angular_velocity: float = key(0.0, doc="spin about axis (right-handed)", unit="rad/s")
+    axis: Vec3 = key((0.0, 1.0, 0.0), doc="spin axis")
+    center: Optional[Vec3] = key(None, doc="a point on the spin axis at the placement; null: the mesh's centre", unit="m")
+    spin_start: float = key(0.0, doc="when the spin starts", unit="s", ge=0)
+    spin_up: float = key(0.0, doc="ramp to full spin speed", unit="s", ge=0)
 
     def validate(self, file, key):
         times = [k.time for k in self.keyframes]
@@ -117,28 +128,28 @@ class Motion:
             raise SceneError(file, f"{key}.axis", "the spin axis is zero")
 
 
-@dataclass(frozen=True)
+@schema
 class Dynamics:
     """A rigid body moved by the fluid (two-way coupling, Akinci et al. 2012) and gravity."""
 
-    density: float = field(metadata=_positive())  # [kg/m^3]; mass and inertia come from the closed mesh
-    velocity: Vec3 = (0.0, 0.0, 0.0)  # initial [m/s]
-    angular_velocity: Vec3 = (0.0, 0.0, 0.0)  # initial [rad/s]
+    density: float = key(doc="body density; mass and inertia come from the closed mesh", unit="kg/m^3", gt=0)
+    velocity: Vec3 = key((0.0, 0.0, 0.0), doc="initial velocity", unit="m/s")
+    angular_velocity: Vec3 = key((0.0, 0.0, 0.0), doc="initial angular velocity", unit="rad/s")
 
 
-@dataclass(frozen=True)
+@schema
 class Obstacle:
     """A body from a mesh file (OBJ/STL/PLY), surface-sampled once at the particle spacing: static,
     kinematic (``motion``) or dynamic (``dynamics``)."""
 
-    mesh: str  # path, relative to the scene file
-    translation: Vec3 = (0.0, 0.0, 0.0)  # [m]
-    scale: Vec3 = (1.0, 1.0, 1.0)
-    rotation_axis: Vec3 = (0.0, 1.0, 0.0)
-    rotation_angle: float = 0.0  # [rad]
-    name: typing.Optional[str] = None  # the USD prim name; default from the mesh file
-    motion: typing.Optional[Motion] = None
-    dynamics: typing.Optional[Dynamics] = None
+    mesh: str = key(doc="mesh file path, relative to the scene file")
+    translation: Vec3 = key((0.0, 0.0, 0.0), doc="placement", unit="m")
+    scale: Vec3 = key((1.0, 1.0, 1.0), doc="scale per axis")
+    rotation_axis: Vec3 = key((0.0, 1.0, 0.0), doc="placement rotation axis")
+    rotation_angle: float = key(0.0, doc="placement rotation angle", unit="rad")
+    name: Optional[str] = key(None, doc="the USD prim name; null: from the mesh file")
+    motion: Optional[Motion] = key(None, doc="prescribed motion (kinematic body)")
+    dynamics: Optional[Dynamics] = key(None, doc="two-way coupled rigid body (dynamic body)")
 
     def validate(self, file, key):
         if self.motion is not None and self.dynamics is not None:
@@ -151,17 +162,17 @@ class Obstacle:
         return self.motion is not None or self.dynamics is not None
 
 
-@dataclass(frozen=True)
+@schema
 class Emitter:
     """Inflow: every time the last layer has moved one particle spacing, a new lattice layer of
     particles moving at ``velocity`` (along one axis) fills the cross-section of the box [min, max]
     at its upstream face. ``end`` null: until the run ends."""
 
-    min: Vec3
-    max: Vec3
-    velocity: Vec3
-    start: float = field(default=0.0, metadata=_check("a number >= 0", lambda v: v >= 0))  # [s]
-    end: typing.Optional[float] = None  # [s]
+    min: Vec3 = key(doc="lower corner", unit="m")
+    max: Vec3 = key(doc="upper corner", unit="m")
+    velocity: Vec3 = key(doc="inflow velocity, along one axis", unit="m/s")
+    start: float = key(0.0, doc="first emission", unit="s", ge=0)
+    end: Optional[float] = key(None, doc="last emission; null: until the run ends", unit="s")
 
     def validate(self, file, key):
         if any(lo > hi for lo, hi in zip(self.min, self.max)):
@@ -177,12 +188,12 @@ class Emitter:
         return next(k for k, c in enumerate(self.velocity) if c != 0.0)
 
 
-@dataclass(frozen=True)
+@schema
 class Sink:
     """Outflow: fluid particles inside the box [min, max] are removed (checked every step)."""
 
-    min: Vec3
-    max: Vec3
+    min: Vec3 = key(doc="lower corner", unit="m")
+    max: Vec3 = key(doc="upper corner", unit="m")
 
     def validate(self, file, key):
         if any(lo >= hi for lo, hi in zip(self.min, self.max)):
@@ -192,41 +203,42 @@ class Sink:
 DT_MAX_PER_RADIUS = 0.2  # [s/m]: the default dt_max is proportional to the particle radius
 
 
-@dataclass(frozen=True)
+@schema
 class TimeStepping:
-    cfl: float = field(default=0.5, metadata=_check("a number in (0, 1]", lambda v: 0 < v <= 1))
-    # [s]; null: dt_max / 50 (SPlisHSPlasH's 0.1 ms at r = 25 mm)
-    dt_min: typing.Optional[float] = field(default=None, metadata=_check("null or a number > 0", lambda v: v is None or v > 0))
-    # [s]; null: 0.2 s/m x particle radius (SPlisHSPlasH's 5 ms at r = 25 mm). A fixed 5 ms let
-    # finer dam breaks crush their bottom layers before the pressure could build (r = 6.3 mm and
-    # r = 2.9 mm exploded within 5 steps).
-    dt_max: typing.Optional[float] = field(default=None, metadata=_check("null or a number > 0", lambda v: v is None or v > 0))
-    fixed_dt: typing.Optional[float] = field(default=None, metadata=_check("null or a number > 0", lambda v: v is None or v > 0))
+    """Adaptive time step: dt = cfl x r / max speed, within [dt_min, dt_max] (or ``fixed_dt``)."""
+
+    cfl: float = key(0.5, doc="CFL number", gt=0, le=1)
+    dt_min: Optional[float] = key(None, doc="smallest step; null: dt_max / 50 (SPlisHSPlasH's 0.1 ms at r = 25 mm)",
+                                  unit="s", gt=0)
+    # a fixed 5 ms let finer dam breaks crush their bottom layers before the pressure could build
+    dt_max: Optional[float] = key(None, doc="largest step; null: 0.2 s/m x particle radius (SPlisHSPlasH's 5 ms at "
+                                            "r = 25 mm)", unit="s", gt=0)
+    fixed_dt: Optional[float] = key(None, doc="a fixed step instead of the adaptive one; null: adaptive", unit="s", gt=0)
 
     def validate(self, file, key):
         if self.dt_max is not None and self.dt_min is not None and self.dt_min > self.dt_max:
             raise SceneError(file, f"{key}.dt_min", f"{self.dt_min} must not exceed dt_max {self.dt_max}")
 
 
-@dataclass(frozen=True)
+@schema
 class Solver:
     """DFSPH controls; errors in percent, as in SPlisHSPlasH."""
 
-    density_max_error: float = field(default=0.01, metadata=_positive())  # average, % of rho0
-    divergence_max_error: float = field(default=0.1, metadata=_positive())  # average, % of rho0 per second
-    min_iterations: int = field(default=2, metadata=_check("an integer >= 0", lambda v: v >= 0))
-    max_iterations: int = field(default=100, metadata=_check("an integer >= 1", lambda v: v >= 1))
-    divergence_solver: bool = True
-    divergence_min_iterations: int = field(default=1, metadata=_check("an integer >= 0", lambda v: v >= 0))
-    divergence_max_iterations: int = field(default=100, metadata=_check("an integer >= 1", lambda v: v >= 1))
-    warm_start: bool = True
-    # particle shifting (Lind et al. 2012): x += -D grad C after the position update in the bulk
-    # (tangential near the free surface, off on it), D = shifting x h max|v| dt; 0: off
-    shifting: float = field(default=2.0, metadata=_check("a number >= 0", lambda v: v >= 0))
-    sort_interval: int = field(default=16, metadata=_check("an integer >= 0 (0: never)", lambda v: v >= 0))
+    density_max_error: float = key(0.01, doc="average density error the density solve stops at", unit="% of rho0", gt=0)
+    divergence_max_error: float = key(0.1, doc="average divergence error the divergence solve stops at",
+                                      unit="% of rho0 per second", gt=0)
+    min_iterations: int = key(2, doc="density solve: fewest iterations", ge=0)
+    max_iterations: int = key(100, doc="density solve: most iterations", ge=1)
+    divergence_solver: bool = key(True, doc="run the divergence solve (DFSPH's velocity correction)")
+    divergence_min_iterations: int = key(1, doc="divergence solve: fewest iterations", ge=0)
+    divergence_max_iterations: int = key(100, doc="divergence solve: most iterations", ge=1)
+    warm_start: bool = key(True, doc="start each solve from last step's pressure where it still acts (capped)")
+    shifting: float = key(2.0, doc="particle shifting coefficient (Lind et al. 2012): x += -D grad C in the bulk, "
+                                   "tangential near the free surface, off on it; D = shifting x h max|v| dt; 0: off", ge=0)
+    sort_interval: int = key(16, doc="steps between re-sorting the particles by cell (0: never)", ge=0)
 
     # keys of earlier versions: a scene that has them loads with a warning naming the key
-    OBSOLETE = {
+    OBSOLETE: typing.ClassVar[dict] = {
         "clamp_pressure": "the solver now finds the free surface per particle (p >= 0 there, signed in the "
                           "bulk) in every scene; the key is ignored",
         "transport_velocity": "the solver regularises the particles by shifting (solver.shifting) in every "
@@ -238,60 +250,19 @@ class Solver:
             raise SceneError(file, f"{key}.min_iterations", "must not exceed max_iterations")
 
 
-@dataclass(frozen=True)
+@schema
 class Output:
-    fps: float = field(default=25.0, metadata=_positive())
-    frames: int = field(default=50, metadata=_check("an integer >= 1", lambda v: v >= 1))
-    up_axis: str = field(default="Y", metadata=_check('"Y" or "Z"', lambda v: v in ("Y", "Z")))
+    """The USD cache's frames."""
+
+    fps: float = key(25.0, doc="frames per simulated second", unit="1/s", gt=0)
+    frames: int = key(50, doc="frames to write (the run's length)", ge=1)
+    up_axis: Literal["Y", "Z"] = key("Y", doc="the USD stage's up axis")
 
 
-def _within(lo, hi, null=False):
-    """A model parameter's documented range [lo, hi]: beyond it a run blows up or means nothing."""
-    return _check(("null or " if null else "") + f"a number in [{lo:g}, {hi:g}]",
-                  lambda v: (null and v is None) or lo <= v <= hi)
+MAX_MODEL_VISCOSITY = 1.0  # [m^2/s], 20x the fluid's default: the models' viscosity keys stop there
 
 
-MAX_MODEL_VISCOSITY = 1.0  # [m^2/s], 20x the fluid's default
-
-
-@dataclass(frozen=True)
-class VorticityRefinement:
-    """Vorticity refinement (VR paper, Algorithm 2): v <- v~ + alpha dv (eq 17)."""
-
-    # the VR paper uses 0 to 1.3; tools/stress.py found every alpha in [0, 2] stable
-    alpha: float = field(default=1.0, metadata=_within(0.0, 2.0))
-    viscosity: typing.Optional[float] = field(  # nu_v of eq 10 [m^2/s]; default: the fluid's
-        default=None, metadata=_within(0.0, MAX_MODEL_VISCOSITY, null=True))
-
-
-@dataclass(frozen=True)
-class RankineFeedback:
-    """Rankine vortex feedback (Rankine paper, Algorithm 1): r_c = beta sqrt(4 1.25643 nu dt)."""
-
-    beta: float = field(default=1.0, metadata=_within(0.0, 1.0))
-    viscosity: typing.Optional[float] = field(  # nu of eq 11 [m^2/s]; default: the fluid's
-        default=None, metadata=_within(0.0, MAX_MODEL_VISCOSITY, null=True))
-
-
-@dataclass(frozen=True)
-class Micropolar:
-    """Micropolar turbulence (Bender et al. 2017/2018), the papers' baseline (SPlisHSPlasH's defaults:
-    nu_t 0.1, Theta^-1 0.5, zeta 0.1; tools/stress.py ran nu_t up to 0.4)."""
-
-    transfer_coefficient: float = field(default=0.05, metadata=_within(0.0, 1.0))  # nu_t
-    inverse_inertia: float = field(default=0.5, metadata=_check("a number in (0, 10]", lambda v: 0 < v <= 10))  # Theta^-1
-    viscosity_omega: float = field(default=0.1, metadata=_within(0.0, MAX_MODEL_VISCOSITY))  # zeta [m^2/s]
-
-
-# scene "models" entries: {"type": NAME, ...parameters}
-MODEL_TYPES = {"vorticity_refinement": VorticityRefinement, "rankine": RankineFeedback, "micropolar": Micropolar}
-
-
-class ModelConfig:
-    """Marker type of a "models" entry: one of MODEL_TYPES, chosen by its "type" key."""
-
-
-@dataclass(frozen=True)
+@schema
 class InitialPacking:
     """A particle packing before t = 0 (set-up, not simulated time): the sampled lattice jittered by up to
     ``jitter`` particle spacings, then ``steps`` steps of the scene's own pressure solver at rest (no gravity,
@@ -299,28 +270,32 @@ class InitialPacking:
     lattice collapses to a disordered state after ~20 steps and the released noise pumps energy into the
     flow (Taylor-Green, 128 across: KE 12-30 % above the analytic curve); from the packing it does not."""
 
-    steps: int = field(default=40, metadata=_check("an integer >= 1", lambda v: v >= 1))
-    jitter: float = field(default=0.1, metadata=_check("a number in [0, 0.5] (particle spacings)", lambda v: 0 <= v <= 0.5))
-    seed: int = 1
+    steps: int = key(40, doc="packing steps at rest", ge=1)
+    jitter: float = key(0.1, doc="lattice jitter", unit="particle spacings", ge=0, le=0.5)
+    seed: int = key(1, doc="random seed of the jitter")
 
 
-@dataclass(frozen=True)
+@schema
 class Scene:
-    particle_radius: float = field(metadata=_positive())  # [m]; support radius is 4r
-    domain: Box
-    fluid_blocks: typing.Tuple[FluidBlock, ...] = ()
-    name: str = "scene"
-    fluid: Fluid = Fluid()
-    gravity: Vec3 = (0.0, -9.81, 0.0)  # [m/s^2]
-    obstacles: typing.Tuple[Obstacle, ...] = ()
-    emitters: typing.Tuple[Emitter, ...] = ()
-    sinks: typing.Tuple[Sink, ...] = ()
-    time: TimeStepping = TimeStepping()
-    solver: Solver = Solver()
-    output: Output = Output()
-    models: typing.Tuple[ModelConfig, ...] = ()  # turbulence models, e.g. [{"type": "rankine", "beta": 0.6}]
-    initial_packing: typing.Optional[InitialPacking] = None  # e.g. {"steps": 40}; null: start on the lattice
-    source: typing.Optional[str] = None  # the file it was read from (set by load_scene)
+    """A scene file's top level."""
+
+    particle_radius: float = key(doc="particle radius r; the spacing is 2r and the kernel support 4r", unit="m", gt=0)
+    domain: Box = key(doc="the domain box")
+    fluid_blocks: Tuple[FluidBlock, ...] = key((), doc="boxes of fluid at t = 0")
+    name: str = key("scene", doc="the scene's name (USD prim and log lines)")
+    fluid: Fluid = key(Fluid(), doc="the fluid's material")
+    gravity: Vec3 = key((0.0, -9.81, 0.0), doc="gravity", unit="m/s^2")
+    obstacles: Tuple[Obstacle, ...] = key((), doc="bodies from mesh files")
+    emitters: Tuple[Emitter, ...] = key((), doc="inflow")
+    sinks: Tuple[Sink, ...] = key((), doc="outflow")
+    time: TimeStepping = key(TimeStepping(), doc="time stepping")
+    solver: Solver = key(Solver(), doc="pressure solver")
+    output: Output = key(Output(), doc="output frames")
+    models: Tuple[Any, ...] = key((), doc='turbulence models, each {"type": NAME, ...its parameters}, e.g. '
+                                          '[{"type": "rankine", "beta": 0.6}]')
+    initial_packing: Optional[InitialPacking] = key(None, doc='a particle packing before t = 0, e.g. {"steps": 40}; '
+                                                              'null: start on the lattice')
+    source: Optional[str] = key(None, doc="the file it was read from (set on load; not a scene-file key)")
 
     @property
     def particle_diameter(self):
@@ -383,10 +358,20 @@ class Scene:
 
 
 # ---------------------------------------------------------------------------------------
-# generic parser driven by the dataclass fields
+# parsing: pydantic validates, and its errors become SceneErrors naming the file and key path
+
+
+def _unwrap(tp):
+    """The type inside Optional[...]."""
+    if typing.get_origin(tp) is typing.Union:
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if len(args) == 1:
+            return args[0]
+    return tp
 
 
 def _type_name(tp):
+    tp = _unwrap(tp)
     if tp is float:
         return "a number"
     if tp is int:
@@ -397,92 +382,202 @@ def _type_name(tp):
         return "a string"
     if tp == Vec3:
         return "a list of 3 numbers"
+    if typing.get_origin(tp) is Literal:
+        words = [json.dumps(a) for a in typing.get_args(tp)]
+        return ", ".join(words[:-1]) + " or " + words[-1] if len(words) > 1 else words[0]
+    if typing.get_origin(tp) is tuple:
+        return f"a list, each {_type_name(typing.get_args(tp)[0])}"
     if dataclasses.is_dataclass(tp):
         return "an object"
     return str(tp)
 
 
-def _convert(tp, value, file, key):
-    origin = typing.get_origin(tp)
-    if origin is typing.Union:  # Optional[X]
-        (inner,) = [a for a in typing.get_args(tp) if a is not type(None)]
-        return None if value is None else _convert(inner, value, file, key)
-    if tp == Vec3:
-        if not isinstance(value, list) or len(value) != 3:
-            raise SceneError(file, key, f"expected a list of 3 numbers, got {json.dumps(value)}")
-        return tuple(_convert(float, x, file, f"{key}[{n}]") for n, x in enumerate(value))
-    if origin is tuple:  # Tuple[Dataclass, ...]
-        (inner, _) = typing.get_args(tp)
-        if not isinstance(value, list):
-            raise SceneError(file, key, f"expected a list, got {json.dumps(value)}")
-        return tuple(_convert(inner, x, file, f"{key}[{n}]") for n, x in enumerate(value))
-    if tp is ModelConfig:
-        return _parse_model(value, file, key)
-    if dataclasses.is_dataclass(tp):
-        return parse_dataclass(tp, value, file, key)
-    if tp is bool:
-        if not isinstance(value, bool):
-            raise SceneError(file, key, f"expected true or false, got {json.dumps(value)}")
-        return value
-    if tp is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise SceneError(file, key, f"expected an integer, got {json.dumps(value)}")
-        return value
-    if tp is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-            raise SceneError(file, key, f"expected a finite number, got {json.dumps(value)}")
-        return float(value)
-    if tp is str:
-        if not isinstance(value, str):
-            raise SceneError(file, key, f"expected a string, got {json.dumps(value)}")
-        return value
-    raise TypeError(f"unsupported schema type {tp}")
+def _hints(cls):
+    return {n: h for n, h in typing.get_type_hints(cls).items() if n in cls.__pydantic_fields__}
 
 
-def _parse_model(value, file, key):
-    if not isinstance(value, dict) or "type" not in value:
-        raise SceneError(file, key, f'expected an object with a "type" ({", ".join(MODEL_TYPES)})')
-    name = value["type"]
-    if name not in MODEL_TYPES:
-        close = difflib.get_close_matches(str(name), MODEL_TYPES, n=1)
-        hint = f"; did you mean '{close[0]}'?" if close else f"; known: {', '.join(MODEL_TYPES)}"
-        raise SceneError(file, f"{key}.type", f"unknown model {json.dumps(name)}{hint}")
-    params = {k: v for k, v in value.items() if k != "type"}
-    return parse_dataclass(MODEL_TYPES[name], params, file, key)
+def _expect(cls, name):
+    """What a field expects, in words, from its type and range (e.g. 'a number in (0, 1]')."""
+    tp = _hints(cls)[name]
+    nullable = _unwrap(tp) is not tp
+    info = cls.__pydantic_fields__[name]
+    bounds = {k: getattr(m, k) for m in info.metadata for k in ("gt", "ge", "lt", "le") if getattr(m, k, None) is not None}
+    words = _type_name(tp)
+    lo = next(((k, v) for k, v in bounds.items() if k in ("gt", "ge")), None)
+    hi = next(((k, v) for k, v in bounds.items() if k in ("lt", "le")), None)
+    if lo and hi:
+        words += f" in {'(' if lo[0] == 'gt' else '['}{lo[1]:g}, {hi[1]:g}{')' if hi[0] == 'lt' else ']'}"
+    elif lo or hi:
+        op, v = lo or hi
+        words += f" {dict(gt='>', ge='>=', lt='<', le='<=')[op]} {v:g}"
+    return f"null or {words}" if nullable else words
+
+
+def _path(prefix, loc):
+    out = prefix
+    for part in loc:
+        out += f"[{part}]" if isinstance(part, int) else (f".{part}" if out else str(part))
+    return out
+
+
+def _walk(cls, data, loc):
+    """(type, raw value) at ``loc`` below ``cls`` and ``data``; (None, None) past what the schema knows."""
+    tp, value = cls, data
+    for part in loc:
+        tp = _unwrap(tp)
+        if dataclasses.is_dataclass(tp) and isinstance(part, str):
+            tp = _hints(tp).get(part)
+            value = value.get(part) if isinstance(value, dict) else None
+        elif typing.get_origin(tp) is tuple and isinstance(part, int):
+            args = typing.get_args(tp)
+            tp = args[0] if args[-1] is Ellipsis else (args[part] if part < len(args) else None)
+            value = value[part] if isinstance(value, list) and part < len(value) else None
+        else:
+            return None, None
+        if tp is None:
+            return None, None
+    return tp, value
+
+
+def _scene_error(cls, data, error, file, prefix):
+    """The SceneError for pydantic's first error: the key path, what was expected and what was there."""
+    loc, kind = list(error["loc"]), error["type"]
+    got = json.dumps(error.get("input"), default=str)
+    # a wrong element of a fixed-length list (Vec3): name the list
+    for n in range(len(loc), 0, -1):
+        tp, value = _walk(cls, data, loc[:n])
+        if tp is not None and _unwrap(tp) == Vec3 and (n < len(loc) or kind in ("missing", "too_long", "too_short")):
+            return SceneError(file, _path(prefix, loc[:n]), f"expected a list of 3 numbers, got {json.dumps(value, default=str)}")
+    where = _path(prefix, loc) or "scene"
+    parent, _ = _walk(cls, data, loc[:-1])
+    parent = _unwrap(parent) if parent is not None else None
+    name = loc[-1] if loc else None
+    if kind in ("unexpected_keyword_argument", "extra_forbidden"):
+        known = list(_hints(parent)) if dataclasses.is_dataclass(parent) else []
+        known = [k for k in known if k != "source"]
+        close = difflib.get_close_matches(str(name), known, n=1)
+        return SceneError(file, where, "unknown key" + (f"; did you mean '{close[0]}'?" if close else
+                                                        f"; known keys: {', '.join(known)}"))
+    if kind == "missing":
+        tp = _hints(parent).get(name) if dataclasses.is_dataclass(parent) else None
+        return SceneError(file, where, f"missing required key ({_type_name(tp) if tp else 'a value'})")
+    if dataclasses.is_dataclass(parent) and name in parent.__pydantic_fields__:
+        expect = _expect(parent, name)
+    else:
+        tp, _ = _walk(cls, data, loc)
+        expect = _type_name(tp) if tp is not None else error["msg"].lower()
+    if kind in ("float_type", "finite_number", "float_parsing"):
+        expect = expect.replace("a number", "a finite number", 1)
+    return SceneError(file, where, f"expected {expect}, got {got}")
+
+
+@functools.lru_cache(maxsize=None)
+def _adapter(cls):
+    return TypeAdapter(cls)
+
+
+def _plain(value):
+    """numpy scalars and arrays, tuples: JSON values."""
+    if hasattr(value, "tolist"):
+        return value.tolist()
+    raise TypeError(f"not a JSON value: {value!r}")
+
+
+def _drop_obsolete(cls, data, file, prefix):
+    """``data`` without the keys ``cls.OBSOLETE`` names (at any depth), each with a warning naming it."""
+    cls = _unwrap(cls)
+    if not (dataclasses.is_dataclass(cls) and isinstance(data, dict)):
+        return data
+    obsolete = getattr(cls, "OBSOLETE", {})
+    hints = _hints(cls)
+    out = {}
+    for name, value in data.items():
+        if name in obsolete and name not in hints:
+            warnings.warn(f"{file}: {_path(prefix, [name])}: obsolete key: {obsolete[name]}")
+            continue
+        tp = _unwrap(hints.get(name))
+        if typing.get_origin(tp) is tuple and dataclasses.is_dataclass(typing.get_args(tp)[0]) and isinstance(value, list):
+            value = [_drop_obsolete(typing.get_args(tp)[0], v, file, _path(prefix, [name, n])) for n, v in enumerate(value)]
+        elif dataclasses.is_dataclass(tp):
+            value = _drop_obsolete(tp, value, file, _path(prefix, [name]))
+        out[name] = value
+    return out
+
+
+def _check_tree(obj, file, key):
+    """Runs the cross-field ``validate(file, key)`` checks, children first."""
+    if not dataclasses.is_dataclass(obj):
+        return
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if isinstance(value, tuple):
+            for n, item in enumerate(value):
+                _check_tree(item, file, f"{key}.{f.name}[{n}]" if key else f"{f.name}[{n}]")
+        else:
+            _check_tree(value, file, f"{key}.{f.name}" if key else f.name)
+    if hasattr(obj, "validate"):
+        obj.validate(file, key)
 
 
 def parse_dataclass(cls, data, file=None, key=""):
-    """Builds ``cls`` from a JSON object, checking every key; raises :class:`SceneError`."""
-    where = key or "scene"
+    """Builds the schema class ``cls`` from a JSON object, checking every key; raises :class:`SceneError`
+    naming ``file`` and the key path below ``key``."""
     if not isinstance(data, dict):
-        raise SceneError(file, where, f"expected an object, got {json.dumps(data)}")
-    hints = typing.get_type_hints(cls)
-    fields = {f.name: f for f in dataclasses.fields(cls) if f.name != "source"}
-    obsolete = getattr(cls, "OBSOLETE", {})
-    for name in [n for n in data if n in obsolete and n not in fields]:
-        warnings.warn(f"{file}: {key}.{name}: obsolete key: {obsolete[name]}" if key else f"{file}: {name}: obsolete key: {obsolete[name]}")
-        data = {n: v for n, v in data.items() if n != name}
-    for name in data:
-        if name not in fields:
-            close = difflib.get_close_matches(name, fields, n=1)
-            hint = f"; did you mean '{close[0]}'?" if close else f"; known keys: {', '.join(fields)}"
-            raise SceneError(file, f"{key}.{name}" if key else name, f"unknown key{hint}")
-    values = {}
-    for name, f in fields.items():
-        path = f"{key}.{name}" if key else name
-        if name not in data:
-            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING:
-                raise SceneError(file, path, f"missing required key ({_type_name(hints[name])})")
-            continue
-        value = _convert(hints[name], data[name], file, path)
-        check = f.metadata.get("test")
-        if check is not None and value is not None and not check(value):
-            raise SceneError(file, path, f"expected {f.metadata['expect']}, got {json.dumps(data[name])}")
-        values[name] = value
-    obj = cls(**values)
-    if hasattr(obj, "validate"):
-        obj.validate(file, where if key else "")
+        raise SceneError(file, key or "scene", f"expected an object, got {json.dumps(data, default=str)}")
+    data = _drop_obsolete(cls, data, file, key)
+    if cls is Scene and "source" in data:
+        raise SceneError(file, "source", "unknown key (it is set on load)")
+    try:
+        text = json.dumps(data, default=_plain)
+    except (TypeError, ValueError) as exc:
+        raise SceneError(file, key or "scene", f"not JSON data: {exc}") from None
+    data = json.loads(text)
+    try:
+        obj = _adapter(cls).validate_json(text)
+    except ValidationError as exc:
+        raise _scene_error(cls, data, exc.errors()[0], file, key) from None
+    if cls is Scene:
+        obj = dataclasses.replace(obj, models=tuple(parse_model(m, file, f"models[{n}]") for n, m in enumerate(obj.models)))
+    _check_tree(obj, file, key)
     return obj
+
+
+def parse_model(value, file=None, key="models[0]"):
+    """A scene's model entry {"type": NAME, ...}: the registered plug-in's ``Parameters``."""
+    from .models import scene_models
+
+    known = scene_models()
+    if not isinstance(value, dict) or "type" not in value:
+        raise SceneError(file, key, f'expected an object with a "type" ({", ".join(known)}), got {json.dumps(value, default=str)}')
+    name = value["type"]
+    if name not in known:
+        close = difflib.get_close_matches(str(name), known, n=1)
+        hint = f"; did you mean '{close[0]}'?" if close else f"; known: {', '.join(known)}"
+        raise SceneError(file, f"{key}.type", f"unknown model {json.dumps(name)}{hint}")
+    return parse_dataclass(known[name].Parameters, {k: v for k, v in value.items() if k != "type"}, file, key)
+
+
+def model_types():
+    """{name: Parameters class} of the models a scene can name."""
+    from .models import scene_models
+
+    return {name: cls.Parameters for name, cls in scene_models().items()}
+
+
+def scene_json_schema() -> dict:
+    """The JSON Schema (draft 2020-12) of a scene file, models included (``warpsph schema``)."""
+    out = _adapter(Scene).json_schema()
+    out["properties"].pop("source", None)
+    entries = []
+    for name, params in model_types().items():
+        sub = _adapter(params).json_schema()
+        sub["properties"] = {"type": {"const": name, "description": "the model"}, **sub["properties"]}
+        sub["required"] = ["type"] + sub.get("required", [])
+        entries.append(sub)
+    out["properties"]["models"]["items"] = {"oneOf": entries}
+    out["$schema"] = "https://json-schema.org/draft/2020-12/schema"
+    out["title"] = "warpsph scene"
+    return out
 
 
 def load_scene(path, scale: float = 1.0) -> Scene:
@@ -551,3 +646,55 @@ def rescale(scene: Scene, scale: float) -> Scene:
                                dt_max=None if t.dt_max is None else t.dt_max * shrink,
                                fixed_dt=None if t.fixed_dt is None else t.fixed_dt * shrink)
     return dataclasses.replace(scene, particle_radius=scene.particle_radius * factor, time=time)
+
+
+def _default_text(info):
+    from pydantic_core import PydanticUndefined
+
+    if info.default is PydanticUndefined:
+        return "required"
+    value = info.default
+    if dataclasses.is_dataclass(value):
+        return "{}"
+    return json.dumps(value, default=list)
+
+
+def _reference_rows(cls, prefix, seen, sections, title=None):
+    """Appends (title, doc, rows) for ``cls`` and the schema classes below it, depth first."""
+    rows, below = [], []
+    for name, tp in _hints(cls).items():
+        if cls is Scene and name == "source":
+            continue
+        info = cls.__pydantic_fields__[name]
+        inner = _unwrap(tp)
+        if typing.get_origin(inner) is tuple and typing.get_args(inner)[-1] is Ellipsis:
+            inner = typing.get_args(inner)[0]
+            path = f"{prefix}{name}[]"
+        else:
+            path = f"{prefix}{name}"
+        unit = (info.json_schema_extra or {}).get("unit", "") if isinstance(info.json_schema_extra, dict) else ""
+        rows.append((f"`{path}`", _expect(cls, name), unit, f"`{_default_text(info)}`", info.description or ""))
+        if dataclasses.is_dataclass(inner) and inner not in seen:
+            seen.add(inner)
+            below.append((inner, f"{path}."))
+    sections.append((title or prefix.rstrip(".") or "top level", (cls.__doc__ or "").strip(), rows))
+    for inner, path in below:
+        _reference_rows(inner, path, seen, sections)
+
+
+def reference_markdown() -> str:
+    """Every scene-file key with its type and range, unit, default and meaning, as markdown (the docs'
+    scene reference; ``warpsph schema --markdown``). Generated from the schema classes."""
+    sections = []
+    _reference_rows(Scene, "", {Scene}, sections)
+    for name, params in model_types().items():
+        _reference_rows(params, "models[].", {params}, sections, title=f'models[]: "type": "{name}"')
+    out = ["# Scene reference", "",
+           "Every key of a scene file (JSON; SI units). Generated from the schema in `warpsph/scene.py` and the "
+           "models' `Parameters`; `warpsph schema` prints the same as JSON Schema for editors.", ""]
+    for title, doc, rows in sections:
+        out += [f"## {title}", "", " ".join(doc.split()), "", "| key | expects | unit | default | meaning |",
+                "|---|---|---|---|---|"]
+        out += ["| " + " | ".join(str(c).replace("|", "\\|") for c in row) + " |" for row in rows]
+        out.append("")
+    return "\n".join(out)

@@ -29,14 +29,13 @@ from warpsph.kernels.neighbours import gather
 from warpsph.kernels.pressure import REDUCE_THREADS
 from warpsph.kernels.particles import Boundary
 from warpsph.kernels.stability import DENSITY_LIMIT, NOT_FINITE, OUTSIDE_DOMAIN, check_particles
-from warpsph.models import REGISTRY
+from warpsph.models import REGISTRY, plugin_of
 from warpsph.models.vorticity import VorticityField
 from warpsph.neighbours import NeighbourSearch, sort_order
 from warpsph.resources import check_fits
 from warpsph.errors import SceneError
-from warpsph.scene import MODEL_TYPES, Scene
+from warpsph.scene import Scene
 
-MODEL_NAMES = {cls: name for name, cls in MODEL_TYPES.items()}
 from warpsph.solver import DFSPHSolver
 
 
@@ -210,7 +209,7 @@ class Simulation:
         self.capacity = self.num_fluid + (self.inflow.room if self.inflow is not None else 0)
         self._per_particle = []
         self._scratch = None
-        model_classes = [REGISTRY[MODEL_NAMES[type(p)]] for p in scene.models]
+        model_classes = [plugin_of(p) for p in scene.models]
         self._scratch_columns = max([DFSPHSolver.columns(scene)] + [m.scratch_columns for m in model_classes])
         check_fits(scene, self.capacity, self.num_boundary, self.device)  # refuse before allocating
         with wp.ScopedDevice(self.device):
@@ -235,12 +234,10 @@ class Simulation:
                             [self.neighbours.boundary_grid.grid, self.boundary.x, sample_body, first_moving_body,
                              self.support_radius, self.neighbours.lower, self.neighbours.period, self.boundary.volume])
             self.pressure_solver = DFSPHSolver(self)
-            self.models = []
             viscous = scene.fluid.viscosity > 0.0 or scene.fluid.boundary_viscosity > 0.0
-            if viscous:
-                self.models.append(REGISTRY["viscosity"](self))
-            self.models += [cls(self, p) for cls, p in zip(model_classes, scene.models)]
-            self.turbulence_models = self.models[1:] if viscous else list(self.models)
+            self.viscosity_model = REGISTRY["viscosity"](self) if viscous else None
+            self.turbulence_models = [cls(self, p) for cls, p in zip(model_classes, scene.models)]
+            self.models = ([self.viscosity_model] if viscous else []) + self.turbulence_models
             # the vorticity of v~, shared by the models, exists only when one reads it
             self.vorticity_field = None
             if any(m.needs_vorticity for m in self.models):
@@ -461,7 +458,7 @@ class Simulation:
         with t("non_pressure"):  # a_adv = a_vis; turbulence models refine v~ (Algorithm 2)
             f.acceleration.zero_()
             # zeta~ = curl v~, once for all models: in the viscosity pass when there is one
-            if self.vorticity_field is not None and not any(getattr(m, "computes_vorticity", False) for m in self.models):
+            if self.vorticity_field is not None and not any(m.computes_vorticity for m in self.models):
                 self.vorticity_field.update(self)
             for model in self.models:
                 model.step(self)
@@ -534,7 +531,7 @@ class Simulation:
         if self.inflow is not None:
             out.update(self.inflow.state())
         for m in self.turbulence_models:
-            out.update({f"{m.name}.{k}": v for k, v in vars(m).items() if k.startswith("has_")})
+            out.update({f"{m.name}.{k}": v for k, v in m.flags().items()})
         return out
 
     def restore_flags(self, flags):
@@ -545,9 +542,7 @@ class Simulation:
         if self.moving_bodies is not None:
             self.moving_bodies.load_state()
         for m in self.turbulence_models:
-            for k in vars(m):
-                if k.startswith("has_"):
-                    setattr(m, k, int(flags[f"{m.name}.{k}"]))
+            m.restore_flags({k: flags[f"{m.name}.{k}"] for k in m.flag_names})
 
     def _snapshot(self):
         return {k: wp.clone(a) for k, a in self.state_arrays().items()}, self.state_flags()

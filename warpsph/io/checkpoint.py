@@ -75,12 +75,12 @@ def _same(a, b):
 def _stored_scene(f, path):
     """The scene the checkpoint holds, its source the original scene file's absolute path (older
     checkpoints stored it relative to the working directory of the run)."""
-    from warpsph.scene import MODEL_TYPES, Scene, parse_dataclass
+    from warpsph.scene import Scene, model_types, parse_dataclass
 
     source = Path(f.attrs["scene_file"]).absolute() if f.attrs["scene_file"] else path.absolute()
     stored = json.loads(f.attrs["scene"])
     stored.pop("source", None)
-    names = {cls.__name__: key for key, cls in MODEL_TYPES.items()}
+    names = {cls.__name__: key for key, cls in model_types().items()}
     data = {**stored, "models": [{**m, "type": names.get(m["type"], m["type"])} for m in stored["models"]]}
     scene = parse_dataclass(Scene, data, source)
     return dataclasses.replace(scene, source=str(source)), stored

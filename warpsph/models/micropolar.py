@@ -3,14 +3,28 @@
 import warp as wp
 
 from warpsph.kernels.micropolar import micropolar_step
+from warpsph.scene import MAX_MODEL_VISCOSITY, key, schema
 
 from . import Model, register
+
+
+@schema
+class Micropolar:
+    """Micropolar's scene parameters (Bender et al. 2017/2018; SPlisHSPlasH's defaults: nu_t 0.1,
+    Theta^-1 0.5, zeta 0.1; the stress matrix ran nu_t up to 0.4)."""
+
+    transfer_coefficient: float = key(0.05, doc="nu_t, the coupling of v and omega", ge=0.0, le=1.0)
+    inverse_inertia: float = key(0.5, doc="Theta^-1, the inverse micro-inertia", gt=0.0, le=10.0)
+    viscosity_omega: float = key(0.1, doc="zeta, the viscosity of omega", unit="m^2/s", ge=0.0, le=MAX_MODEL_VISCOSITY)
 
 
 @register("micropolar")
 class MicropolarModel(Model):
     """Angular velocity omega per particle, coupled to v through nu_t. One launch and a copy."""
 
+    Parameters = Micropolar
+    bytes_per_particle = 12  # one vec3 per particle
+    output_fields = {"angular_velocity": 12}
     needs_vorticity = True
     scratch_columns = 3
 
@@ -36,7 +50,6 @@ class MicropolarModel(Model):
     def state(self):
         return {"micropolar_angular_velocity": self.omega}
 
-    def rotational_energy(self, sim):
-        """sum_i 1/2 m I |omega_i|^2 with micro-inertia I = 1 / Theta^-1 (host read)."""
-        w = sim.host(self.omega)
-        return 0.5 * sim.particle_mass / self.params.inverse_inertia * float((w.astype("f8") ** 2).sum())
+    def spin(self):
+        """omega with micro-inertia I = 1 / Theta^-1 per unit mass."""
+        return self.omega, 1.0 / self.params.inverse_inertia

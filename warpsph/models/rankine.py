@@ -1,10 +1,22 @@
 """Rankine vortex feedback (Rankine paper, Algorithm 1) as a non-pressure model."""
 
+from typing import Optional
+
 import warp as wp
 
 from warpsph.kernels.rankine import apply_rankine_feedback, compute_vorticity_change
+from warpsph.scene import MAX_MODEL_VISCOSITY, key, schema
 
 from . import NO_HISTORY, Model, register
+
+
+@schema
+class RankineFeedback:
+    """Rankine feedback's scene parameters (Rankine paper, Algorithm 1): r_c = beta sqrt(4 1.25643 nu dt)."""
+
+    beta: float = key(1.0, doc="intensity beta of eq 11 (Fig 7's sweep)", ge=0.0, le=1.0)
+    viscosity: Optional[float] = key(None, doc="nu of eq 11; null: the fluid's", unit="m^2/s",
+                                     ge=0.0, le=MAX_MODEL_VISCOSITY)
 
 
 @register("rankine")
@@ -19,6 +31,9 @@ class RankineModel(Model):
     Bounding beta r_c^max instead made every beta above 0.7 r / r_c^max (about 0.44 at the viscous time-step
     limit) the same model."""
 
+    Parameters = RankineFeedback
+    bytes_per_particle = 12  # one vec3 per particle
+    flag_names = ("has_previous",)
     needs_vorticity = True
     scratch_columns = 3
 

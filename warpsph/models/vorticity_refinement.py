@@ -1,5 +1,7 @@
 """Vorticity refinement (VR paper, Algorithm 2) as a non-pressure model."""
 
+from typing import Optional
+
 import warp as wp
 
 from warpsph.kernels.vorticity_refinement import (
@@ -8,8 +10,19 @@ from warpsph.kernels.vorticity_refinement import (
     compute_target_vorticity,
     compute_vorticity_loss,
 )
+from warpsph.scene import MAX_MODEL_VISCOSITY, key, schema
 
 from . import NO_HISTORY, Model, register
+
+
+@schema
+class VorticityRefinement:
+    """Vorticity refinement's scene parameters (VR paper, Algorithm 2): v <- v~ + alpha dv (eq 17)."""
+
+    alpha: float = key(1.0, doc="refinement strength alpha of eq 17 (the VR paper uses 0 to 1.3; every alpha in "
+                                "[0, 2] ran stable in the stress matrix)", ge=0.0, le=2.0)
+    viscosity: Optional[float] = key(None, doc="nu_v of eq 10; null: the fluid's", unit="m^2/s",
+                                     ge=0.0, le=MAX_MODEL_VISCOSITY)
 
 
 @register("vorticity_refinement")
@@ -19,6 +32,9 @@ class VorticityRefinementModel(Model):
     zeta^n = curl v of the refined velocity and from it the next ideal zeta^{n+1} (eqs 9-11).
     Three neighbour passes; one scratch vector per particle (psi) besides the carried target."""
 
+    Parameters = VorticityRefinement
+    bytes_per_particle = 12  # one vec3 per particle
+    flag_names = ("has_target",)
     needs_vorticity = True
     scratch_columns = 3
 

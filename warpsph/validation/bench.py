@@ -143,7 +143,7 @@ def make_scene(args, particles):
     """The benchmark's scene at ~``particles`` fluid particles with the command line's overrides."""
     import dataclasses
 
-    from warpsph.scene import MODEL_TYPES, load_scene
+    from warpsph.scene import load_scene, model_types
     from warpsph.simulation import sample_scene
 
     n_base = len(sample_scene(load_scene(args.scene))[0])
@@ -155,8 +155,9 @@ def make_scene(args, particles):
         solver = dataclasses.replace(solver, sort_interval=args.sort_interval)
     scene = dataclasses.replace(scene, solver=solver)
     if args.model != "none":
-        names = list(MODEL_TYPES) if args.model == "all" else [args.model]
-        scene = dataclasses.replace(scene, models=tuple(MODEL_TYPES[name]() for name in names))
+        types = model_types()
+        names = list(types) if args.model == "all" else [args.model]
+        scene = dataclasses.replace(scene, models=tuple(types[name]() for name in names))
     return scene
 
 
@@ -242,9 +243,8 @@ def run(args, particles):
         "dt_last": float(sim.dt.numpy()[0]),
         "moving_bodies": [] if sim.moving_bodies is None else [b.name for b in sim.moving_bodies.bodies],
     }
-    from warpsph.simulation import MODEL_NAMES
 
-    names = [MODEL_NAMES[type(m)] for m in scene.models] or ["none"]
+    names = [type(m).plugin_name for m in scene.models] or ["none"]
     result["model"] = "+".join(names)
     result["k_passes"] = neighbour_passes(result, names)
     del sim

@@ -50,12 +50,12 @@ REPO = Path(__file__).resolve().parents[2]
 
 def cell_scene(base, axis=None, value=None, dt_ref=None):
     """The plain scene with one change (``axis`` None: the plain cell)."""
-    from warpsph.scene import MODEL_TYPES, parse_dataclass
+    from warpsph.scene import parse_model
 
     scene = dataclasses.replace(base, models=())
     if axis in MODEL_AXES:
         kind, key = MODEL_AXES[axis]
-        scene = dataclasses.replace(scene, models=(parse_dataclass(MODEL_TYPES[kind], {key: value}),))
+        scene = dataclasses.replace(scene, models=(parse_model({"type": kind, key: value}),))
     elif axis == "cfl":
         scene = dataclasses.replace(scene, time=dataclasses.replace(scene.time, cfl=value, fixed_dt=None))
     elif axis == "fixed_dt":
