@@ -1,5 +1,5 @@
 """The documentation site (mkdocs.yml, docs/) builds with warnings as errors: a broken link or anchor,
-an API reference (mkdocstrings) to something that does not exist, or a page left out of the nav fails.
+an API reference (mkdocstrings) or a cross-reference to something that does not exist fails.
 Offline and without Warp on the GPU (the API pages are read statically by griffe)."""
 
 import importlib.util
