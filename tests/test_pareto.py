@@ -1,5 +1,6 @@
-"""The cost/accuracy benchmark (tools/pareto.py): every point recorded, the Pareto flags, and a physical
-check that cannot pass by construction (the finer resolution of the same vortex is more accurate)."""
+"""The cost/accuracy benchmark (warpsph/validation/pareto.py, ``warpsph pareto``): every point recorded, the
+Pareto flags, and a physical check that cannot pass by construction (the finer resolution of the same vortex is
+more accurate)."""
 
 import json
 import math

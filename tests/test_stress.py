@@ -1,23 +1,18 @@
-"""The stability stress matrix (tools/stress.py): a tiny matrix on cpu records every cell, catches a
-blow-up with where and when it happened, and keeps going."""
+"""The stability stress matrix (``warpsph stress``, warpsph/validation/stress.py): a tiny matrix on cpu records
+every cell, catches a blow-up with where and when it happened, and keeps going."""
 
 import json
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
+from warpsph.cli import main
 
 
 def test_stress_matrix_records_every_cell_and_the_blow_up(tmp_path):
     out = tmp_path / "stress"
     # plain DFSPH, VR alpha = 1 and a fixed step 30x the CFL step (blows up within a few steps at this scale)
-    cmd = [sys.executable, str(ROOT / "tools" / "stress.py"), "--axes", "alpha", "fixed_dt", "--alpha", "1",
-           "--fixed-dt", "30", "--scale", "0.05", "--seconds", "0.5", "--device", "cpu", "--out", str(out)]
-    done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-    assert done.returncode == 0, done.stderr[-2000:]
+    assert main(["stress", "--axes", "alpha", "fixed_dt", "--alpha", "1", "--fixed-dt", "30", "--scale", "0.05",
+                 "--seconds", "0.5", "--device", "cpu", "--out", str(out)]) == 0
     report = json.loads(out.with_suffix(".json").read_text())
     cells = {c["name"]: c for c in report["cells"]}
     assert set(cells) == {"plain DFSPH", "alpha = 1", "fixed_dt = 30"}

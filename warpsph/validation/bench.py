@@ -22,6 +22,7 @@ from __future__ import annotations
 import argparse
 import gc
 import json
+import math
 import time
 from pathlib import Path
 
@@ -64,9 +65,9 @@ def check_arguments(args):
     for option, value, low in (("--warmup", args.warmup, 0), ("--steps", args.steps, 1)):
         if value < low:
             raise SceneError("", option, f"expected an integer >= {low}, got {value}")
-    if any(not p > 0 for p in args.particles):
-        raise SceneError("", "--particles", "expected particle counts > 0")
-    if args.density_error is not None and not args.density_error > 0:
+    if any(not 0 < p < math.inf for p in args.particles):
+        raise SceneError("", "--particles", "expected finite particle counts > 0")
+    if args.density_error is not None and not 0 < args.density_error < math.inf:
         raise SceneError("", "--density-error", f"expected a percentage > 0, got {args.density_error}")
     if args.sort_interval is not None and args.sort_interval < 0:
         raise SceneError("", "--sort-interval", f"expected an integer >= 0, got {args.sort_interval}")

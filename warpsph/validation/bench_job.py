@@ -35,6 +35,7 @@ import contextlib  # noqa: E402
 import functools  # noqa: E402
 import gc  # noqa: E402
 import json  # noqa: E402
+import math  # noqa: E402
 import re  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
@@ -224,8 +225,8 @@ def check_arguments(args):
     check_out(args.out)
     if not re.fullmatch(r"cpu|cuda(:\d+)?", args.device):
         raise SceneError("", "--device", f"expected cpu, cuda or cuda:N, got '{args.device}'")
-    if not args.particles > 0:
-        raise SceneError("", "--particles", f"expected a particle count > 0, got {args.particles:g}")
+    if not 0 < args.particles < math.inf:
+        raise SceneError("", "--particles", f"expected a finite particle count > 0, got {args.particles:g}")
     if args.frames < 1:
         raise SceneError("", "--frames", f"expected an integer >= 1, got {args.frames}")
     if args.keep and Path(args.keep).exists() and not Path(args.keep).is_dir():

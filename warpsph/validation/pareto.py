@@ -596,8 +596,8 @@ def check_arguments(args):
             raise SceneError("", option, f"expected integers >= {MIN_RESOLUTION}, got {' '.join(map(str, values))}")
     for option, values in (("--tolerances", args.tolerances), ("--nu", [args.nu]), ("--core-radius", [args.core_radius]),
                            ("--T", [] if args.T is None else [args.T]), ("--dam-T-end", [args.dam_T_end])):
-        if any(not v > 0 for v in values):
-            raise SceneError("", option, f"expected values > 0, got {' '.join(f'{v:g}' for v in values)}")
+        if any(not 0 < v < math.inf for v in values):
+            raise SceneError("", option, f"expected finite values > 0, got {' '.join(f'{v:g}' for v in values)}")
     for option, value, low in (("--depth", args.depth, 1), ("--frames", args.frames, 1),
                                ("--pack-steps", 0 if args.pack_steps is None else args.pack_steps, 0)):
         if value < low:

@@ -278,8 +278,11 @@ def check_arguments(args):
     if not Path(args.scene).is_file():
         raise SceneError(args.scene, "--scene", "no such scene file")
     for option, value in (("--scale", args.scale), ("--seconds", args.seconds)):
-        if not value > 0:
-            raise SceneError("", option, f"expected a number > 0, got {value:g}")
+        if not 0 < value < np.inf:
+            raise SceneError("", option, f"expected a finite number > 0, got {value:g}")
+    for axis in AXES:
+        if any(not np.isfinite(v) for v in getattr(args, axis) or ()):
+            raise SceneError("", "--" + axis.replace("_", "-"), "expected finite values")
     for axis in ("cfl", "fixed_dt"):
         if any(not v > 0 for v in getattr(args, axis) or ()):
             raise SceneError("", "--" + axis.replace("_", "-"), "expected values > 0")
