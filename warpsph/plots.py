@@ -99,7 +99,7 @@ def draw_figures(out, figures):
 
 def write_report(report, out, figures):
     """A validation report as JSON at ``out`` and, when matplotlib is present, its figures beside it (the
-    JSON alone regenerates them: ``python tools/plot_results.py OUT.json``)."""
+    JSON alone regenerates them: ``warpsph plot results OUT.json``)."""
     import json
 
     Path(out).write_text(json.dumps(report, indent=2) + "\n")

@@ -7,7 +7,15 @@
 - :mod:`.cases`: the runner behind ``warpsph validate CASE --resolutions N ...``, one row per method and
   resolution with the error, particles, steps and wall time.
 
-The scripts tools/validate_*.py call these modules' ``main``.
+The studies, each with ``add_arguments``, ``command`` and ``main`` (``warpsph COMMAND`` and the tools/ scripts):
+
+- :mod:`.pareto`: cost against accuracy and the Pareto front (``warpsph pareto``);
+- :mod:`.stress`: the numerical-stability matrix (``warpsph stress``);
+- :mod:`.bench`: ms per step and per stage of a scene at ~N particles (``warpsph bench steps``);
+- :mod:`.bench_job`: the whole job with its output, and the time to the first step (``warpsph bench job``);
+- :mod:`.results`: the figures of result JSON files (``warpsph plot results``).
+
+The scripts tools/validate_*.py call the cases' ``main``.
 """
 
 from .cases import CASES, validate
