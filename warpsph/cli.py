@@ -234,7 +234,7 @@ def _cache_exists(outputs, clips):
     return outputs.clips.is_dir() if clips else outputs.out.exists() or outputs.partial.exists()
 
 
-last_run = {}  # timings and sizes of the last _simulate (tools/bench_job.py reads them)
+last_run = {}  # timings and sizes of the last _simulate (warpsph bench job reads them)
 
 
 def _simulate(sim, outputs, frames, args, options, append):
