@@ -15,8 +15,7 @@ def packed():
 
 
 def _density_range(sim):
-    sim.neighbours.update(sim.fluid.x)
-    sim._compute_density()
+    sim.update_densities()
     return np.abs(sim.host(sim.fluid.density) / sim.rest_density - 1.0).max()
 
 

@@ -9,8 +9,7 @@ from conftest import make_sim, tank_scene
 
 def _flags(sim):
     """Surface flags of the current positions, as the step computes them (no step taken)."""
-    sim.neighbours.update(sim.fluid.x)
-    sim._compute_density()
+    sim.update_densities()
     sim.pressure_solver.detect_free_surface()
     return sim.host(sim.pressure_solver.surface), sim.pressure_solver.free_surface_count()
 

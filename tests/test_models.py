@@ -51,10 +51,9 @@ def test_fused_viscosity_pass_gives_the_same_vorticity(device):
     sim = make_sim(dam([{"type": "vorticity_refinement"}]), device=device)
     rng = np.random.default_rng(4)
     sim.fluid.v.assign(rng.normal(size=(sim.num_fluid, 3)).astype(np.float32))
-    sim.neighbours.update(sim.fluid.x)
-    sim._compute_density()
+    sim.update_densities()
     field = sim.vorticity_field
-    sim.models[0].step(sim)  # viscosity, fused
+    sim.models[0].step(sim.model_context)  # viscosity, fused
     fused = field.vorticity.numpy().copy()
     field.vorticity.zero_()
     field.update(sim)  # the stand-alone pass
@@ -184,7 +183,7 @@ def test_refinement_adds_no_net_momentum(spec):
     model = sim.models[-1]
     sim.vorticity_field.update(sim)
     v0 = sim.fluid.v.numpy().astype(np.float64)
-    model.step(sim)
+    model.step(sim.model_context)
     dv = sim.fluid.v.numpy().astype(np.float64) - v0
     assert np.abs(dv).sum() > 0  # it did refine
     added = sim.particle_mass * np.linalg.norm(dv.sum(0))
@@ -246,8 +245,7 @@ def test_rankine_feedback_restores_the_vorticity_change(waves):
     sim = make_sim({"name": "lattice", "particle_radius": d / 2, "gravity": [0, 0, 0],
                     "domain": {"min": [0, 0, 0], "max": [1, 1, 6 * d], "periodic": ["x", "y", "z"]},
                     "fluid_blocks": [{"start": [0, 0, 0], "end": [1, 1, 6 * d]}]})
-    sim.neighbours.update(sim.fluid.x)
-    sim._compute_density()
+    sim.update_densities()
     x = sim.fluid.x.numpy()
     k = 2 * np.pi * waves
     change = np.zeros((len(x), 3), np.float32)

@@ -45,17 +45,18 @@ class DampingModel(Model):
     output_fields = {"damping_work": 4}
     flag_names = ("has_run",)
 
-    def __init__(self, sim, params):
-        super().__init__(sim, params)
-        self.work = sim.per_particle(self.name, float)
+    def __init__(self, ctx, params):
+        super().__init__(ctx, params)
+        self.work = ctx.per_particle(self.name, float)
         self.has_run = 0
 
-    def step(self, sim):
-        sim.launch(damp_velocity, sim.num_fluid, [sim.fluid.v, self.params.rate, sim.dt, self.work])
+    def step(self, ctx):
+        assert not hasattr(ctx, "pressure_solver") and not hasattr(ctx, "moving_bodies")  # the narrow context
+        ctx.launch(damp_velocity, ctx.num_fluid, [ctx.fluid.v, self.params.rate, ctx.dt, self.work])
         self.has_run = 1
 
-    def reorder(self, sim, order):
-        sim.permute(self.work, order)
+    def reorder(self, ctx, order):
+        ctx.permute(self.work, order)
 
     def fields(self):
         return {"damping_work": self.work}

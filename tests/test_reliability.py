@@ -108,18 +108,19 @@ def test_nan_is_caught_on_the_step_it_appears():
 
 
 def test_density_runaway_and_solver_streak_are_caught(monkeypatch):
-    import warpsph.simulation as simulation
+    import warpsph.health as health
     from conftest import make_sim
+    from warpsph.simulation import InstabilityError
 
-    monkeypatch.setattr(simulation, "DENSITY_HARD_LIMIT", 0.5)  # every particle is "too dense"
+    monkeypatch.setattr(health, "DENSITY_HARD_LIMIT", 0.5)  # every particle is "too dense"
     sim = make_sim(tank_scene(radius=0.05))
-    with pytest.raises(simulation.InstabilityError, match="density above"):
+    with pytest.raises(InstabilityError, match="density above"):
         sim.run(frames=1)
-    monkeypatch.setattr(simulation, "DENSITY_HARD_LIMIT", 1.5)
-    monkeypatch.setattr(simulation, "MAX_ITERATION_STREAK", 3)
+    monkeypatch.setattr(health, "DENSITY_HARD_LIMIT", 1.5)
+    monkeypatch.setattr(health, "MAX_ITERATION_STREAK", 3)
     sim = make_sim(tank_scene(radius=0.03, solver={"min_iterations": 0, "max_iterations": 1,
                                                    "density_max_error": 1e-6}))
-    with pytest.raises(simulation.InstabilityError, match="density solver hit max_iterations 3 steps in a row"):
+    with pytest.raises(InstabilityError, match="density solver hit max_iterations 3 steps in a row"):
         sim.run(frames=2)
 
 

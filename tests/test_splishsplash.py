@@ -358,8 +358,7 @@ def test_density_error_is_splishsplashs_measure_and_max_error_maps_one_to_one(sc
     sim.fluid.v.assign(v.astype(np.float32))
     h = 0.004
     sim.dt.fill_(h)
-    sim.neighbours.update(sim.fluid.x)
-    sim._compute_density()
+    sim.update_densities()
     solver = sim.pressure_solver
     solver.detect_free_surface()
     assert solver.free_surface_count() > 0  # free-surface flow: p >= 0 everywhere, as in SPlisHSPlasH

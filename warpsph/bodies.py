@@ -170,6 +170,8 @@ class MovingBodies:
         self.totals = sim.zeros("bodies", 2 * n, dtype=wp.vec3)
         # dynamic state for checkpoints and retried frames: position, rotation, velocity, angular velocity
         self.state = sim.zeros("bodies", (max(len(self.dynamic), 1), 18), dtype=float)
+        if self.dynamic:
+            sim.state.carry("bodies/state", self.state)
         self._store_state()
 
     # -- poses -------------------------------------------------------------------------------------------

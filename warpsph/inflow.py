@@ -91,13 +91,12 @@ class Inflow:
         if self.next_id + k > np.iinfo(np.int32).max:
             raise SceneError(sim.scene.source, "emitters",
                              f"particle ids would pass {np.iinfo(np.int32).max} (int32): fewer or larger particles")
-        for array in sim._per_particle:
-            array[n: n + k].zero_()
+        sim.state.zero_rows(n, k)
         sim.fluid.x[n: n + k].assign(x)
         sim.fluid.v[n: n + k].assign(np.tile(velocity, (k, 1)))
         sim.fluid.ids[n: n + k].assign(np.arange(self.next_id, self.next_id + k, dtype=np.int32))
         for model in getattr(sim, "models", ()):
-            model.emitted(sim, n, k)  # no history: skip their first correction
+            model.emitted(sim.model_context, n, k)  # no history: skip their first correction
         self.next_id += k
         sim.num_fluid = n + k
         return True

@@ -7,15 +7,14 @@ import time as _time
 from collections import Counter, defaultdict
 from dataclasses import dataclass
 
-from pathlib import Path
 
 import numpy as np
 import warp as wp
 
-from warpsph import sampling
-from warpsph.bodies import BODY_INSET, MovingBodies, load_body
+from warpsph import health
+from warpsph.bodies import BODY_INSET, MovingBodies
+from warpsph.health import InstabilityError  # noqa: F401 (public here too)
 from warpsph.inflow import Inflow
-from warpsph.kernels.bodies import mark_fluid_clear_of_mesh
 from warpsph.kernels.boundary import compute_boundary_volume
 from warpsph.kernels.density import compute_density_and_factor
 from warpsph.kernels.integration import (
@@ -28,27 +27,16 @@ from warpsph.kernels.integration import (
 from warpsph.kernels.neighbours import gather
 from warpsph.kernels.pressure import REDUCE_THREADS
 from warpsph.kernels.particles import Boundary
-from warpsph.kernels.stability import DENSITY_LIMIT, NOT_FINITE, OUTSIDE_DOMAIN, check_particles
-from warpsph.models import REGISTRY, plugin_of
+from warpsph.kernels.stability import check_particles
+from warpsph.models import REGISTRY, ModelContext, plugin_of
 from warpsph.models.vorticity import VorticityField
 from warpsph.neighbours import NeighbourSearch, sort_order
 from warpsph.resources import check_fits
-from warpsph.errors import SceneError
 from warpsph.scene import Scene
+from warpsph.state import FluidParticles, State  # noqa: F401 (FluidParticles: public here too)
+from warpsph.scene_setup import count_particles, remove_fluid_inside_bodies, sample_scene  # noqa: F401 (public here too)
 
 from warpsph.solver import DFSPHSolver
-
-
-@dataclass
-class FluidParticles:
-    """Per-particle state of the fluid (sorted by cell every ``solver.sort_interval`` steps)."""
-
-    x: wp.array  # position [m]
-    v: wp.array  # velocity [m/s]
-    ids: wp.array  # stable id (int32; int64 in USD), follows the particle through re-sorting
-    density: wp.array  # [kg/m^3]
-    factor: wp.array  # DFSPH factor
-    acceleration: wp.array  # non-pressure acceleration of this step [m/s^2]
 
 
 @dataclass
@@ -73,34 +61,6 @@ class BoundaryParticles:
         return s
 
 
-# The domain box's boundary layer lies this many particle radii outside its faces. A single
-# Akinci layer sampled at spacing 2r has V_b ~ 1.43 (2r)^3, so a lattice fluid half a spacing
-# from it would start at 1.5 rho0; 2.2 r from the layer it has rest density (within 0.2 %),
-# so a fluid block that touches a face starts at rest.
-WALL_OFFSET = 1.2
-
-
-# Health limits checked after every step (see check_health)
-# rho / rho0 above which the solver has lost control: a 2000-particle dam break peaks at 1.22 for one
-# step as its front corner shoots out (then recovers); the 1M run that exploded reached 2.2
-DENSITY_HARD_LIMIT = 1.5
-ESCAPE_MARGIN = WALL_OFFSET + 1.0  # radii past the box: a radius beyond its wall layer = tunnelled through
-MAX_ITERATION_STREAK = 50  # consecutive solves that stop at max_iterations
-RETRIES = 4  # reduce-dt policy: halvings of dt tried for one frame
-CHECK_NAMES = {int(NOT_FINITE): "NaN or inf in position, velocity or density",
-               int(OUTSIDE_DOMAIN): "particle left the domain",
-               int(DENSITY_LIMIT): f"density above {DENSITY_HARD_LIMIT:g} rho0"}
-
-
-class InstabilityError(RuntimeError):
-    """The simulation became unstable; the message names the step, time, check and particle."""
-
-    def __init__(self, step, time, check, particle_id=None, position=None):
-        self.step, self.time, self.check, self.particle_id, self.position = step, time, check, particle_id, position
-        where = "" if particle_id is None else f", particle id {particle_id} at {np.round(position, 4).tolist()}"
-        super().__init__(f"unstable at step {step} (t = {time:.4f} s): {check}{where}")
-
-
 class StageTimer:
     """Wall time per stage, synchronising the device around each; free when disabled."""
 
@@ -121,53 +81,6 @@ class StageTimer:
         self.seconds[name] += _time.perf_counter() - start
 
 
-# Neighbour lists index with int32: about 40 neighbours a particle keeps 50M particles below 2^31.
-MAX_PARTICLES = 50_000_000
-
-
-def count_particles(scene: Scene):
-    """Fluid and domain-wall particle counts, computed before anything is sampled."""
-    d = scene.particle_diameter
-    fluid = sum(int(np.prod(np.floor((np.subtract(b.end, b.start)) / d + 1e-6))) for b in scene.fluid_blocks)
-    ext = np.subtract(scene.domain.max, scene.domain.min) + 2 * WALL_OFFSET * scene.particle_radius
-    walls = int(2 * (ext[0] * ext[1] + ext[1] * ext[2] + ext[0] * ext[2]) / d**2) if scene.domain.walls else 0
-    return fluid, walls
-
-
-def sample_scene(scene: Scene):
-    """Host-side initial particles: fluid (x, v), the static boundary (x, body index, Z-ordered)
-    and every obstacle as a :class:`RigidBody` (static ones included, for the USD meshes)."""
-    fluid, walls = count_particles(scene)
-    if fluid > MAX_PARTICLES or walls > MAX_PARTICLES:
-        raise SceneError(scene.source, "particle_radius",
-                         f"r = {scene.particle_radius:.3g} m needs about {max(fluid, walls):.3g} particles, over the "
-                         f"{MAX_PARTICLES:,} limit: use a larger radius or a smaller --scale")
-    if fluid == 0 and not any(e.start == 0.0 for e in scene.emitters):
-        raise SceneError(scene.source, "fluid_blocks", "no fluid at t = 0: every block is thinner than one particle "
-                                                       "spacing (or missing) and no emitter starts at 0")
-    d = scene.particle_diameter
-    blocks = [sampling.fill_block(b.start, b.end, d) for b in scene.fluid_blocks]
-    fluid_x = np.concatenate(blocks) if blocks else np.zeros((0, 3), np.float32)
-    fluid_v = np.concatenate([np.tile(np.asarray(b.velocity, np.float32), (len(p), 1))
-                              for b, p in zip(scene.fluid_blocks, blocks)]) if blocks else np.zeros((0, 3), np.float32)
-    # walls stand off 1.2 r from the faces; along periodic axes they span the domain exactly
-    offset = np.where(np.asarray(scene.domain.period) > 0, 0.0, WALL_OFFSET * scene.particle_radius)
-    bodies = [sampling.sample_box_walls(np.asarray(scene.domain.min) - offset, np.asarray(scene.domain.max) + offset, d,
-                                        scene.domain.periodic) if scene.domain.walls else np.zeros((0, 3), np.float32)]
-    size = float(np.linalg.norm(np.subtract(scene.domain.max, scene.domain.min)))
-    rigid = [load_body(o, scene.mesh_path(o), d, size, f"{Path(o.mesh).stem}_{n}", scene.fluid.density)
-             for n, o in enumerate(scene.obstacles)]
-    names = [b.name for b in rigid]
-    for n, name in enumerate(names):
-        if names.index(name) != n:
-            raise SceneError(scene.source, f"obstacles[{n}].name", f"another body is named {name!r}")
-    bodies += [b.world_samples() if b.kind == "static" else np.zeros((0, 3), np.float32) for b in rigid]
-    boundary_x = np.concatenate(bodies).reshape(-1, 3)
-    body = np.concatenate([np.full(len(p), n, dtype=np.int32) for n, p in enumerate(bodies)])
-    order = sampling.morton_order(boundary_x, np.asarray(scene.domain.min), scene.support_radius)
-    return fluid_x, fluid_v, boundary_x[order], body[order], rigid
-
-
 class Simulation:
     """A scene on a device. ``step()`` advances one adaptive time step; ``run()`` frames.
 
@@ -180,7 +93,6 @@ class Simulation:
         self.device = wp.get_device(device)
         self.timer = StageTimer(profile)
         self.launches = Counter()  # kernel name -> launches (capture counts once)
-        self.allocations = defaultdict(int)  # owner -> bytes
         r = scene.particle_radius
         self.support_radius = 4.0 * r
         self.fluid_volume = (2.0 * r) ** 3  # a lattice of spacing 2r sums to rho0 (see docs)
@@ -193,7 +105,7 @@ class Simulation:
         self.viscous_dt = 0.125 * (0.5 * self.support_radius) ** 2 / nu if nu > 0 else 1.0e30
 
         fluid_x, fluid_v, boundary_x, body, self.bodies = sample_scene(scene)
-        fluid_x, fluid_v = self._remove_fluid_inside_bodies(fluid_x, fluid_v)
+        fluid_x, fluid_v = remove_fluid_inside_bodies(scene, self.bodies, fluid_x, fluid_v, self.device, self.launch)
         # moving bodies' samples follow the static ones: kinematic, then dynamic
         moving = sorted((b for b in self.bodies if b.kind != "static"), key=lambda b: b.kind == "dynamic")
         first_moving = len(boundary_x)
@@ -201,23 +113,20 @@ class Simulation:
             boundary_x = np.concatenate([boundary_x] + [b.world_samples() for b in moving])
             index = {id(b): n + 1 for n, b in enumerate(self.bodies)}
             body = np.concatenate([body] + [np.full(len(b.samples), index[id(b)], np.int32) for b in moving])
-        self.num_fluid = len(fluid_x)
         self.num_boundary = len(boundary_x)
         # emitters, sinks, and the removal of what leaves an open domain
-        self.inflow = Inflow(scene, self.num_fluid) if scene.emitters or scene.sinks or scene.domain.is_open else None
+        self.inflow = Inflow(scene, len(fluid_x)) if scene.emitters or scene.sinks or scene.domain.is_open else None
         # per-particle arrays hold the fluid at its largest: the initial particles and what emitters add
-        self.capacity = self.num_fluid + (self.inflow.room if self.inflow is not None else 0)
-        self._per_particle = []
+        capacity = len(fluid_x) + (self.inflow.room if self.inflow is not None else 0)
+        self.state = State(self.device, capacity, len(fluid_x))
         self._scratch = None
         model_classes = [plugin_of(p) for p in scene.models]
         self._scratch_columns = max([DFSPHSolver.columns(scene)] + [m.scratch_columns for m in model_classes])
         check_fits(scene, self.capacity, self.num_boundary, self.device)  # refuse before allocating
         with wp.ScopedDevice(self.device):
-            z, p = self.zeros, self.per_particle
-            self.fluid = FluidParticles(
-                x=p("fluid", wp.vec3, fluid_x), v=p("fluid", wp.vec3, fluid_v),
-                ids=p("fluid", wp.int32, np.arange(self.num_fluid, dtype=np.int32)),
-                density=p("fluid"), factor=p("fluid"), acceleration=p("fluid", wp.vec3))
+            z = self.zeros
+            self.state.allocate_fluid(fluid_x, fluid_v)
+            self.state.allocate_clock(scene.time_step_bounds[1])
             has_dynamic = any(b.kind == "dynamic" for b in moving)
             first_dynamic = first_moving + sum(len(b.samples) for b in moving if b.kind == "kinematic")
             self.boundary = BoundaryParticles(
@@ -235,18 +144,17 @@ class Simulation:
                              self.support_radius, self.neighbours.lower, self.neighbours.period, self.boundary.volume])
             self.pressure_solver = DFSPHSolver(self)
             viscous = scene.fluid.viscosity > 0.0 or scene.fluid.boundary_viscosity > 0.0
-            self.viscosity_model = REGISTRY["viscosity"](self) if viscous else None
-            self.turbulence_models = [cls(self, p) for cls, p in zip(model_classes, scene.models)]
+            self.model_context = ModelContext(self)  # what the plug-ins see
+            self.viscosity_model = REGISTRY["viscosity"](self.model_context) if viscous else None
+            self.turbulence_models = [cls(self.model_context, p) for cls, p in zip(model_classes, scene.models)]
             self.models = ([self.viscosity_model] if viscous else []) + self.turbulence_models
+            for m in self.turbulence_models:
+                for name, a in m.state().items():
+                    self.state.carry(f"models/{m.name}/{name}", a)
             # the vorticity of v~, shared by the models, exists only when one reads it
             self.vorticity_field = None
             if any(m.needs_vorticity for m in self.models):
                 self.vorticity_field = VorticityField(self)
-            # clock on the device: dt, previous dt, time, steps, max speed^2
-            self.dt = z("clock", 1)
-            self.dt_previous = self.array("clock", np.array([scene.time_step_bounds[1]], np.float32), float)
-            self.time_device = z("clock", 1, dtype=wp.float64)
-            self.steps_device = z("clock", 1, dtype=wp.int64)
             self.max_speed_sq = z("clock", 1)
             self.health_counts = z("health", 4, dtype=wp.int32)
             self.health_first = z("health", 4, dtype=wp.int32)
@@ -257,33 +165,47 @@ class Simulation:
                 wp.copy(self.fluid.x, wp.array(packed, dtype=wp.vec3, device=self.device), count=len(packed))
             if self.inflow is not None:  # the layers due at t = 0
                 self.inflow.emit(self, 0.0)
-            # densities of the initial state, so that frame 0 has them
-            self.neighbours.update(self.fluid.x)
-            self._compute_density()
-        self.step_count = 0
-        self.frame = 0  # last output frame reached by run()
+            self.update_densities()  # so that frame 0 has them
         self.on_instability = "stop"  # or "reduce-dt": retry the step with a smaller dt
         self._dt_scale = 1.0
         self.use_graph = self.device.is_cuda and wp.is_conditional_graph_supported() if use_graph is None else use_graph
         self._graph = None
         self._graph_generation = None
 
-    def _remove_fluid_inside_bodies(self, fluid_x, fluid_v):
-        """Drops the fluid particles that the blocks put inside a closed body or within one
-        particle radius of its surface (at the body's initial pose); open meshes keep them."""
-        closed = [b for b in self.bodies if b.closed]
-        if not closed or not len(fluid_x):
-            return fluid_x, fluid_v
-        x = wp.array(fluid_x, dtype=wp.vec3, device=self.device)
-        keep = wp.ones(len(fluid_x), dtype=wp.int32, device=self.device)
-        for b in closed:
-            mesh = wp.Mesh(points=wp.array(b.to_world(b.vertices), dtype=wp.vec3, device=self.device),
-                           indices=wp.array(b.faces.ravel(), dtype=wp.int32, device=self.device))
-            self.launch(mark_fluid_clear_of_mesh, len(fluid_x), [mesh.id, x, self.scene.particle_radius, keep])
-        kept = keep.numpy().astype(bool)
-        if not kept.any():
-            raise SceneError(self.scene.source, "obstacles", "the bodies cover every fluid particle: no fluid left")
-        return fluid_x[kept], fluid_v[kept]
+    # -- the data lives in self.state; these read it ---------------------------------------------------
+    fluid = property(lambda self: self.state.fluid, doc="The fluid's per-particle arrays (:class:`FluidParticles`).")
+    capacity = property(lambda self: self.state.capacity, doc="Rows of every per-particle array.")
+    allocations = property(lambda self: self.state.allocations, doc="Device bytes by owner.")
+    dt = property(lambda self: self.state.dt, doc="This step's dt [s] (a device array of one).")
+    dt_previous = property(lambda self: self.state.dt_previous)
+    time_device = property(lambda self: self.state.time_device, doc="Simulated time [s] (a float64 device array of one).")
+    steps_device = property(lambda self: self.state.steps_device)
+
+    @property
+    def num_fluid(self) -> int:
+        """Fluid particles now (rows 0 .. num_fluid - 1 of every per-particle array)."""
+        return self.state.num_fluid
+
+    @num_fluid.setter
+    def num_fluid(self, value):
+        self.state.num_fluid = value
+
+    @property
+    def step_count(self) -> int:
+        return self.state.step_count
+
+    @step_count.setter
+    def step_count(self, value):
+        self.state.step_count = value
+
+    @property
+    def frame(self) -> int:
+        """The last output frame reached by :meth:`run`."""
+        return self.state.frame
+
+    @frame.setter
+    def frame(self, value):
+        self.state.frame = value
 
     @property
     def gravity(self) -> wp.vec3:
@@ -298,18 +220,11 @@ class Simulation:
 
     # -- allocation and launch bookkeeping ---------------------------------------------------
     def zeros(self, owner, shape, dtype=float):
-        a = wp.zeros(shape, dtype=dtype, device=self.device)
-        self.allocations[owner] += a.capacity
-        return a
+        return self.state.zeros(owner, shape, dtype)
 
     def per_particle(self, owner, dtype=float, data=None):
-        """A per-fluid-particle array of ``capacity`` entries (room for emitted particles), with
-        ``data`` in its first rows; registered, so that emitted particles start at zero in it."""
-        a = self.zeros(owner, self.capacity, dtype=dtype)
-        if data is not None and len(data):
-            a[: len(data)].assign(np.ascontiguousarray(data))
-        self._per_particle.append(a)
-        return a
+        """A per-fluid-particle array of ``capacity`` rows (:meth:`State.per_particle`)."""
+        return self.state.per_particle(owner, dtype, data)
 
     def scratch(self, dtype, column=0):
         """A per-particle scratch array of ``dtype`` over float columns ``column ..`` of the scratch
@@ -328,11 +243,11 @@ class Simulation:
 
     def active(self, array):
         """The rows of a per-particle array that hold particles (a view; the array itself when full)."""
-        return array if array.shape[0] == self.num_fluid else array[: self.num_fluid]
+        return self.state.active(array)
 
     def host(self, array):
         """The particles' rows of a per-particle array, copied to the host."""
-        return self.active(array).numpy()
+        return self.state.host(array)
 
     # public numpy accessors: copies of the active fluid particles (rows 0..num_fluid-1, in the
     # current sort order; ``ids()`` gives each row's stable id)
@@ -362,9 +277,7 @@ class Simulation:
         return 0.5 * self.particle_mass * float(np.sum(v * v))
 
     def array(self, owner, data, dtype):
-        a = wp.array(data, dtype=dtype, device=self.device)
-        self.allocations[owner] += a.capacity
-        return a
+        return self.state.array(owner, data, dtype)
 
     def launch(self, kernel, dim, inputs):
         self.launches[kernel.key] += 1
@@ -393,7 +306,7 @@ class Simulation:
             self.permute(a, order)
         self.pressure_solver.reorder(self, order)
         for m in self.models:
-            m.reorder(self, order)
+            m.reorder(self.model_context, order)
 
     # -- the step --------------------------------------------------------------------------------------
     def step(self):
@@ -461,7 +374,7 @@ class Simulation:
             if self.vorticity_field is not None and not any(m.computes_vorticity for m in self.models):
                 self.vorticity_field.update(self)
             for model in self.models:
-                model.step(self)
+                model.step(self.model_context)
         with t("advection"):  # v_adv = v~ + dt (a_adv + g)
             self.launch(predict_velocity, n, [f.acceleration, self.gravity, self.dt, f.v])
         with t("density_solve"):  # projection: rho*(x + dt v_adv) -> rho0
@@ -473,13 +386,20 @@ class Simulation:
         with t("health"):  # NaN/inf, escaped particles, runaway density: counted on the device
             self.health_counts.zero_()
             self.health_first.fill_(2**31 - 1)
-            lo = np.asarray(self.scene.domain.min) - ESCAPE_MARGIN * self.scene.particle_radius
-            hi = np.asarray(self.scene.domain.max) + ESCAPE_MARGIN * self.scene.particle_radius
+            lo = np.asarray(self.scene.domain.min) - health.ESCAPE_MARGIN * self.scene.particle_radius
+            hi = np.asarray(self.scene.domain.max) + health.ESCAPE_MARGIN * self.scene.particle_radius
             if not self.scene.domain.walls:  # an open domain: particles may leave (the next step removes them)
                 lo, hi = np.full(3, -1e30), np.full(3, 1e30)
             self.launch(check_particles, n, [f.x, f.v, f.density, wp.vec3(*lo), wp.vec3(*hi),
-                                             DENSITY_HARD_LIMIT * self.rest_density, self.health_counts,
+                                             health.DENSITY_HARD_LIMIT * self.rest_density, self.health_counts,
                                              self.health_first])
+
+    def update_densities(self):
+        """Neighbour lists, densities and DFSPH factors for the current positions (the initial state, a
+        restored checkpoint); the step computes its own."""
+        with wp.ScopedDevice(self.device):
+            self.neighbours.update(self.fluid.x)
+            self._compute_density()
 
     def _compute_density(self):
         f = self.fluid
@@ -495,39 +415,16 @@ class Simulation:
 
     def check_health(self):
         """The first failed health check of the last step as an :class:`InstabilityError`, or None."""
-        counts, first = self.health_counts.numpy(), self.health_first.numpy()
-        for check in (int(NOT_FINITE), int(OUTSIDE_DOMAIN), int(DENSITY_LIMIT)):
-            if counts[check]:
-                i = int(first[check])
-                return InstabilityError(self.step_count, self.time, f"{CHECK_NAMES[check]} ({counts[check]} particles)",
-                                        int(self.fluid.ids.numpy()[i]), self.fluid.x.numpy()[i])
-        streak = self.pressure_solver.max_iteration_streak.numpy()
-        if streak.max() >= MAX_ITERATION_STREAK:
-            which = "divergence" if streak[0] >= MAX_ITERATION_STREAK else "density"
-            return InstabilityError(self.step_count, self.time,
-                                    f"{which} solver hit max_iterations {int(streak.max())} steps in a row")
-        return None
+        return health.first_failure(self)
 
     # -- state: what a checkpoint keeps and a retried step restores -----------------------------------------
     def state_arrays(self):
-        """Every device array that carries state from one step to the next, by name."""
-        out = {"fluid/x": self.fluid.x, "fluid/v": self.fluid.v, "fluid/ids": self.fluid.ids,
-               "solver/totals": self.pressure_solver.totals,
-               "solver/max_iteration_streak": self.pressure_solver.max_iteration_streak,
-               "clock/time": self.time_device, "clock/steps": self.steps_device, "clock/dt": self.dt,
-               "clock/dt_previous": self.dt_previous}
-        for n, a in enumerate(self.pressure_solver.pressure_sum):
-            out[f"solver/pressure_sum_{n}"] = a
-        for m in self.turbulence_models:
-            for name, a in m.state().items():
-                out[f"models/{m.name}/{name}"] = a
-        if self.moving_bodies is not None and self.moving_bodies.dynamic:
-            out["bodies/state"] = self.moving_bodies.state
-        return out
+        """Every device array that carries state from one step to the next, by name (``State.carried``)."""
+        return dict(self.state.carried)
 
     def state_flags(self):
-        """Host-side state: step and frame counters and the models' flags."""
-        out = {"step": self.step_count, "frame": self.frame, "num_fluid": self.num_fluid}
+        """Host-side state: step and frame counters, the particle count and the models' flags."""
+        out = self.state.counters()
         if self.inflow is not None:
             out.update(self.inflow.state())
         for m in self.turbulence_models:
@@ -535,8 +432,7 @@ class Simulation:
         return out
 
     def restore_flags(self, flags):
-        self.step_count, self.frame = int(flags["step"]), int(flags["frame"])
-        self.num_fluid = int(flags.get("num_fluid", self.num_fluid))
+        self.state.restore_counters(flags)
         if self.inflow is not None:
             self.inflow.restore(flags)
         if self.moving_bodies is not None:
@@ -556,10 +452,10 @@ class Simulation:
     def _advance_to(self, target):
         """Steps until ``time >= target``, checking health after every step. With
         ``on_instability == "reduce-dt"`` a frame that fails is undone (to the state at its start,
-        where the damage had not begun) and redone with dt halved, up to RETRIES times."""
+        where the damage had not begun) and redone with dt halved, up to health.RETRIES times."""
         snapshot = self._snapshot() if self.on_instability == "reduce-dt" else None
         try:
-            for attempt in range(RETRIES + 1):
+            for attempt in range(health.RETRIES + 1):
                 try:
                     while self.time < target - 1e-9:
                         self.step()
@@ -568,7 +464,7 @@ class Simulation:
                             raise problem
                     return
                 except InstabilityError:
-                    if snapshot is None or attempt == RETRIES:
+                    if snapshot is None or attempt == health.RETRIES:
                         raise
                     self._restore(snapshot)
                     self._dt_scale *= 0.5

@@ -77,6 +77,11 @@ class DFSPHSolver:
         # per solver: [iterations summed over steps, solves]
         self.totals = z("pressure", 4, dtype=wp.int64)
         self.max_iteration_streak = z("pressure", 2, dtype=wp.int32)
+        carry = sim.state.carry  # what the next step reads: the warm start and the iteration statistics
+        carry("solver/totals", self.totals)
+        carry("solver/max_iteration_streak", self.max_iteration_streak)
+        for n, a in enumerate(self.pressure_sum):
+            carry(f"solver/pressure_sum_{n}", a)
 
     def density_pass_outputs(self):
         """What the density pass writes for the solver besides density and factor."""

@@ -127,9 +127,7 @@ def load_checkpoint(path, scene=None, device=None):
         except (KeyError, ValueError, TypeError) as exc:
             raise SceneError(path, "", f"damaged checkpoint ({exc!r})") from None
         sim.restore_flags({k[5:]: v for k, v in f.attrs.items() if k.startswith("flag:")})
-        with wp.ScopedDevice(sim.device):
-            sim.neighbours.update(sim.fluid.x)
-            sim._compute_density()
+        sim.update_densities()
     return sim
 
 

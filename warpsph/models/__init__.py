@@ -1,19 +1,20 @@
 """Non-pressure models: viscosity and the turbulence models, each a plug-in.
 
-Every model has the same small interface (after SPlisHSPlasH's ``NonPressureForceBase``):
+Every model has the same small interface (after SPlisHSPlasH's ``NonPressureForceBase``); each call
+gets a :class:`ModelContext` (``ctx``), not the simulation:
 
-- ``__init__(sim, params)`` allocates the model's own per-particle arrays through
-  ``sim.per_particle(owner, dtype)`` (accounted per model, sized for emitted particles too,
+- ``__init__(ctx, params)`` allocates the model's own per-particle arrays through
+  ``ctx.per_particle(owner, dtype)`` (accounted per model, sized for emitted particles too,
   and zeroed where an emitter adds particles);
-- ``step(sim)`` runs in the non-pressure phase of the step, after the divergence
-  solve, adding to ``sim.fluid.acceleration`` or refining ``sim.fluid.v`` directly;
-- ``emitted(sim, first, count)`` marks rows ``first .. first + count - 1``, just added by an emitter
+- ``step(ctx)`` runs in the non-pressure phase of the step, after the divergence
+  solve, adding to ``ctx.fluid.acceleration`` or refining ``ctx.fluid.v`` directly;
+- ``emitted(ctx, first, count)`` marks rows ``first .. first + count - 1``, just added by an emitter
   (zeroed), as new to the model (``NO_HISTORY``), so it does not take their zeroed state for history;
-- ``reorder(sim, order)`` permutes the model's per-particle state when the fluid is
+- ``reorder(ctx, order)`` permutes the model's per-particle state when the fluid is
   re-sorted by cell;
 - ``fields()`` returns the per-particle arrays it publishes for output, by name;
   ``state()`` the arrays a checkpoint must keep;
-- ``scratch_columns`` (floats per particle) sizes the scratch pool that ``sim.scratch(dtype,
+- ``scratch_columns`` (floats per particle) sizes the scratch pool that ``ctx.scratch(dtype,
   column)`` hands out for values living within the model's step; models share it;
 - ``needs_vorticity`` asks the stepper for the shared vorticity field, computed once per
   step after the divergence solve.
@@ -67,6 +68,57 @@ def plugin_of(params):
     return REGISTRY[type(params).plugin_name]
 
 
+class ModelContext:
+    """What a model plug-in sees of the simulation: the fluid's arrays and count, the neighbour lists, the
+    boundary samples, the shared vorticity field, the constants and the clock, and the allocation and
+    launch calls. Nothing else (no solver, no bodies, no writers): the interface is this class."""
+
+    __slots__ = ("_sim",)
+
+    def __init__(self, sim):
+        self._sim = sim
+
+    device = property(lambda self: self._sim.device)
+    scene = property(lambda self: self._sim.scene, doc="The scene (read-only data).")
+    fluid = property(lambda self: self._sim.fluid, doc="x, v, ids, density, factor, acceleration (per particle).")
+    num_fluid = property(lambda self: self._sim.num_fluid, doc="Rows that hold particles now.")
+    neighbour_lists = property(lambda self: self._sim.neighbours.lists, doc="The kernels' Neighbours struct.")
+    boundary_samples = property(lambda self: self._sim.boundary.samples, doc="The kernels' Boundary struct.")
+    particle_mass = property(lambda self: self._sim.particle_mass)
+    particle_radius = property(lambda self: self._sim.scene.particle_radius)
+    support_radius = property(lambda self: self._sim.support_radius)
+    dt = property(lambda self: self._sim.dt, doc="This step's dt [s], a device array of one.")
+
+    @property
+    def vorticity(self):
+        """The shared vorticity of v~ (eq 6) this step, or None when no model asked for it."""
+        field = self._sim.vorticity_field
+        return None if field is None else field.vorticity
+
+    def launch(self, kernel, dim, inputs):
+        self._sim.launch(kernel, dim, inputs)
+
+    def per_particle(self, owner, dtype=float):
+        """A zeroed per-particle array of ``capacity`` rows, counted under ``owner``."""
+        return self._sim.per_particle(owner, dtype)
+
+    def scratch(self, dtype, column=0):
+        """A view of the shared scratch pool (values that live within one model's step)."""
+        return self._sim.scratch(dtype, column)
+
+    def permute(self, array, order):
+        """array[:] = array[order] over the particles' rows (re-sorting)."""
+        self._sim.permute(array, order)
+
+    def active(self, array):
+        """The rows of a per-particle array that hold particles (a view)."""
+        return self._sim.active(array)
+
+    def host(self, array):
+        """The particles' rows of a per-particle array, copied to the host (a sync: not in a step)."""
+        return self._sim.host(array)
+
+
 class Model:
     """Base class with the do-nothing parts of the interface."""
 
@@ -79,16 +131,16 @@ class Model:
     output_fields = {}  # name: bytes per particle of what fields() publishes (USD primvars, disk estimate)
     flag_names = ()  # host-side ints a checkpoint keeps (e.g. whether a history exists yet)
 
-    def __init__(self, sim, params=None):
+    def __init__(self, ctx, params=None):
         self.params = params
 
-    def step(self, sim):
+    def step(self, ctx):
         raise NotImplementedError
 
-    def emitted(self, sim, first, count):
+    def emitted(self, ctx, first, count):
         pass
 
-    def reorder(self, sim, order):
+    def reorder(self, ctx, order):
         pass
 
     def fields(self):

@@ -28,21 +28,21 @@ class MicropolarModel(Model):
     needs_vorticity = True
     scratch_columns = 3
 
-    def __init__(self, sim, params):
-        super().__init__(sim, params)
-        self.omega = sim.per_particle(self.name, wp.vec3)
-        self.omega_next = sim.scratch(wp.vec3, 0)
+    def __init__(self, ctx, params):
+        super().__init__(ctx, params)
+        self.omega = ctx.per_particle(self.name, wp.vec3)
+        self.omega_next = ctx.scratch(wp.vec3, 0)
 
-    def step(self, sim):
-        p, f = self.params, sim.fluid
-        sim.launch(micropolar_step, sim.num_fluid,
-                   [f.x, f.density, sim.neighbours.lists, sim.vorticity_field.vorticity, self.omega,
-                    sim.particle_mass, p.transfer_coefficient, p.inverse_inertia, p.viscosity_omega,
-                    sim.support_radius, sim.dt, f.acceleration, self.omega_next])
+    def step(self, ctx):
+        p, f = self.params, ctx.fluid
+        ctx.launch(micropolar_step, ctx.num_fluid,
+                   [f.x, f.density, ctx.neighbour_lists, ctx.vorticity, self.omega,
+                    ctx.particle_mass, p.transfer_coefficient, p.inverse_inertia, p.viscosity_omega,
+                    ctx.support_radius, ctx.dt, f.acceleration, self.omega_next])
         wp.copy(self.omega, self.omega_next)
 
-    def reorder(self, sim, order):
-        sim.permute(self.omega, order)
+    def reorder(self, ctx, order):
+        ctx.permute(self.omega, order)
 
     def fields(self):
         return {"angular_velocity": self.omega}

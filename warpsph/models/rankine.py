@@ -37,30 +37,30 @@ class RankineModel(Model):
     needs_vorticity = True
     scratch_columns = 3
 
-    def __init__(self, sim, params):
-        super().__init__(sim, params)
-        self.previous = sim.per_particle(self.name, wp.vec3)  # omega^{n-1}
-        self.change = sim.scratch(wp.vec3, 0)  # d omega (within the step)
-        self.viscosity = sim.scene.fluid.viscosity if params.viscosity is None else params.viscosity
+    def __init__(self, ctx, params):
+        super().__init__(ctx, params)
+        self.previous = ctx.per_particle(self.name, wp.vec3)  # omega^{n-1}
+        self.change = ctx.scratch(wp.vec3, 0)  # d omega (within the step)
+        self.viscosity = ctx.scene.fluid.viscosity if params.viscosity is None else params.viscosity
         self.has_previous = 0
 
-    def step(self, sim):
-        n = sim.num_fluid
-        sim.launch(compute_vorticity_change, n,
-                   [sim.vorticity_field.vorticity, self.has_previous, self.previous, self.change])
-        sim.launch(apply_rankine_feedback, n,
-                   [sim.fluid.x, sim.neighbours.lists, self.change, self.params.beta, self.viscosity,
-                    sim.scene.particle_radius, sim.dt,
-                    sim.fluid.v])
+    def step(self, ctx):
+        n = ctx.num_fluid
+        ctx.launch(compute_vorticity_change, n,
+                   [ctx.vorticity, self.has_previous, self.previous, self.change])
+        ctx.launch(apply_rankine_feedback, n,
+                   [ctx.fluid.x, ctx.neighbour_lists, self.change, self.params.beta, self.viscosity,
+                    ctx.particle_radius, ctx.dt,
+                    ctx.fluid.v])
         self.has_previous = 1
 
-    def emitted(self, sim, first, count):
+    def emitted(self, ctx, first, count):
         """An emitted particle has no omega^{n-1}: with the zero it was given, its whole vorticity would be
         fed back as change on its first step (3-15x the jet's d omega in tests/test_inflow.py's jet)."""
         self.previous[first: first + count].fill_(NO_HISTORY)
 
-    def reorder(self, sim, order):
-        sim.permute(self.previous, order)
+    def reorder(self, ctx, order):
+        ctx.permute(self.previous, order)
 
     def state(self):
         return {"rankine_previous_vorticity": self.previous}

@@ -11,16 +11,16 @@ from . import Model, register
 class Viscosity(Model):
     """a_i += nu laplacian(v)_i; enabled whenever the scene's fluid viscosity is > 0."""
 
-    computes_vorticity = True  # fills sim.vorticity_field in the same pass when it exists
+    computes_vorticity = True  # fills the shared vorticity field (ctx.vorticity) in the same pass when it exists
 
-    def __init__(self, sim, params=None):
-        super().__init__(sim, params)
-        self._empty_vec3 = wp.empty(0, dtype=wp.vec3, device=sim.device)
+    def __init__(self, ctx, params=None):
+        super().__init__(ctx, params)
+        self._empty_vec3 = wp.empty(0, dtype=wp.vec3, device=ctx.device)
 
-    def step(self, sim):
-        f, field = sim.fluid, sim.vorticity_field
-        vorticity = field.vorticity if field is not None else self._empty_vec3
-        sim.launch(add_viscosity_acceleration, sim.num_fluid,
-                   [f.x, f.v, f.density, sim.neighbours.lists, sim.particle_mass, sim.scene.fluid.viscosity,
-                    sim.support_radius, sim.boundary.samples, sim.scene.fluid.boundary_viscosity, sim.dt,
-                    int(field is not None), f.acceleration, vorticity])
+    def step(self, ctx):
+        f, vorticity = ctx.fluid, ctx.vorticity
+        with_vorticity = vorticity is not None
+        ctx.launch(add_viscosity_acceleration, ctx.num_fluid,
+                   [f.x, f.v, f.density, ctx.neighbour_lists, ctx.particle_mass, ctx.scene.fluid.viscosity,
+                    ctx.support_radius, ctx.boundary_samples, ctx.scene.fluid.boundary_viscosity, ctx.dt,
+                    int(with_vorticity), f.acceleration, vorticity if with_vorticity else self._empty_vec3])

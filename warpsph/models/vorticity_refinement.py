@@ -38,31 +38,31 @@ class VorticityRefinementModel(Model):
     needs_vorticity = True
     scratch_columns = 3
 
-    def __init__(self, sim, params):
-        super().__init__(sim, params)
-        self.target = sim.per_particle(self.name, wp.vec3)  # zeta^{n+1}, carried to the next step
-        self.stream_function = sim.scratch(wp.vec3, 0)  # psi (within the step)
-        self.viscosity = sim.scene.fluid.viscosity if params.viscosity is None else params.viscosity
+    def __init__(self, ctx, params):
+        super().__init__(ctx, params)
+        self.target = ctx.per_particle(self.name, wp.vec3)  # zeta^{n+1}, carried to the next step
+        self.stream_function = ctx.scratch(wp.vec3, 0)  # psi (within the step)
+        self.viscosity = ctx.scene.fluid.viscosity if params.viscosity is None else params.viscosity
         self.has_target = 0
 
-    def step(self, sim):
-        f, n, field = sim.fluid, sim.num_fluid, sim.vorticity_field
-        nb, mass, H = sim.neighbours.lists, sim.particle_mass, sim.support_radius
-        sim.launch(compute_vorticity_loss, n, [field.vorticity, f.density, mass, self.has_target, self.target])
-        sim.launch(compute_stream_function, n, [f.x, nb, self.target, H, self.stream_function])
-        sim.launch(apply_vorticity_refinement, n,
+    def step(self, ctx):
+        f, n, vorticity = ctx.fluid, ctx.num_fluid, ctx.vorticity
+        nb, mass, H = ctx.neighbour_lists, ctx.particle_mass, ctx.support_radius
+        ctx.launch(compute_vorticity_loss, n, [vorticity, f.density, mass, self.has_target, self.target])
+        ctx.launch(compute_stream_function, n, [f.x, nb, self.target, H, self.stream_function])
+        ctx.launch(apply_vorticity_refinement, n,
                    [f.x, f.density, nb, self.stream_function, mass, self.params.alpha, H, f.v])
-        sim.launch(compute_target_vorticity, n,
-                   [f.x, f.v, f.density, nb, field.vorticity, mass, self.viscosity, H, sim.dt, self.target])
+        ctx.launch(compute_target_vorticity, n,
+                   [f.x, f.v, f.density, nb, vorticity, mass, self.viscosity, H, ctx.dt, self.target])
         self.has_target = 1
 
-    def emitted(self, sim, first, count):
+    def emitted(self, ctx, first, count):
         """An emitted particle has no target zeta^{n+1}: with the zero it was given, its first step would
         remove all of its vorticity (d zeta = 0 - curl v~)."""
         self.target[first: first + count].fill_(NO_HISTORY)
 
-    def reorder(self, sim, order):
-        sim.permute(self.target, order)
+    def reorder(self, ctx, order):
+        ctx.permute(self.target, order)
 
     def state(self):
         return {"vr_target_vorticity": self.target}

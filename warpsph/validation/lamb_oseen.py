@@ -134,8 +134,7 @@ def sph_curl_z(sim):
 
     f = sim.fluid
     with wp.ScopedDevice(sim.device):
-        sim.neighbours.update(f.x)
-        sim._compute_density()
+        sim.update_densities()
         curl = curl_of(sim, f.v, wp.zeros(sim.num_fluid, dtype=wp.vec3))
     return curl.numpy()[:, 2].astype(np.float64)
 

@@ -1,0 +1,47 @@
+"""Health checks after every step: NaN/inf, particles that tunnelled out, runaway density, a solver stuck at
+its iteration limit. The checks count on the device (``kernels/stability.py``); this reads the counts."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from warpsph.kernels.stability import DENSITY_LIMIT, NOT_FINITE, OUTSIDE_DOMAIN
+from warpsph.scene_setup import WALL_OFFSET
+
+# rho / rho0 above which the solver has lost control: a 2000-particle dam break peaks at 1.22 for one
+# step as its front corner shoots out (then recovers); the 1M run that exploded reached 2.2
+DENSITY_HARD_LIMIT = 1.5
+ESCAPE_MARGIN = WALL_OFFSET + 1.0  # radii past the box: a radius beyond its wall layer = tunnelled through
+MAX_ITERATION_STREAK = 50  # consecutive solves that stop at max_iterations
+RETRIES = 4  # reduce-dt policy: halvings of dt tried for one frame
+CHECK_NAMES = {int(NOT_FINITE): "NaN or inf in position, velocity or density",
+               int(OUTSIDE_DOMAIN): "particle left the domain",
+               int(DENSITY_LIMIT): f"density above {DENSITY_HARD_LIMIT:g} rho0"}
+
+
+class InstabilityError(RuntimeError):
+    """The simulation became unstable; the message names the step, time, check and particle."""
+
+    def __init__(self, step, time, check, particle_id=None, position=None):
+        self.step, self.time, self.check, self.particle_id, self.position = step, time, check, particle_id, position
+        where = "" if particle_id is None else f", particle id {particle_id} at {np.round(position, 4).tolist()}"
+        super().__init__(f"unstable at step {step} (t = {time:.4f} s): {check}{where}")
+
+
+
+
+def first_failure(sim):
+    """The first failed health check of the last step as an :class:`InstabilityError`, or None."""
+    counts, first = sim.health_counts.numpy(), sim.health_first.numpy()
+    for check in (int(NOT_FINITE), int(OUTSIDE_DOMAIN), int(DENSITY_LIMIT)):
+        if counts[check]:
+            i = int(first[check])
+            return InstabilityError(sim.step_count, sim.time, f"{CHECK_NAMES[check]} ({counts[check]} particles)",
+                                    int(sim.fluid.ids.numpy()[i]), sim.fluid.x.numpy()[i])
+    streak = sim.pressure_solver.max_iteration_streak.numpy()
+    if streak.max() >= MAX_ITERATION_STREAK:
+        which = "divergence" if streak[0] >= MAX_ITERATION_STREAK else "density"
+        return InstabilityError(sim.step_count, sim.time,
+                                f"{which} solver hit max_iterations {int(streak.max())} steps in a row")
+    return None
+

@@ -1,0 +1,87 @@
+"""From a scene to its initial particles, on the host before anything is allocated: particle counts, the
+fluid blocks and boundary samples, and the fluid that the blocks put inside bodies removed."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import warp as wp
+
+from warpsph import sampling
+from warpsph.bodies import load_body
+from warpsph.errors import SceneError
+from warpsph.kernels.bodies import mark_fluid_clear_of_mesh
+from warpsph.scene import Scene
+
+# The domain box's boundary layer lies this many particle radii outside its faces. A single
+# Akinci layer sampled at spacing 2r has V_b ~ 1.43 (2r)^3, so a lattice fluid half a spacing
+# from it would start at 1.5 rho0; 2.2 r from the layer it has rest density (within 0.2 %),
+# so a fluid block that touches a face starts at rest.
+WALL_OFFSET = 1.2
+
+
+# Neighbour lists index with int32: about 40 neighbours a particle keeps 50M particles below 2^31.
+MAX_PARTICLES = 50_000_000
+
+
+def count_particles(scene: Scene):
+    """Fluid and domain-wall particle counts, computed before anything is sampled."""
+    d = scene.particle_diameter
+    fluid = sum(int(np.prod(np.floor((np.subtract(b.end, b.start)) / d + 1e-6))) for b in scene.fluid_blocks)
+    ext = np.subtract(scene.domain.max, scene.domain.min) + 2 * WALL_OFFSET * scene.particle_radius
+    walls = int(2 * (ext[0] * ext[1] + ext[1] * ext[2] + ext[0] * ext[2]) / d**2) if scene.domain.walls else 0
+    return fluid, walls
+
+
+def sample_scene(scene: Scene):
+    """Host-side initial particles: fluid (x, v), the static boundary (x, body index, Z-ordered)
+    and every obstacle as a :class:`RigidBody` (static ones included, for the USD meshes)."""
+    fluid, walls = count_particles(scene)
+    if fluid > MAX_PARTICLES or walls > MAX_PARTICLES:
+        raise SceneError(scene.source, "particle_radius",
+                         f"r = {scene.particle_radius:.3g} m needs about {max(fluid, walls):.3g} particles, over the "
+                         f"{MAX_PARTICLES:,} limit: use a larger radius or a smaller --scale")
+    if fluid == 0 and not any(e.start == 0.0 for e in scene.emitters):
+        raise SceneError(scene.source, "fluid_blocks", "no fluid at t = 0: every block is thinner than one particle "
+                                                       "spacing (or missing) and no emitter starts at 0")
+    d = scene.particle_diameter
+    blocks = [sampling.fill_block(b.start, b.end, d) for b in scene.fluid_blocks]
+    fluid_x = np.concatenate(blocks) if blocks else np.zeros((0, 3), np.float32)
+    fluid_v = np.concatenate([np.tile(np.asarray(b.velocity, np.float32), (len(p), 1))
+                              for b, p in zip(scene.fluid_blocks, blocks)]) if blocks else np.zeros((0, 3), np.float32)
+    # walls stand off 1.2 r from the faces; along periodic axes they span the domain exactly
+    offset = np.where(np.asarray(scene.domain.period) > 0, 0.0, WALL_OFFSET * scene.particle_radius)
+    bodies = [sampling.sample_box_walls(np.asarray(scene.domain.min) - offset, np.asarray(scene.domain.max) + offset, d,
+                                        scene.domain.periodic) if scene.domain.walls else np.zeros((0, 3), np.float32)]
+    size = float(np.linalg.norm(np.subtract(scene.domain.max, scene.domain.min)))
+    rigid = [load_body(o, scene.mesh_path(o), d, size, f"{Path(o.mesh).stem}_{n}", scene.fluid.density)
+             for n, o in enumerate(scene.obstacles)]
+    names = [b.name for b in rigid]
+    for n, name in enumerate(names):
+        if names.index(name) != n:
+            raise SceneError(scene.source, f"obstacles[{n}].name", f"another body is named {name!r}")
+    bodies += [b.world_samples() if b.kind == "static" else np.zeros((0, 3), np.float32) for b in rigid]
+    boundary_x = np.concatenate(bodies).reshape(-1, 3)
+    body = np.concatenate([np.full(len(p), n, dtype=np.int32) for n, p in enumerate(bodies)])
+    order = sampling.morton_order(boundary_x, np.asarray(scene.domain.min), scene.support_radius)
+    return fluid_x, fluid_v, boundary_x[order], body[order], rigid
+
+
+def remove_fluid_inside_bodies(scene, bodies, fluid_x, fluid_v, device, launch):
+    """Drops the fluid particles that the blocks put inside a closed body or within one
+    particle radius of its surface (at the body's initial pose); open meshes keep them."""
+    closed = [b for b in bodies if b.closed]
+    if not closed or not len(fluid_x):
+        return fluid_x, fluid_v
+    x = wp.array(fluid_x, dtype=wp.vec3, device=device)
+    keep = wp.ones(len(fluid_x), dtype=wp.int32, device=device)
+    for b in closed:
+        mesh = wp.Mesh(points=wp.array(b.to_world(b.vertices), dtype=wp.vec3, device=device),
+                       indices=wp.array(b.faces.ravel(), dtype=wp.int32, device=device))
+        launch(mark_fluid_clear_of_mesh, len(fluid_x), [mesh.id, x, scene.particle_radius, keep])
+    kept = keep.numpy().astype(bool)
+    if not kept.any():
+        raise SceneError(scene.source, "obstacles", "the bodies cover every fluid particle: no fluid left")
+    return fluid_x[kept], fluid_v[kept]
+

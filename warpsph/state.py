@@ -1,0 +1,109 @@
+"""The data of a simulation, apart from its step: every per-particle array, the particle count and the clock.
+
+After newton's Model-State split: :class:`State` allocates and owns the arrays (counted per owner, for the
+memory report), knows which rows hold particles, and names the arrays that a step carries to the next
+(``carried``): what a checkpoint saves and a retried frame restores. The stepper
+(:class:`warpsph.simulation.Simulation`) and the plug-ins only read and write them.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+
+import numpy as np
+import warp as wp
+
+
+@dataclass
+class FluidParticles:
+    """Per-particle state of the fluid (sorted by cell every ``solver.sort_interval`` steps)."""
+
+    x: wp.array  # position [m]
+    v: wp.array  # velocity [m/s]
+    ids: wp.array  # stable id (int32; int64 in USD), follows the particle through re-sorting
+    density: wp.array  # [kg/m^3]
+    factor: wp.array  # DFSPH factor
+    acceleration: wp.array  # non-pressure acceleration of this step [m/s^2]
+
+
+class State:
+    """Per-particle arrays of ``capacity`` rows (room for what emitters add), of which the first ``num_fluid``
+    hold particles; the device clock (dt, previous dt, time, steps) and the host counters (steps, frame)."""
+
+    def __init__(self, device, capacity: int, num_fluid: int):
+        self.device = wp.get_device(device)
+        self.capacity = capacity
+        self.num_fluid = num_fluid
+        self.allocations = defaultdict(int)  # owner -> bytes
+        self.carried = {}  # name -> array that a step carries to the next (checkpoints, retries)
+        self._per_particle = []
+        self.fluid = None
+        self.step_count = 0
+        self.frame = 0  # last output frame reached
+
+    # -- allocation --------------------------------------------------------------------------------
+    def zeros(self, owner, shape, dtype=float):
+        a = wp.zeros(shape, dtype=dtype, device=self.device)
+        self.allocations[owner] += a.capacity
+        return a
+
+    def array(self, owner, data, dtype):
+        a = wp.array(data, dtype=dtype, device=self.device)
+        self.allocations[owner] += a.capacity
+        return a
+
+    def per_particle(self, owner, dtype=float, data=None):
+        """A per-fluid-particle array of ``capacity`` rows with ``data`` in its first rows; its rows are
+        zeroed where an emitter adds particles (:meth:`zero_rows`)."""
+        a = self.zeros(owner, self.capacity, dtype=dtype)
+        if data is not None and len(data):
+            a[: len(data)].assign(np.ascontiguousarray(data))
+        self._per_particle.append(a)
+        return a
+
+    def carry(self, name, array):
+        """Registers ``array`` as state a step carries to the next, under ``name`` (a checkpoint's key)."""
+        if name in self.carried:
+            raise ValueError(f"state {name!r} is registered twice")
+        self.carried[name] = array
+        return array
+
+    def allocate_fluid(self, x, v):
+        """The fluid's arrays, with positions ``x`` and velocities ``v`` in the first rows, and the clock."""
+        p = self.per_particle
+        self.fluid = FluidParticles(
+            x=p("fluid", wp.vec3, x), v=p("fluid", wp.vec3, v),
+            ids=p("fluid", wp.int32, np.arange(len(x), dtype=np.int32)),
+            density=p("fluid"), factor=p("fluid"), acceleration=p("fluid", wp.vec3))
+        for name in ("x", "v", "ids"):
+            self.carry(f"fluid/{name}", getattr(self.fluid, name))
+
+    def allocate_clock(self, dt_max):
+        """Device clock: dt (this step), dt_previous (starts at ``dt_max``), time (float64) and steps."""
+        self.dt = self.carry("clock/dt", self.zeros("clock", 1))
+        self.dt_previous = self.carry("clock/dt_previous", self.array("clock", np.array([dt_max], np.float32), float))
+        self.time_device = self.carry("clock/time", self.zeros("clock", 1, dtype=wp.float64))
+        self.steps_device = self.carry("clock/steps", self.zeros("clock", 1, dtype=wp.int64))
+
+    # -- rows ------------------------------------------------------------------------------------
+    def zero_rows(self, first, count):
+        """Zeroes rows ``first .. first + count - 1`` of every per-particle array (particles an emitter adds)."""
+        for a in self._per_particle:
+            a[first: first + count].zero_()
+
+    def active(self, array):
+        """The rows of a per-particle array that hold particles (a view; the array itself when full)."""
+        return array if array.shape[0] == self.num_fluid else array[: self.num_fluid]
+
+    def host(self, array):
+        """The particles' rows of a per-particle array, copied to the host."""
+        return self.active(array).numpy()
+
+    # -- what a checkpoint keeps -----------------------------------------------------------------------
+    def counters(self):
+        return {"step": self.step_count, "frame": self.frame, "num_fluid": self.num_fluid}
+
+    def restore_counters(self, flags):
+        self.step_count, self.frame = int(flags["step"]), int(flags["frame"])
+        self.num_fluid = int(flags.get("num_fluid", self.num_fluid))
