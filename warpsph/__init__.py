@@ -16,8 +16,12 @@ The public Python API::
 
 __version__ = "0.1.0"
 
+import logging as _logging
+
 from .errors import SceneError  # noqa: F401
 from .scene import Scene, load_scene, scene_from_dict  # noqa: F401
+
+_logging.getLogger(__name__).addHandler(_logging.NullHandler())  # the program decides what is shown (warpsph.log)
 
 __all__ = ["Scene", "Simulation", "InstabilityError", "SceneError", "load_scene", "scene_from_dict", "io",
            "__version__"]

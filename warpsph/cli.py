@@ -8,6 +8,10 @@
     warpsph surface OUT.usdc|OUT.particles.h5 [--cube C] [--smoothing L] [--frames A B] [--out NEW.usdc]
                     [--method splashsurf|preview] [--device cpu|cuda]
 
+Every command takes -q/--quiet (warnings and errors only, no progress) and -v/--verbose (debug
+lines too, e.g. each frame's wall time), before or after its name. On a terminal with rich
+installed (pip install 'warpsph[rich]') a run shows a progress bar; otherwise a line per frame.
+
 --overwrite replaces only files warpsph wrote (a directory or anyone else's file is refused). A
 checkpoint holds the whole scene: resume works from any directory, and resuming again rewrites
 the frames after the checkpoint, so the outputs hold each frame once.
@@ -20,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
 import os
 import re
 
@@ -29,9 +34,12 @@ import sys
 import time
 from pathlib import Path
 
+from . import log
 from .errors import SceneError
+from .log import PLAIN
 
 EXIT_UNSTABLE = 3
+logger = logging.getLogger("warpsph.cli")  # also when run as python -m warpsph.cli
 
 
 CUDA_DRIVER_WARNING = "Could not find or load the NVIDIA CUDA driver"
@@ -76,29 +84,65 @@ def _pick_device(name):
 
 
 class Progress:
-    """One status line per frame on stderr: frames, sim time, steps/s, solver iterations."""
+    """A run's progress after each frame: a rich bar (frames, steps/s, ETA) when stderr is a
+    terminal, rich is installed and info is shown; else an info line per frame. A debug line per
+    frame gives its wall time and steps."""
 
-    def __init__(self, frames, stream=None):
+    def __init__(self, frames):
         self.frames = frames
-        self.stream = stream or sys.stderr
-        self.start = time.perf_counter()
+        self.start = self.last = time.perf_counter()
         self.first = None  # (frame, steps) at the first call: a resumed run starts mid-way
-        self.tty = self.stream.isatty()
+        self.last_steps = 0
+        self.bar = _rich_bar() if log.enabled(logging.INFO) and sys.stderr.isatty() else None
+        self.task = None
 
     def __call__(self, sim, frame):
+        now = time.perf_counter()
         if self.first is None:
             self.first = (frame, sim.step_count)
-        elapsed = time.perf_counter() - self.start
+            self.last_steps = sim.step_count
+        elapsed = now - self.start
         stats = sim.statistics()
         steps = sim.step_count - self.first[1]
         rate = steps / elapsed if elapsed > 0 else 0.0
         done = frame - self.first[0]
         eta = elapsed / done * (self.frames - frame) if done else 0.0
-        line = (f"frame {frame}/{self.frames}  t={sim.time:.3f}s  steps={sim.step_count}  {rate:.1f} steps/s  "
-                f"iterations div {stats['divergence_iterations']:.1f} dens {stats['density_iterations']:.1f}  "
-                f"eta {eta:.0f}s")
-        self.stream.write(("\r" + line.ljust(100)) if self.tty else line + "\n")
-        self.stream.flush()
+        if logger.isEnabledFor(logging.DEBUG):
+            k = sim.step_count - self.last_steps
+            logger.debug(f"frame {frame}: {now - self.last:.3f} s wall, {k} steps"
+                         + (f" ({1e3 * (now - self.last) / k:.1f} ms per step)" if k else "")
+                         + f", t={sim.time:.4f}s, {sim.num_fluid} fluid particles")
+        self.last, self.last_steps = now, sim.step_count
+        if self.bar is not None:
+            fields = {"rate": f"{rate:.1f} steps/s", "time": f"t={sim.time:.3f}s"}
+            if self.task is None:
+                self.bar.start()
+                self.task = self.bar.add_task("frame", total=self.frames, completed=frame, **fields)
+            else:
+                self.bar.update(self.task, completed=frame, **fields)
+            return
+        logger.info(f"frame {frame}/{self.frames}  t={sim.time:.3f}s  steps={sim.step_count}  {rate:.1f} steps/s  "
+                    f"iterations div {stats['divergence_iterations']:.1f} dens {stats['density_iterations']:.1f}  "
+                    f"eta {eta:.0f}s")
+
+    def close(self):
+        """Stops the bar (it stays on the screen, above the lines that follow)."""
+        if self.bar is not None and self.task is not None:
+            self.bar.stop()
+            self.task = None
+
+
+def _rich_bar():
+    """A rich progress bar on stderr, or None without rich."""
+    try:
+        from rich.console import Console
+        from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeRemainingColumn
+        from rich.progress import Progress as Bar
+    except ImportError:
+        return None
+    return Bar(TextColumn("frame"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[time]}"),
+               TextColumn("{task.fields[rate]}"), TextColumn("eta"), TimeRemainingColumn(),
+               console=Console(file=sys.stderr))
 
 
 CLIP_FILE = re.compile(r"frame\.\d{6}\.usdc|boundary\.npz|bodies\.npz")
@@ -307,7 +351,7 @@ def _simulate(sim, outputs, frames, args, options, append):
         cache.note_surface(mesher.note(surface))
 
     writer = FrameWriter(sim, write, copy=copy, background=not getattr(args, "sync_output", False))
-    progress = None if args.quiet else Progress(frames)
+    progress = Progress(frames)
     every = options.get("checkpoint_every", 0)
     preview = options.get("preview", 0)
     stop = {}
@@ -333,8 +377,7 @@ def _simulate(sim, outputs, frames, args, options, append):
             writer.submit(sim, frame, row)
         except WriterFailed as failed:
             raise _write_error(failed) from failed.cause
-        if progress is not None:
-            progress(sim, frame)
+        progress(sim, frame)
         if "signum" in stop:
             checkpoint()
             raise StopRequest(stop["signum"])
@@ -368,34 +411,41 @@ def _simulate(sim, outputs, frames, args, options, append):
     finally:
         for s, handler in previous.items():
             signal.signal(s, handler)
+        progress.close()
         writer.close()  # writes the frames still queued (a stopped or unstable run keeps them)
         closing = [mesher is not None and _close(finish_meshes), _close(diagnostics.close),
                    particles is not None and _close(particles.close), _close(lambda: cache.finish(outputs.out))]
     loop_wall = time.perf_counter() - start
     written = "no frames" if writer.written is None else f"frames 0..{writer.written}"
     hint = "" if not outputs.checkpoint.exists() else f"; last checkpoint: {outputs.checkpoint}"
+    messages = []  # (level, text, extra) of a run that did not finish
     if isinstance(outcome, StopRequest):
         name = signal.Signals(outcome.signum).name
-        code, message = 128 + outcome.signum, (
-            f"\nwarpsph: {name}: stopped after frame {sim.frame}; the cache {outputs.out} holds {written}; "
-            f"continue with: warpsph resume {outputs.checkpoint}")
+        code = 128 + outcome.signum
+        messages.append((logging.WARNING, f"{name}: stopped after frame {sim.frame}; the cache {outputs.out} holds "
+                                          f"{written}; continue with: warpsph resume {outputs.checkpoint}", PLAIN))
     elif isinstance(outcome, WriteError):
         kept = (f"the cache {outputs.out} keeps the frames before it" if _cache_exists(outputs, options.get("clips"))
                 else f"the cache {outputs.out} is gone")
-        code, message = 2, f"\nwarpsph: error: {outcome}; {kept}{hint}"
+        code = 2
+        messages.append((logging.ERROR, f"{outcome}; {kept}{hint}", None))
     elif outcome is not None:
-        code, message = EXIT_UNSTABLE, (
-            f"\nwarpsph: {outcome}. The cache {outputs.out} keeps {written}{hint}. "
-            f"Try a smaller time step (time.dt_max, time.cfl) or --on-instability reduce-dt.")
+        code = EXIT_UNSTABLE
+        messages.append((logging.ERROR, f"{outcome}. The cache {outputs.out} keeps {written}{hint}. "
+                                        f"Try a smaller time step (time.dt_max, time.cfl) or --on-instability reduce-dt.",
+                         PLAIN))
         if writer.error is not None:
-            message += f"\nwarpsph: error: {_write_error(WriterFailed(*writer.error))}"
+            messages.append((logging.ERROR, str(_write_error(WriterFailed(*writer.error))), None))
     elif writer.error is not None:
-        code, message = 2, (f"\nwarpsph: error: {_write_error(WriterFailed(*writer.error))}; the cache {outputs.out} "
-                            f"keeps the frames before it{hint}")
+        code = 2
+        messages.append((logging.ERROR, f"{_write_error(WriterFailed(*writer.error))}; the cache {outputs.out} "
+                                        f"keeps the frames before it{hint}", None))
     if code is None and any(closing):
-        code, message = 2, f"warpsph: error: cannot finish the outputs: {next(c for c in closing if c)}"
+        code = 2
+        messages.append((logging.ERROR, f"cannot finish the outputs: {next(c for c in closing if c)}", None))
     if code is not None:
-        print(message, file=sys.stderr)
+        for level, text, extra in messages:
+            logger.log(level, "%s", text, extra=extra)
         return code
     stats = sim.statistics()
     steps = sim.step_count - steps0
@@ -408,40 +458,37 @@ def _simulate(sim, outputs, frames, args, options, append):
                     surface_seconds=payload["surface_seconds"] if surface is not None else None,
                     surface_meshed=mesher.meshed if mesher is not None else None,
                     surface_skipped=list(mesher.skipped) if mesher is not None else None)
-    if progress is not None and progress.tty:
-        print(file=sys.stderr)
-    print(f"done: frame {frames}, {steps} steps, {sim.time:.3f} s simulated, {loop_wall:.1f} s wall "
-          f"({steps / max(loop_wall, 1e-9):.1f} steps/s); mean iterations: divergence "
-          f"{stats['divergence_iterations']:.2f}, density {stats['density_iterations']:.2f}; wrote {outputs.out} and "
-          f"{outputs.stats.name}", file=sys.stderr)
+    logger.info(f"done: frame {frames}, {steps} steps, {sim.time:.3f} s simulated, {loop_wall:.1f} s wall "
+                f"({steps / max(loop_wall, 1e-9):.1f} steps/s); mean iterations: divergence "
+                f"{stats['divergence_iterations']:.2f}, density {stats['density_iterations']:.2f}; wrote {outputs.out} "
+                f"and {outputs.stats.name}")
     if stats["removed_in_sinks"] or stats["removed_outside"]:
-        print(f"removed: {stats['removed_in_sinks']} particles in sinks, {stats['removed_outside']} that left the open "
-              f"domain; {sim.num_fluid} remain", file=sys.stderr)
-    print(f"output: {writer.frames} frames, {per_particle:.1f} B per particle per frame of USD arrays "
-          f"({','.join(fields)}), {_size(disk)} on disk; writing took {writer.seconds:.1f} s "
-          f"{'in the background' if writer.background else 'on the simulation thread'}"
-          + (f", the simulation waited {writer.waited:.1f} s for it" if writer.background else ""), file=sys.stderr)
+        logger.info(f"removed: {stats['removed_in_sinks']} particles in sinks, {stats['removed_outside']} that left "
+                    f"the open domain; {sim.num_fluid} remain")
+    logger.info(f"output: {writer.frames} frames, {per_particle:.1f} B per particle per frame of USD arrays "
+                f"({','.join(fields)}), {_size(disk)} on disk; writing took {writer.seconds:.1f} s "
+                f"{'in the background' if writer.background else 'on the simulation thread'}"
+                + (f", the simulation waited {writer.waited:.1f} s for it" if writer.background else ""))
     if mesher is not None:
         _report_surface(mesher, surface, loop_wall, writer)
     return 0
 
 
 def _report_surface(mesher, surface, loop_wall, writer):
-    """The end-of-run line on the surface: frames meshed and skipped, seconds per mesh, and what
-    would keep up when the simulation waited for the mesher."""
+    """The end-of-run line on the surface (frames meshed, seconds per mesh), and warnings on the
+    frames skipped and on what would keep up when the simulation waited for the mesher."""
     per_mesh = mesher.seconds / max(mesher.meshed, 1)
     every = f"every {mesher.every}-th frame" if mesher.every > 1 else "every frame"
-    line = (f"surface: /World/FluidSurface ({surface.method}, cube {surface.cube:g} r, smoothing length "
-            f"{surface.smoothing:g} r) in {mesher.meshed} frames ({every}), {per_mesh:.2f} s of meshing per mesh")
+    logger.info(f"surface: /World/FluidSurface ({surface.method}, cube {surface.cube:g} r, smoothing length "
+                f"{surface.smoothing:g} r) in {mesher.meshed} frames ({every}), {per_mesh:.2f} s of meshing per mesh")
     if mesher.skipped:
-        line += (f"; {len(mesher.skipped)} frames skipped (the mesher was behind; noted in the cache's metadata "
-                 f"warpsph:surface; re-mesh them with warpsph surface)")
+        logger.warning(f"surface: {len(mesher.skipped)} frames skipped (the mesher was behind; noted in the cache's "
+                       f"metadata warpsph:surface; re-mesh them with warpsph surface)")
     if mesher.behind == "wait" and writer.background and writer.waited > 0.05 * loop_wall:
         simulated = (loop_wall - writer.waited) / max(writer.frames, 1)  # seconds of simulation per frame
         keep_up = max(2, int(np.ceil(per_mesh / max(simulated, 1e-9))))
-        line += (f"; the simulation waited {writer.waited:.1f} s for the writer and mesher: --surface-every {keep_up} "
-                 f"or --surface-behind skip would not make it wait")
-    print(line, file=sys.stderr)
+        logger.warning(f"surface: the simulation waited {writer.waited:.1f} s for the writer and mesher: "
+                       f"--surface-every {keep_up} or --surface-behind skip would not make it wait")
 
 
 def _surface_options(options):
@@ -564,9 +611,9 @@ def run_command(args):
     fields = parse_fields(args.fields, sim)  # refused before the outputs are touched
     for path in outputs.existing():
         outputs.remove(path)
-    print(f"warpsph: {scene.name} on {device}: {sim.num_fluid} fluid + {sim.num_boundary} boundary particles, "
-          f"r = {scene.particle_radius:.4g} m, {frames} frames at {scene.output.fps:g} fps -> {outputs.out}",
-          file=sys.stderr)
+    logger.info(f"{scene.name} on {device}: {sim.num_fluid} fluid + {sim.num_boundary} boundary particles, "
+                f"r = {scene.particle_radius:.4g} m, {frames} frames at {scene.output.fps:g} fps -> {outputs.out}",
+                extra=PLAIN)
     options = {"checkpoint_every": args.checkpoint_every, "on_instability": args.on_instability, "clips": int(args.clips),
                "preview": args.preview, "particles_h5": int(args.particles_h5), "fields": ",".join(fields), **surface}
     return _simulate(sim, outputs, frames, args, options, append=None)
@@ -597,8 +644,8 @@ def resume_command(args):
                                        "surface_method") if k in options}
     _surface_options(surface)
     sim.on_instability = options.get("on_instability", "stop")
-    print(f"warpsph: resuming {sim.scene.name} at frame {sim.frame} (t = {sim.time:.3f} s) on {device} -> {outputs.out}",
-          file=sys.stderr)
+    logger.info(f"resuming {sim.scene.name} at frame {sim.frame} (t = {sim.time:.3f} s) on {device} -> {outputs.out}",
+                extra=PLAIN)
     run_options = {"checkpoint_every": int(options.get("checkpoint_every", 0)), "on_instability": sim.on_instability,
                    "clips": int(clips), "preview": int(options.get("preview", 0)),
                    "particles_h5": int(options.get("particles_h5", 0)), "fields": str(options.get("fields", "")),
@@ -612,13 +659,12 @@ def surface_command(args):
     options = SurfaceOptions(cube=args.cube, smoothing=args.smoothing, iso=args.iso, method=args.method)
     source, frames, out, radius = plan_remesh(args.cache, args.frames, args.out, args.radius, args.overwrite, options)
     device = _pick_device(args.device) if options.method == "preview" else "cpu"
-    print(f"warpsph: meshing {len(frames)} frames of {args.cache} ({options.method}"
-          + (f" on {device}" if options.method == "preview" else "") + f", r = {radius:.4g} m, cube {options.cube:g} r, "
-          f"smoothing length {options.smoothing:g} r) -> {out}", file=sys.stderr)
-    log = None if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
-    done = remesh(source, frames, out, radius, options, log=log, device=device)
-    print(f"wrote {out}: {done['frames']} frames, {done['seconds'] / max(done['frames'], 1):.2f} s per frame, "
-          f"{done['triangles'] / max(done['frames'], 1):.0f} triangles per frame", file=sys.stderr)
+    logger.info(f"meshing {len(frames)} frames of {args.cache} ({options.method}"
+                + (f" on {device}" if options.method == "preview" else "") + f", r = {radius:.4g} m, cube "
+                f"{options.cube:g} r, smoothing length {options.smoothing:g} r) -> {out}", extra=PLAIN)
+    done = remesh(source, frames, out, radius, options, log=logger.info, device=device)
+    logger.info(f"wrote {out}: {done['frames']} frames, {done['seconds'] / max(done['frames'], 1):.2f} s per frame, "
+                f"{done['triangles'] / max(done['frames'], 1):.0f} triangles per frame")
     return 0
 
 
@@ -642,7 +688,7 @@ def validate_command(args):
 
     case, resolutions, out = check_arguments(args.case, args.resolutions, args.json)
     device = _pick_device(args.device)
-    report = validate(case, resolutions, args.methods, device, out, log=lambda line: print(line, file=sys.stderr, flush=True),
+    report = validate(case, resolutions, args.methods, device, out, log=logger.info,
                       command=" ".join(["warpsph", "validate", case, "--resolutions", *map(str, resolutions),
                                         "--methods", *args.methods, "--device", args.device]
                                        + (["--json", str(args.json)] if args.json else [])))
@@ -765,7 +811,6 @@ def build_parser():
     mesh.add_argument("--device", default="cpu", help="device of --method preview: cpu (default), cuda, cuda:N or auto")
     mesh.add_argument("--radius", type=float, help="particle radius in metres (default: the cache's widths / 2)")
     mesh.add_argument("--overwrite", action="store_true", help="replace an existing --out that warpsph wrote")
-    mesh.add_argument("--quiet", action="store_true", help="no line per frame")
     mesh.set_defaults(func=surface_command)
     from .validation.taylor_green import METHODS
 
@@ -798,11 +843,6 @@ def build_parser():
     sweep.add_argument("--num-cpus", type=float, default=1.0, help="ray: CPUs per cell (default 1)")
     sweep.add_argument("--max-retries", type=int, default=3, help="ray: retries of a cell lost with its worker (default 3)")
     sweep.set_defaults(func=sweep_command)
-    schema = sub.add_parser("schema", help="the scene file's JSON Schema (for editors), or with --markdown the "
-                                           "scene reference: every key, type, unit, default and range")
-    schema.add_argument("--markdown", action="store_true", help="the scene reference as markdown instead")
-    schema.add_argument("--out", help="write it to this file instead of stdout")
-    schema.set_defaults(func=schema_command)
     from .validation import bench, bench_job, pareto, results, stress
 
     def study(subparsers, name, module, text, device=True):
@@ -821,33 +861,47 @@ def build_parser():
     study(sub, "stress", stress, "stability matrix: the scene as plain DFSPH with one parameter changed per cell")
     study(kinds, "results", results, "the figures of result JSON files (validation, Pareto, stress, benchmark sizes)",
           device=False)
+    schema = sub.add_parser("schema", help="the scene file's JSON Schema (for editors), or with --markdown the "
+                                           "scene reference: every key, type, unit, default and range")
+    schema.add_argument("--markdown", action="store_true", help="the scene reference as markdown instead")
+    schema.add_argument("--out", help="write it to this file instead of stdout")
+    schema.set_defaults(func=schema_command)
     for p in (run, resume):
         p.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
         p.add_argument("--frames", type=int, help="last frame to simulate (default: the scene's output.frames)")
-        p.add_argument("--quiet", action="store_true", help="no progress line")
         p.add_argument("--sync-output", action="store_true",
                        help="write each frame on the simulation's thread (default: a background writer thread, "
                             "so the simulation goes on while a frame is written)")
+    _verbosity_flags(parser, default=0)
     return parser
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None):
-    print(f"warpsph: warning: {message}", file=sys.stderr)
+def _verbosity_flags(parser, default):
+    """-q/--quiet and -v/--verbose on ``parser`` and on each of its subcommands (where they default
+    to nothing, so that a flag before the subcommand holds)."""
+    parser.add_argument("-q", "--quiet", action="count", default=default,
+                        help="warnings and errors only: no progress, no info lines")
+    parser.add_argument("-v", "--verbose", action="count", default=default,
+                        help="debug lines too (e.g. each frame's wall time and steps)")
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for sub in action.choices.values():
+                _verbosity_flags(sub, argparse.SUPPRESS)
 
 
 def main(argv=None):
-    import warnings
-
-    warnings.showwarning = _show_warning
     args = build_parser().parse_args(argv)
+    undo = log.configure(log.verbosity(args.quiet, args.verbose))
     try:
         return args.func(args)
     except SceneError as exc:
-        print(f"warpsph: error: {exc}", file=sys.stderr)
+        logger.error("%s", exc)
         return 2
     except KeyboardInterrupt:
-        print("\nwarpsph: interrupted", file=sys.stderr)
+        logger.warning("interrupted", extra=PLAIN)
         return 130
+    finally:
+        undo()
 
 
 if __name__ == "__main__":

@@ -13,8 +13,8 @@ the count changes.
 
 from __future__ import annotations
 
+import logging
 import math
-import warnings
 
 import numpy as np
 import warp as wp
@@ -23,6 +23,8 @@ from warpsph import sampling
 from warpsph.errors import SceneError
 from warpsph.kernels.inflow import drive_inflow_particles, mark_particles_in_sinks
 
+
+logger = logging.getLogger(__name__)
 
 DRIVE_LENGTH = 2.0  # spacings downstream of an emitter's face in which particles keep its velocity
 
@@ -84,8 +86,8 @@ class Inflow:
         n, k = sim.num_fluid, len(x)
         if n + k > sim.capacity:
             if not self._warned:
-                warnings.warn(f"emitters: the fluid is at its capacity of {sim.capacity:,} particles (sized for "
-                              f"output.frames / output.fps); emission pauses until sinks free room", stacklevel=3)
+                logger.warning(f"emitters: the fluid is at its capacity of {sim.capacity:,} particles (sized for "
+                               f"output.frames / output.fps); emission pauses until sinks free room")
                 self._warned = True
             return False
         if self.next_id + k > np.iinfo(np.int32).max:

@@ -36,8 +36,8 @@ from __future__ import annotations
 import hashlib
 import itertools
 import json
+import logging
 import os
-import sys
 import time
 import traceback
 from pathlib import Path
@@ -479,9 +479,10 @@ def run_sweep(sweep, out, executor="local", workers=1, devices=None, address=Non
     ``executor``: "local" (``workers`` processes, ``devices`` a list given to the worker slots in turn; default
     the sweep file's device or "cpu") or "ray" (``address`` of a cluster, else a local instance (``ray_init``:
     keyword arguments of ray.init); ``num_gpus`` per task (a fraction packs cells on a GPU; 0/None: CPU),
-    ``num_cpus`` per task, ``max_retries``). ``log``: a function taking a progress line (default stderr)."""
+    ``num_cpus`` per task, ``max_retries``). ``log``: a function taking a progress line (default: info on the
+    ``warpsph.sweep`` logger)."""
     spec = load_sweep(sweep)
-    say = log or (lambda line: print(line, file=sys.stderr, flush=True))
+    say = log or logging.getLogger(__name__).info
     if executor not in ("local", "ray"):
         raise SceneError("", "--executor", f"unknown executor '{executor}'; expected local or ray")
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:

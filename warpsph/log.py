@@ -1,0 +1,87 @@
+"""Logging: warpsph's modules log to ``logging.getLogger(__name__)``, under the ``warpsph`` logger.
+
+The package logger has only a :class:`logging.NullHandler`, so a program that imports warpsph
+decides what is shown. The command line calls :func:`configure`, which shows the records on
+stderr as ``warpsph: error: ...``, ``warpsph: warning: ...`` and plain info lines.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+import warnings
+
+LOGGER = "warpsph"
+QUIET, NORMAL, VERBOSE = -1, 0, 1
+LEVELS = {QUIET: logging.WARNING, NORMAL: logging.INFO, VERBOSE: logging.DEBUG}
+PLAIN = {"prefix": "warpsph: "}  # ``extra=PLAIN``: "warpsph: message" whatever the level
+
+
+class Formatter(logging.Formatter):
+    """A record's message after a prefix: its ``prefix`` attribute when it has one, else
+    ``warpsph: error: `` (ERROR and above), ``warpsph: warning: `` (WARNING), ``debug: `` (DEBUG),
+    none (INFO)."""
+
+    def format(self, record):
+        prefix = getattr(record, "prefix", None)
+        if prefix is None:
+            prefix = ("warpsph: error: " if record.levelno >= logging.ERROR else
+                      "warpsph: warning: " if record.levelno >= logging.WARNING else
+                      "" if record.levelno >= logging.INFO else "debug: ")
+        text = prefix + record.getMessage()
+        if record.exc_info:
+            text += "\n" + self.formatException(record.exc_info)
+        return text
+
+
+class StderrHandler(logging.StreamHandler):
+    """Writes to ``sys.stderr`` as it is when a record comes (a test's capture, or rich's redirect
+    while a progress bar is shown)."""
+
+    def __init__(self):
+        super().__init__()
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value):
+        pass
+
+
+def verbosity(quiet=0, verbose=0):
+    """The verbosity of the command line's ``-q`` / ``-v`` counts: QUIET, NORMAL or VERBOSE."""
+    return max(QUIET, min(VERBOSE, int(verbose or 0) - int(quiet or 0)))
+
+
+def configure(level=NORMAL):
+    """Shows the ``warpsph`` logger's records from ``level`` (QUIET: warnings and errors, NORMAL:
+    info, VERBOSE: debug) on stderr, and Python warnings as ``warpsph: warning: ...`` lines.
+    Replaces an earlier :func:`configure`; returns a function that undoes it."""
+    logger = logging.getLogger(LOGGER)
+    for old in [h for h in logger.handlers if isinstance(h, StderrHandler)]:
+        logger.removeHandler(old)
+    handler = StderrHandler()
+    handler.setFormatter(Formatter())
+    saved = logger.level, warnings.showwarning
+    logger.addHandler(handler)
+    logger.setLevel(LEVELS[level])
+    warnings.showwarning = _show_warning
+
+    def undo():
+        logger.removeHandler(handler)
+        logger.setLevel(saved[0])
+        if warnings.showwarning is _show_warning:
+            warnings.showwarning = saved[1]
+
+    return undo
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    logging.getLogger(LOGGER).warning("%s", message)
+
+
+def enabled(level):
+    """Whether the ``warpsph`` logger passes records of ``level`` (a logging level)."""
+    return logging.getLogger(LOGGER).isEnabledFor(level)
