@@ -326,13 +326,13 @@ def test_a_mesher_behind_the_simulation_skips_frames_or_waits(tmp_path, monkeypa
     pytest.importorskip("pysplashsurf")
     from warpsph import cli, surface
 
-    original = surface.reconstruct
+    def slow_mesher(options, radius):  # in this process, so that the sleep holds
+        def mesh(arrays):
+            time.sleep(SLOW)
+            return surface.mesh_frame(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options)
+        return mesh
 
-    def slow(*args, **kwargs):
-        time.sleep(SLOW)
-        return original(*args, **kwargs)
-
-    monkeypatch.setattr(surface, "reconstruct", slow)
+    monkeypatch.setattr(surface, "mesher_for", slow_mesher)
     scene = small_scene(tmp_path, frames=8)
     out = tmp_path / "run.usdc"
     assert run_cli("run", scene, "--out", out, "--surface", "--surface-behind", behind) == 0
@@ -354,6 +354,28 @@ def test_a_mesher_behind_the_simulation_skips_frames_or_waits(tmp_path, monkeypa
         for t in skipped:  # a skipped frame holds the mesh before it
             before = max(m for m in meshed if m < t)
             assert len(prim.GetAttribute("points").Get(t)) == len(prim.GetAttribute("points").Get(before))
+
+
+@pytest.mark.parametrize("method", ["splashsurf", "preview"])
+def test_a_run_meshes_in_a_worker_process_of_its_own(method):
+    """pysplashsurf holds the GIL while it meshes, and Warp's current device is process-wide: a run's
+    meshes are made in a spawned worker process, and equal the meshes made here."""
+    if method == "splashsurf":
+        pytest.importorskip("pysplashsurf")
+    from warpsph.surface import mesh_frame, mesher_for
+
+    r = 0.02
+    x = lattice_sphere(r, 0.3).astype(np.float32)
+    options = SurfaceOptions(method=method)
+    mesher = mesher_for(options, r)
+    try:
+        mesh = mesher({"x": x, "v": np.zeros_like(x)})
+    finally:
+        mesher.close()
+    assert mesher.worker_pid is not None and mesher.worker_pid != os.getpid()
+    here = mesh_frame(x, r, np.zeros_like(x), None, options)
+    assert len(mesh.faces) > 100 and np.array_equal(mesh.faces, here.faces)
+    np.testing.assert_allclose(mesh.points, here.points, atol=1e-6)
 
 
 def test_surface_command_with_the_preview_method(tmp_path, monkeypatch):

@@ -186,23 +186,23 @@ def reconstruct_preview(points, radius, velocities=None, vorticity=None, options
         B *= 2
     dims_v = wp.vec3i(*map(int, dims))
     lower_v = wp.vec3(*map(float, lower))
-    with wp.ScopedDevice(device):
-        x = wp.array(points, dtype=wp.vec3)
-        grid = wp.HashGrid(*[int(max(1, min(128, d))) for d in np.ceil((hi - lo) / support + 1)])
+    with wp.ScopedDevice(device):  # every allocation names the device too: the current device is process-wide
+        x = wp.array(points, dtype=wp.vec3, device=device)
+        grid = wp.HashGrid(*[int(max(1, min(128, d))) for d in np.ceil((hi - lo) / support + 1)], device=device)
         grid.build(x, support)
-        flags = wp.zeros(int(np.prod(dims)), dtype=wp.int32)
-        wp.launch(K.mark_blocks, len(points), inputs=[x, lower_v, float(block), support, dims_v, flags])
+        flags = wp.zeros(int(np.prod(dims)), dtype=wp.int32, device=device)
+        wp.launch(K.mark_blocks, len(points), device=device, inputs=[x, lower_v, float(block), support, dims_v, flags])
         offsets = wp.empty_like(flags)
         wp.utils.array_scan(flags, offsets, inclusive=False)
         count = int(offsets[-1:].numpy()[0] + flags[-1:].numpy()[0])
-        blocks = wp.empty(max(count, 1), dtype=wp.int32)
-        wp.launch(K.compact, len(flags), inputs=[flags, offsets, blocks])
+        blocks = wp.empty(max(count, 1), dtype=wp.int32, device=device)
+        wp.launch(K.compact, len(flags), device=device, inputs=[flags, offsets, blocks])
         nodes = (B + 1) ** 3
-        values = wp.empty(count * nodes, dtype=float)
-        wp.launch(K.block_field, count * nodes,
+        values = wp.empty(count * nodes, dtype=float, device=device)
+        wp.launch(K.block_field, count * nodes, device=device,
                   inputs=[blocks, dims_v, B, lower_v, cell, grid.id, x, support, volume, values])
-        cell_flags = wp.empty(count * B ** 3, dtype=wp.int32)
-        wp.launch(K.mark_cells, len(cell_flags), inputs=[values, B, iso, cell_flags])
+        cell_flags = wp.empty(count * B ** 3, dtype=wp.int32, device=device)
+        wp.launch(K.mark_cells, len(cell_flags), device=device, inputs=[values, B, iso, cell_flags])
         cell_offsets = wp.empty_like(cell_flags)
         wp.utils.array_scan(cell_flags, cell_offsets, inclusive=False)
         ncells = int(cell_offsets[-1:].numpy()[0] + cell_flags[-1:].numpy()[0]) if len(cell_flags) else 0
@@ -212,22 +212,23 @@ def reconstruct_preview(points, radius, velocities=None, vorticity=None, options
                 mesh.primvars["vorticity_magnitude"] = np.zeros(0, np.float32)
             mesh.seconds = time.perf_counter() - start
             return mesh
-        corner = wp.array(np.asarray(IsoSurfaceMarchingCubes.CUBE_CORNER_OFFSETS, np.int32).reshape(8, 3), dtype=wp.vec3i)
-        cells = wp.empty(ncells, dtype=wp.vec3i)
-        corner_values = wp.empty((ncells, 8), dtype=float)
-        wp.launch(K.gather_cells, len(cell_flags),
+        corner = wp.array(np.asarray(IsoSurfaceMarchingCubes.CUBE_CORNER_OFFSETS, np.int32).reshape(8, 3),
+                          dtype=wp.vec3i, device=device)
+        cells = wp.empty(ncells, dtype=wp.vec3i, device=device)
+        corner_values = wp.empty((ncells, 8), dtype=float, device=device)
+        wp.launch(K.gather_cells, len(cell_flags), device=device,
                   inputs=[cell_flags, cell_offsets, values, blocks, dims_v, B, corner, cells, corner_values])
         vertices, indices = sparse_marching_cubes_from_cells(cells, corner_values, origin=lower_v, cell_width=cell,
                                                              threshold=iso, device=device)
         nv = len(vertices)
-        v = wp.array(np.ascontiguousarray(velocities, np.float32), dtype=wp.vec3) if velocities is not None else \
-            wp.empty(0, dtype=wp.vec3)
-        scalar = wp.array(np.ascontiguousarray(magnitude, np.float32), dtype=float) if magnitude is not None else \
-            wp.empty(0, dtype=float)
-        normals = wp.zeros(nv, dtype=wp.vec3)
-        vertex_v = wp.zeros(nv if velocities is not None else 0, dtype=wp.vec3)
-        vertex_s = wp.zeros(nv if magnitude is not None else 0, dtype=float)
-        wp.launch(K.vertex_attributes, nv,
+        v = wp.array(np.ascontiguousarray(velocities, np.float32), dtype=wp.vec3, device=device) if velocities is not None else \
+            wp.empty(0, dtype=wp.vec3, device=device)
+        scalar = wp.array(np.ascontiguousarray(magnitude, np.float32), dtype=float, device=device) if magnitude is not None else \
+            wp.empty(0, dtype=float, device=device)
+        normals = wp.zeros(nv, dtype=wp.vec3, device=device)
+        vertex_v = wp.zeros(nv if velocities is not None else 0, dtype=wp.vec3, device=device)
+        vertex_s = wp.zeros(nv if magnitude is not None else 0, dtype=float, device=device)
+        wp.launch(K.vertex_attributes, nv, device=device,
                   inputs=[vertices, grid.id, x, v, scalar, support, volume, normals, vertex_v, vertex_s])
         faces = indices.numpy().reshape(-1, 3).astype(np.int32)
         mesh = SurfaceMesh(np.ascontiguousarray(vertices.numpy(), np.float32), faces, normals.numpy())
@@ -325,11 +326,15 @@ class BackgroundMesher:
         return done
 
     def close(self):
-        """Meshes what is queued, stops the thread and returns the last (frame, mesh) pairs."""
+        """Meshes what is queued, stops the thread (and the mesh function's worker) and returns the last
+        (frame, mesh) pairs."""
         if self._thread is not None:
             self.jobs.put(None)
             self._thread.join()
             self._thread = None
+            close = getattr(self.mesh, "close", None)
+            if close is not None:
+                close()
         return self.ready()
 
     def note(self, options):
@@ -346,13 +351,43 @@ class BackgroundMesher:
                 "smoothing": float(options.smoothing), "iso": float(options.threshold), "note": text}
 
 
+class ProcessMesher:
+    """``mesh(arrays)`` of a run (``warpsph run --surface``), computed in a child process of its own.
+
+    pysplashsurf holds the GIL through most of its pipeline (a Python thread beside a 512K-particle
+    reconstruction ran at 1 % of its speed), so a mesher thread stopped the simulation's host thread
+    while it meshed: the 1M dam break ran 2.8x slower with --surface although it never waited for the
+    writer. A spawned process has its own GIL and, for the preview, its own Warp device state (Warp's
+    current device and stream are process-wide, not per thread). One worker; arrays go by pickle."""
+
+    def __init__(self, options, radius):
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        self.options, self.radius = options, radius
+        self.pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+        self.worker_pid = None
+
+    def __call__(self, arrays):
+        future = self.pool.submit(_mesh_in_worker, arrays["x"], self.radius, arrays.get("v"), arrays.get("vorticity"),
+                                  self.options)
+        mesh, self.worker_pid = future.result()
+        return mesh
+
+    def close(self):
+        self.pool.shutdown(wait=True)
+
+
+def _mesh_in_worker(points, radius, velocities, vorticity, options):
+    import os
+
+    return mesh_frame(points, radius, velocities, vorticity, options, "cpu"), os.getpid()
+
+
 def mesher_for(options, radius):
-    """The ``mesh(arrays)`` function of a run, called on the background mesher's thread: splashsurf, or the
-    preview on the CPU. Not on a CUDA device: Warp's current stream belongs to the device, not to the thread,
-    so a preview on a stream of its own changed the stream the simulation captures its step on. On the H100
-    the 1M dam break stopped with "Warp error: unknown stream" at the next graph capture. ``warpsph surface
-    --method preview --device cuda`` meshes a finished cache on the GPU."""
-    return lambda arrays: mesh_frame(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options, "cpu")
+    """The ``mesh(arrays)`` of a run: a :class:`ProcessMesher` (splashsurf, or the preview on the CPU).
+    ``warpsph surface --method preview --device cuda`` meshes a finished cache on the GPU."""
+    return ProcessMesher(options, radius)
 
 
 def mesh_frame(points, radius, velocities=None, vorticity=None, options=SurfaceOptions(), device="cpu"):
