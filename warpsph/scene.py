@@ -372,6 +372,8 @@ def _unwrap(tp):
 
 def _type_name(tp):
     tp = _unwrap(tp)
+    if tp is Any:  # a models entry, validated against its plug-in's Parameters
+        return 'an object with a "type"'
     if tp is float:
         return "a number"
     if tp is int:
