@@ -222,8 +222,12 @@ class TimeStepping:
 
 @schema
 class Solver:
-    """DFSPH controls; errors in percent, as in SPlisHSPlasH."""
+    """Pressure solver controls; errors in percent, as in SPlisHSPlasH."""
 
+    method: Literal["dfsph", "iisph"] = key(
+        "dfsph", doc="pressure solver: dfsph (Bender & Koschier 2017: a divergence and a density solve) or iisph "
+                     "(Ihmsen et al. 2014, as SPlisHSPlasH: one density solve, p >= 0 everywhere; it reads "
+                     "density_max_error, min/max_iterations and warm_start, and ignores the divergence keys and shifting)")
     density_max_error: float = key(0.01, doc="average density error the density solve stops at", unit="% of rho0", gt=0)
     divergence_max_error: float = key(0.1, doc="average divergence error the divergence solve stops at",
                                       unit="% of rho0 per second", gt=0)
