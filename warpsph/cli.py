@@ -328,7 +328,7 @@ def _simulate(sim, outputs, frames, args, options, append):
     if surface is not None:  # meshes on a thread of its own, fed by the writer (bounded: --surface-behind)
         from .surface import BackgroundMesher, mesher_for
 
-        mesher = BackgroundMesher(mesher_for(surface, radius), every=int(options.get("surface_every", 1)),
+        mesher = BackgroundMesher(mesher_for(surface, radius, sim.device), every=int(options.get("surface_every", 1)),
                                   behind=str(options.get("surface_behind", "wait")))
 
     def write(item):  # on the writer's thread: the USD frame, the meshes done, the HDF5 frame, the CSV row

@@ -360,17 +360,17 @@ class ProcessMesher:
     writer. A spawned process has its own GIL and, for the preview, its own Warp device state (Warp's
     current device and stream are process-wide, not per thread). One worker; arrays go by pickle."""
 
-    def __init__(self, options, radius):
+    def __init__(self, options, radius, device="cpu"):
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor
 
-        self.options, self.radius = options, radius
+        self.options, self.radius, self.device = options, radius, str(device)
         self.pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
         self.worker_pid = None
 
     def __call__(self, arrays):
         future = self.pool.submit(_mesh_in_worker, arrays["x"], self.radius, arrays.get("v"), arrays.get("vorticity"),
-                                  self.options)
+                                  self.options, self.device)
         mesh, self.worker_pid = future.result()
         return mesh
 
@@ -378,16 +378,16 @@ class ProcessMesher:
         self.pool.shutdown(wait=True)
 
 
-def _mesh_in_worker(points, radius, velocities, vorticity, options):
+def _mesh_in_worker(points, radius, velocities, vorticity, options, device):
     import os
 
-    return mesh_frame(points, radius, velocities, vorticity, options, "cpu"), os.getpid()
+    return mesh_frame(points, radius, velocities, vorticity, options, device), os.getpid()
 
 
-def mesher_for(options, radius):
-    """The ``mesh(arrays)`` of a run: a :class:`ProcessMesher` (splashsurf, or the preview on the CPU).
-    ``warpsph surface --method preview --device cuda`` meshes a finished cache on the GPU."""
-    return ProcessMesher(options, radius)
+def mesher_for(options, radius, device="cpu"):
+    """The ``mesh(arrays)`` of a run: a :class:`ProcessMesher`, splashsurf on the host's cores or the preview
+    on ``device`` (the run's: the worker process has its own CUDA context and streams)."""
+    return ProcessMesher(options, radius, device)
 
 
 def mesh_frame(points, radius, velocities=None, vorticity=None, options=SurfaceOptions(), device="cpu"):
