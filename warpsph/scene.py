@@ -616,17 +616,46 @@ def load_scene(path, scale: float = 1.0) -> Scene:
     return rescale(dataclasses.replace(scene, source=str(path)), scale)
 
 
+def key_path(path: str) -> list:
+    """The steps of a dotted key path with list indices: "models[0].beta" -> ["models", 0, "beta"];
+    ValueError for a malformed one."""
+    steps = []
+    for part in path.split("."):
+        name, _, rest = part.partition("[")
+        if not name.isidentifier() or (rest and not rest.endswith("]")):
+            raise ValueError(f"'{path}': expected NAME or NAME[K] parts joined by dots, e.g. models[0].beta")
+        steps.append(name)
+        for index in rest[:-1].split("][") if rest else ():
+            if not index.isdigit():
+                raise ValueError(f"'{path}': expected an index [K] with K an integer >= 0, got [{index}]")
+            steps.append(int(index))
+    return steps
+
+
 def with_overrides(data: dict, overrides=None) -> dict:
-    """A copy of the scene dict ``data`` with the dotted keys of ``overrides`` set, e.g.
-    {"solver.density_max_error": 0.05, "time.cfl": 0.4} (studies and sweeps change one key of a scene)."""
+    """A copy of the scene dict ``data`` with the key paths of ``overrides`` set, in their order, e.g.
+    {"solver.density_max_error": 0.05, "time.cfl": 0.4, "models[0].beta": 0.6} (studies and sweeps change
+    keys of a scene). A missing object on the way is created; a list index must exist (ValueError)."""
     data = json.loads(json.dumps(data))
     for path, value in (overrides or {}).items():
-        node = data
-        *parents, last = path.split(".")
-        for part in parents:
-            node = node.setdefault(part, {})
-        node[last] = value
+        node, steps = data, key_path(path)
+        for k, step in enumerate(steps):
+            where = path if k == len(steps) - 1 else _path_text(steps[:k + 1])
+            if isinstance(step, int):
+                if not isinstance(node, list) or step >= len(node):
+                    size = f"a list of {len(node)}" if isinstance(node, list) else "not a list"
+                    raise ValueError(f"'{where}': no such item ({_path_text(steps[:k]) or 'the scene'} is {size})")
+            elif not isinstance(node, dict):
+                raise ValueError(f"'{where}': {_path_text(steps[:k])} is not an object")
+            if k == len(steps) - 1:
+                node[step] = value
+            else:
+                node = node[step] if isinstance(step, int) else node.setdefault(step, {})
     return data
+
+
+def _path_text(steps):
+    return "".join(f"[{s}]" if isinstance(s, int) else ("." if i else "") + s for i, s in enumerate(steps))
 
 
 def scene_from_dict(data: dict, base_dir=None, scale: float = 1.0) -> Scene:
