@@ -1,7 +1,10 @@
 """``warpsph sweep`` (#20): a 4-cell Taylor-Green sweep (6 and 8 across, dfsph and vr, no warm-up: a few
 seconds a cell on one CPU core) through the local executor and a local Ray instance (identical tables but for
 the timings), resumed without rerunning finished cells, finished after a SIGKILL of its driver, a blow-up
-recorded as a result, and bad sweep files naming the key (exit 2, nothing written)."""
+recorded as a result, and bad sweep files naming the key (exit 2, nothing written). Scene-file sweeps (two
+models x two viscosities of a 360-particle slosh: the higher viscosity keeps less kinetic energy and enstrophy;
+a blow-up with its step and message; models[K].KEY items), the Pareto study and the stress matrix through the
+sweep (the same rows as their points computed in the process), and the plots drawn from a table."""
 
 import json
 import os
@@ -9,12 +12,15 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 
 from warpsph.cli import main
 from warpsph.errors import SceneError
-from warpsph.sweep import comparable, load_sweep, run_sweep
+from warpsph.sweep import cells, comparable, load_sweep, records, run_sweep, scene_of
+
+PNG = b"\x89PNG\r\n\x1a\n"
 
 SWEEP = {"base": "taylor-green", "axes": {"method": ["dfsph", "vr"], "resolution": [6, 8]}, "warm_up": False,
          "measures": ["particles", "error_pct", "steps", "ke_ratio", "wall_s"]}
@@ -124,6 +130,8 @@ def test_blow_up_is_a_result(tmp_path):
 @pytest.mark.parametrize("change, key", [
     ({"base": "no-such-case"}, "base"),
     ({"base": "scenes/dam_break.json"}, "base"),
+    ({"base": {"function": "warpsph.validation.pareto:no_such"}}, "base.function"),
+    ({"base": {"function": "warpsph.validation.pareto:point"}, "axes": {"methd": ["dfsph"]}}, "axes.methd"),
     ({"axes": {}}, "axes"),
     ({"axes": {"method": ["sph2"], "resolution": [8]}}, "axes.method[0]"),
     ({"axes": {"method": ["dfsph"], "resolution": [3]}}, "axes.resolution[0]"),
@@ -145,3 +153,199 @@ def test_bad_sweep_file_names_the_key(tmp_path, capsys, change, key):
     assert main(["sweep", str(path), "--out", str(out)]) == 2
     assert f"{path}: {key}:" in capsys.readouterr().err
     assert not out.exists()
+
+
+# --- scene-file sweeps -----------------------------------------------------------------------------------
+
+# a block of 360 particles thrown sideways at 1 m/s into a closed box (periodic in z), under gravity
+TINY_SCENE = {"name": "slosh", "particle_radius": 0.01, "gravity": [0, -9.81, 0],
+              "domain": {"min": [0, 0, 0], "max": [0.4, 0.3, 0.12], "periodic": ["z"]},
+              "fluid_blocks": [{"start": [0, 0, 0], "end": [0.2, 0.12, 0.12], "velocity": [1.0, 0, 0]}],
+              "output": {"fps": 20, "frames": 4}}
+VR = [{"type": "vorticity_refinement", "alpha": 1.0}]
+SCENE_SWEEP = {"scene": "tiny.json", "time": 0.2, "warm_up": False,
+               "axes": {"models": [[], VR], "fluid.viscosity": [0.01, 0.1]},
+               "measures": ["particles", "ke_ratio", "enstrophy_end", "blow_up_step", "steps", "density_iterations",
+                            "wall_s"]}
+
+
+def _scene_sweep(folder, **change):
+    (folder / "tiny.json").write_text(json.dumps(TINY_SCENE))
+    path = folder / "sweep.json"
+    path.write_text(json.dumps({**SCENE_SWEEP, **change}))
+    return path
+
+
+@pytest.fixture(scope="module")
+def scene_sweep(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("scene_sweep")
+    path = _scene_sweep(folder)
+    return path, run_sweep(path, folder / "out", workers=2, log=lambda line: None), folder / "out"
+
+
+def test_scene_sweep_measures_and_the_viscosity_direction(scene_sweep):
+    """Measured (cpu): KE end/start 0.575 / 0.319 (plain), 0.541 / 0.277 (VR) at nu 0.01 / 0.1 after 0.2 s."""
+    path, table, out = scene_sweep
+    assert table["complete"] and table["kind"] == "scene" and table["axes"] == ["models", "fluid.viscosity"]
+    assert [(r["models"], r["fluid.viscosity"]) for r in table["rows"]] == [([], 0.01), ([], 0.1), (VR, 0.01), (VR, 0.1)]
+    for r in table["rows"]:
+        assert r["status"] == "done" and r["particles"] == 360 and r["blow_up_step"] is None
+        assert 0 < r["ke_ratio"] < 1 and r["enstrophy_end"] > 0 and r["steps"] > 50 and r["wall_s"] > 0
+        assert r["density_iterations"] >= 2  # solver.min_iterations
+    for models in ([], VR):
+        low, high = [r for r in table["rows"] if r["models"] == models]
+        assert high["ke_ratio"] < 0.8 * low["ke_ratio"], (low, high)
+        assert high["enstrophy_end"] < 0.6 * low["enstrophy_end"], (low, high)
+    for cell, record in records(path, out):  # the cell files keep every measure, per frame too
+        row = record["row"]
+        assert len(row["kinetic_energy"]) == row["frames"] + 1 == 5 and row["time_reached"] >= 0.2 - 1e-6
+        assert row["ke_ratio"] == pytest.approx(row["ke_end"] / row["ke_start"])
+    md = (out / "table.md").read_text()
+    assert "| models | fluid.viscosity | particles | ke_ratio |" in md and "vorticity_refinement(alpha=1)" in md
+
+
+def test_scene_sweep_records_a_blow_up_with_its_step(tmp_path):
+    path = _scene_sweep(tmp_path, axes={"time.fixed_dt": [0.05]}, fixed={"solver.max_iterations": 2})
+    table = run_sweep(path, tmp_path / "out", log=lambda line: None)
+    [row] = table["rows"]
+    assert table["complete"] and row["status"] == "unstable" and 1 <= row["blow_up_step"] <= 4
+    assert row["unstable"].startswith(f"unstable at step {row['blow_up_step']} ")
+    [(_, record)] = records(path, tmp_path / "out")
+    assert record["row"]["instability"]["step"] == row["blow_up_step"] and record["row"]["steps"] == row["blow_up_step"]
+
+
+def test_scene_keys_apply_models_first(tmp_path):
+    path = _scene_sweep(tmp_path, axes={"models[0].beta": [0.0, 1.0], "scale": [1.0, 0.125]},
+                        fixed={"models": [{"type": "rankine", "beta": 0.6}], "cfl": 0.3})
+    spec = load_sweep(path)
+    assert spec["columns"] == ["models[0].beta", "scale"] and spec["fixed"]["time.cfl"] == 0.3
+    scenes = [scene_of(cell) for cell in cells(spec)]
+    assert [s.models[0].beta for s in scenes] == [0.0, 0.0, 1.0, 1.0]
+    assert [s.particle_radius for s in scenes] == pytest.approx([0.01, 0.02, 0.01, 0.02])
+    assert all(s.time.cfl == 0.3 for s in scenes) and len({c["id"] for c in cells(spec)}) == 4
+    method = load_sweep(_scene_sweep(tmp_path, axes={"method": ["vr"], "models[0].alpha": [0.5]}))
+    assert [scene_of(c).models[0].alpha for c in cells(method)] == [0.5]
+
+
+@pytest.mark.parametrize("change, key", [
+    ({"axes": {"sclae": [0.1]}}, "axes.sclae"),
+    ({"axes": {"resolution": [8]}}, "axes.resolution"),
+    ({"axes": {"models[0].bet": [1.0]}, "fixed": {"models": [{"type": "rankine", "beta": 0.6}]}}, "axes.models[0].bet[0]"),
+    ({"axes": {"models[1].beta": [1.0]}, "fixed": {"models": [{"type": "rankine", "beta": 0.6}]}}, "axes.models[1].beta[0]"),
+    ({"axes": {"models": [[], [{"type": "rankin"}]]}}, "axes.models[1]"),
+    ({"axes": {"models": [[], {"type": "rankine"}]}}, "axes.models[1]"),
+    ({"axes": {"cfl": [0.5, 1.5]}}, "axes.cfl[1]"),
+    ({"axes": {"scale": [0]}}, "axes.scale[0]"),
+    ({"axes": {"method": ["sph2"]}}, "axes.method[0]"),
+    ({"axes": {"method": ["vr"], "models": [[]]}}, "axes.models[0]"),
+    ({"axes": None, "cells": [{"fluid.viscosity": 0.01}, {"fluid.viscosty": 0.1}]}, "cells[1].fluid.viscosty"),
+    ({"frames": 3}, "time"),
+    ({"time": -1}, "time"),
+    ({"measures": ["ke_ratio", "energy"]}, "measures[1]"),
+])
+def test_bad_scene_sweep_names_the_key(tmp_path, capsys, change, key):
+    path = _scene_sweep(tmp_path, **change)
+    if change.get("axes", 0) is None:
+        path.write_text(json.dumps({k: v for k, v in json.loads(path.read_text()).items() if k != "axes"}))
+    with pytest.raises(SceneError) as exc:
+        load_sweep(path)
+    assert exc.value.key == key, str(exc.value)
+    out = tmp_path / "out"
+    assert main(["sweep", str(path), "--out", str(out)]) == 2
+    assert f"{path}: {key}:" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_scene_and_base_keys_say_what_they_need(tmp_path):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    for sweep, key, words in [(_scene_sweep(tmp_path / "a", scene="no_such_scene.json"), "scene", "no such scene file"),
+                              (_scene_sweep(tmp_path / "b", base="taylor-green"), "scene", "not both"),
+                              ({**SWEEP, "base": "scenes/dam_break.json"}, "base", 'give it as "scene"'),
+                              ({**SWEEP, "scale": 0.1}, "scale", "only for a scene-file sweep")]:
+        with pytest.raises(SceneError, match=words) as exc:
+            load_sweep(sweep)
+        assert exc.value.key == key
+
+
+# --- the studies through the sweep ---------------------------------------------------------------------
+
+TIMINGS = {"wall_s", "setup_s", "measure_s", "ms_per_step", "wall_per_sim_s", "load_average", "warmup_s", "pareto"}
+
+
+def test_pareto_through_the_sweep_gives_the_points_of_the_process(tmp_path):
+    from warpsph.validation.pareto import METHODS, lamb_oseen_point, study
+
+    out = tmp_path / "pareto.json"
+    report = study(["dfsph"], [8], [0.05], device="cpu", out=str(out), T=0.05, frames=2, png=False, quiet=True)
+    assert report["complete"] and report["sweep"] == str(tmp_path / "pareto.sweep")
+    [cell] = (tmp_path / "pareto.sweep" / "cells").glob("*.json")
+    assert json.loads(cell.read_text())["status"] == "done"
+    [point] = report["points"]
+    here = lamb_oseen_point(METHODS["dfsph"][1], 8, 0.05, "cpu", T=0.05, frames=2)  # the old study's loop body
+    here = {"method": "dfsph", "label": METHODS["dfsph"][0], "models": [], "resolution": 8, "tolerance": 0.05, **here}
+    assert {k: v for k, v in point.items() if k not in TIMINGS} == json.loads(
+        json.dumps({k: v for k, v in here.items() if k not in TIMINGS}))
+    mtime = cell.stat().st_mtime_ns  # the same command again: nothing runs
+    again = study(["dfsph"], [8], [0.05], device="cpu", out=str(out), T=0.05, frames=2, png=False, quiet=True)
+    assert cell.stat().st_mtime_ns == mtime and again["points"] == json.loads(out.read_text())["points"]
+
+
+def _plain_cell_in_the_process(scene_path, scale, seconds):
+    """The stress matrix's plain cell as it ran in the process: plain DFSPH, every frame measured."""
+    import dataclasses
+
+    from warpsph.cli import _init_warp
+    from warpsph.diagnostics import Diagnostics
+    from warpsph.scene import load_scene
+    from warpsph.simulation import Simulation
+
+    _init_warp()
+    sim = Simulation(dataclasses.replace(load_scene(scene_path, scale=scale), models=()), device="cpu")
+    diagnostics, frames = Diagnostics(), []
+    sim.run(until_time=seconds, on_frame=lambda s, f: frames.append(diagnostics.measure(s, f)))
+    stats = sim.statistics()
+    return {"steps": sim.step_count, "time_reached": sim.time, "frames": len(frames),
+            "ke_end": frames[-1]["kinetic_energy"], "density_iterations": stats["density_iterations"],
+            "max_density_error_pct": 100 * max(f["density_error_max"] for f in frames)}
+
+
+def test_stress_through_the_sweep_gives_the_cells_of_the_process(tmp_path):
+    from warpsph.validation.stress import REPO, stress
+
+    scene = REPO / "scenes" / "dam_break.json"
+    report = stress(scene, scale=0.02, seconds=0.05, axes=["alpha"], values={"alpha": [1.0]}, device="cpu",
+                    log=lambda *a: None, sweep_dir=tmp_path / "cells")
+    assert [c["name"] for c in report["cells"]] == ["plain DFSPH", "alpha = 1"]
+    assert len(list((tmp_path / "cells").glob("*/cells/*.json"))) == 2
+    plain = report["cells"][0]
+    here = _plain_cell_in_the_process(scene, 0.02, 0.05)
+    assert {k: plain[k] for k in here} == here
+    assert plain["dt_min_step"] == report["dt_cfl"] > 0 and plain["ke_end_rel_dfsph"] == 1.0
+
+
+def test_the_gpu_pareto_sweep_file_is_valid():
+    """sweeps/pareto_gpu.json (#20's GPU item): both vortices, four methods, 256/128/64 across (largest first)."""
+    spec = load_sweep(Path(__file__).resolve().parent.parent / "sweeps" / "pareto_gpu.json")
+    assert spec["kind"] == "function" and spec["device"] == "cuda" and spec["fixed"] == {"tolerance": 0.01}
+    params = [c["params"] for c in cells(spec)]
+    assert len(params) == 24 and params[0] == {"resolution": 256, "case": "taylor-green", "method": "dfsph",
+                                               "tolerance": 0.01}
+    assert {p["method"] for p in params} == {"dfsph", "vr", "rankine1", "micropolar"}
+
+
+# --- plots from a table ------------------------------------------------------------------------------------
+
+def test_plots_from_the_tables(local, scene_sweep, tmp_path, capsys):
+    pytest.importorskip("matplotlib", reason="the PNGs need matplotlib (the test extra installs it)")
+    out, _, _ = local  # time and error measures: a Pareto plot and a heat map
+    sweep = tmp_path / "sweep.json"
+    sweep.write_text(json.dumps(SWEEP))
+    assert main(["sweep", str(sweep), "--out", str(out), "--plot"]) == 0  # finished: nothing runs, the plots are drawn
+    for name in ("table.pareto.png", "table.heat_map.png"):
+        assert (out / name).read_bytes()[:8] == PNG
+    assert "table.pareto.png" in capsys.readouterr().out
+    _, _, scene_out = scene_sweep  # no error measure: the heat map only
+    assert main(["plot", "results", str(scene_out / "table.json"), "--out-dir", str(tmp_path / "figs")]) == 0
+    assert (tmp_path / "figs" / "table.heat_map.png").read_bytes()[:8] == PNG
+    assert not (tmp_path / "figs" / "table.pareto.png").exists()

@@ -724,6 +724,10 @@ def sweep_command(args):
                       address=args.address, num_gpus=args.num_gpus, num_cpus=args.num_cpus,
                       max_retries=args.max_retries)
     print((Path(args.out) / "table.md").read_text(), end="")
+    if args.plot:
+        from .plots import sweep_figures
+
+        print("wrote " + ", ".join(map(str, sweep_figures(table, Path(args.out) / "table"))))
     return 0 if table["complete"] else 1
 
 
@@ -825,10 +829,11 @@ def build_parser():
     check.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
     check.add_argument("--json", metavar="OUT.json", help="write the rows and metadata here (atomically, after every row)")
     check.set_defaults(func=validate_command)
-    sweep = sub.add_parser("sweep", help="many validation runs (a sweep file's axes) over processes, GPUs or a Ray "
-                                         "cluster; resumable (one file per cell, then table.json and table.md)")
-    sweep.add_argument("sweep", metavar="SWEEP.json", help="sweep file: base (a validation case), axes, measures "
-                                                           "(see warpsph/sweep.py)")
+    sweep = sub.add_parser("sweep", help="many runs (a validation case or a scene file, a sweep file's axes) over "
+                                         "processes, GPUs or a Ray cluster; resumable (one file per cell, then "
+                                         "table.json and table.md)")
+    sweep.add_argument("sweep", metavar="SWEEP.json", help="sweep file: base (a validation case) or scene (a scene "
+                                                           "file), axes, measures (see warpsph/sweep.py)")
     sweep.add_argument("--out", required=True, metavar="DIR", help="output folder (cells/, table.json, table.md); "
                                                                    "running again skips the finished cells")
     sweep.add_argument("--executor", choices=["local", "ray"], default="local",
@@ -842,6 +847,8 @@ def build_parser():
                        help="ray: GPUs per cell (0.25 packs four cells on a GPU; 0: CPU cells, default)")
     sweep.add_argument("--num-cpus", type=float, default=1.0, help="ray: CPUs per cell (default 1)")
     sweep.add_argument("--max-retries", type=int, default=3, help="ray: retries of a cell lost with its worker (default 3)")
+    sweep.add_argument("--plot", action="store_true", help="also DIR/table.pareto.png (with a time and an error "
+                                                           "measure) and DIR/table.heat_map.png (needs matplotlib)")
     sweep.set_defaults(func=sweep_command)
     from .validation import bench, bench_job, pareto, results, stress
 

@@ -1,28 +1,58 @@
-"""Sweeps: many independent validation runs (cells), spread over processes, GPUs or a Ray cluster; resumable.
+"""Sweeps: many independent runs (cells), spread over processes, GPUs or a Ray cluster; resumable.
 
-    warpsph sweep SWEEP.json --out OUT [--executor local|ray] [--workers N] [--devices cpu|cuda:0,cuda:1]
+    warpsph sweep SWEEP.json --out OUT [--executor local|ray] [--workers N] [--devices cpu|cuda:0,cuda:1] [--plot]
     warpsph.sweep.run_sweep("SWEEP.json", "OUT", executor="local", workers=2)
 
-A sweep file (JSON, or YAML with pyyaml installed)::
+A sweep file (JSON, or YAML with pyyaml installed) has a base, axes (their product gives the cells) and/or an
+explicit list of ``cells``, values held for every cell (``fixed``) and the measures to tabulate. Three kinds of
+base:
 
-    {"base": "taylor-green",                      # a case of warpsph.validation.cases (warpsph validate CASE)
+A validation case (a ``warpsph validate`` row per cell)::
+
+    {"base": "taylor-green",                      # a case of warpsph.validation.cases
      "axes": {"method": ["dfsph", "vr"],          # warpsph validate --methods
               "resolution": [16, 24, 32],         # warpsph validate --resolutions
               "solver.density_max_error": [0.01, 0.1],   # any scene key path under "solver" or "time"
               "cfl": [0.3, 0.5]},                 # aliases: cfl, fixed_dt, tolerance (solver.density_max_error)
      "fixed": {"method": "dfsph"},                # optional: values held for every cell (same keys as axes)
      "measures": ["error_pct", "wall_s", "steps", "particles"],   # row keys of the case (default these)
-     "warm_up": true}                             # optional: validate's warm-up before the timed run (default true)
+     "warm_up": true}                             # optional: a tiny run first, kernel loading kept out of wall_s
 
-Every cell is one ``warpsph validate`` row for (case, method, resolution, device), with the "solver" and "time"
-keys of the axes set in the case's scene (they are absent, i.e. the defaults, unless an axis or ``fixed`` names
-them). The cells are the product of the axes in the file's order.
+A scene file (the scene run per cell, with its measures)::
+
+    {"scene": "scenes/dam_break.json",            # relative to the sweep file's folder, else to the current one
+     "scale": 0.05,                               # load_scene's particle-count scale (default 1)
+     "time": 1.0,                                 # simulated seconds; or "frames": N (default the scene's frames)
+     "axes": {"models": [[], [{"type": "rankine", "beta": 0.5}]],   # the scene's whole "models" list
+              "fluid.viscosity": [0.01, 0.05],    # any scene key path, list items by index: models[0].beta
+              "scale": [0.02, 0.05],              # also: method (dfsph, vr, rankine, micropolar), cfl, fixed_dt,
+              "tolerance": [0.01, 0.1]},          # tolerance; a key's value is as written in the scene file
+     "measures": ["ke_ratio", "enstrophy_end", "blow_up_step", "wall_s", "steps", "density_iterations"]}
+
+A function ``fn(device, **params)`` returning the row (a dict; ``unstable`` set: a blow-up), for studies whose
+runs are not a scene file (the Pareto study: ``warpsph.validation.pareto:point``)::
+
+    {"base": {"function": "warpsph.validation.pareto:point"},
+     "cells": [{"method": "dfsph", "resolution": 24, "tolerance": 0.05}, ...],   # keys: fn's parameters
+     "fixed": {"case": "lamb-oseen"}, "measures": ["error_percent", "wall_per_sim_s"]}
+
+``cells``: a list of objects of key -> value (same keys as axes), one cell each; with axes too, every product
+point runs each of them. A cell's keys are applied models first, so ``models`` and ``models[0].beta`` combine.
+Every key and value is checked before anything runs: a bad one raises :class:`warpsph.errors.SceneError` naming
+it (``axes.models[1]``, ``cells[2].time.cfl``).
+
+Scene-file measures (``SCENE_MEASURES``, every frame measured by :class:`warpsph.diagnostics.Diagnostics`):
+``ke_ratio`` kinetic energy at the end / at the start (null when it starts at rest), ``enstrophy_end``,
+``blow_up_step`` and ``unstable`` (the health check's message) of a blow-up, ``wall_s`` (the run alone, device
+synchronised, measurements subtracted), ``steps``, ``density_iterations`` / ``divergence_iterations`` (mean per
+solve, ``sim.statistics()``), ``dt_min`` (the smallest step: read back every step, asked for only).
 
 Output folder: ``cells/CELL.json`` per cell (written atomically by the driver when the cell ends; ``status``
 "done", "unstable" (a blow-up: the health check's diagnostic in ``unstable``, a result) or "failed" (an
 exception: its traceback; rerun by the next invocation)), then ``table.json`` and ``table.md`` assembled from
-the cell files. Running a sweep again skips the cells whose file holds a result for the same parameters and
-runs the failed and missing ones: a killed sweep loses at most the cells in flight.
+the cell files (and with ``--plot``, :func:`warpsph.plots.sweep_figures`). Running a sweep again skips the cells
+whose file holds a result for the same parameters and runs the failed and missing ones: a killed sweep loses at
+most the cells in flight.
 
 Executors: ``local`` (concurrent.futures, a fresh process per cell, ``workers`` at once, the devices given to the
 worker slots in turn: ``devices=["cuda:0", "cuda:0", "cuda:1", "cuda:1"]`` packs two cells on each GPU) and
@@ -33,10 +63,15 @@ local Ray instance starts).
 
 from __future__ import annotations
 
+import dataclasses
+import difflib
 import hashlib
+import importlib
+import inspect
 import itertools
 import json
 import logging
+import math
 import os
 import time
 import traceback
@@ -44,7 +79,9 @@ from pathlib import Path
 
 from .errors import SceneError
 
-SWEEP_KEYS = ("name", "base", "axes", "fixed", "measures", "warm_up", "device")
+SWEEP_KEYS = ("name", "base", "scene", "scale", "frames", "time", "axes", "cells", "fixed", "measures", "warm_up",
+              "device")
+SCENE_ONLY = ("scale", "frames", "time")
 ALIASES = {"cfl": "time.cfl", "fixed_dt": "time.fixed_dt", "tolerance": "solver.density_max_error",
            "density_max_error": "solver.density_max_error", "divergence_max_error": "solver.divergence_max_error",
            "methods": "method", "resolutions": "resolution"}
@@ -62,7 +99,17 @@ CASE_MEASURES = {
                     "max_speed", "mid_depth_pressure_ratio", "probe_pressure_rms_error_pct"),
     "dam-front": ("front_rms_shifted", "front_rms_raw", "time_shift_T", "points", "depth", "T_end"),
 }
-TIMING_MEASURES = ("wall_s", "setup_s", "elapsed_s")  # differ from run to run: not compared between executors
+# row keys of a scene-file cell
+SCENE_MEASURES = ("particles", "ke_ratio", "ke_start", "ke_end", "ke_max", "ke_tail_mean", "enstrophy_start",
+                  "enstrophy_end", "blow_up_step", "blow_up_time", "unstable", "instability", "steps", "frames",
+                  "time_reached", "density_iterations", "divergence_iterations", "solver_density_error_pct",
+                  "max_density_error_pct", "mean_density_error_pct", "dt_mean", "dt_min", "wall_s", "setup_s",
+                  "measure_s", "ms_per_step", "kinetic_energy", "frame_times")
+SCENE_DEFAULT_MEASURES = ("particles", "ke_ratio", "enstrophy_end", "blow_up_step", "steps", "density_iterations",
+                          "wall_s")
+# differ from run to run: not compared between executors
+TIMING_MEASURES = ("wall_s", "setup_s", "elapsed_s", "measure_s", "ms_per_step", "wall_per_sim_s", "warmup_s",
+                   "load_average", "pareto")
 
 
 # --- the sweep file ------------------------------------------------------------------------------------
@@ -76,130 +123,373 @@ def _tiny_scene(overrides):
     return with_overrides(data, overrides)
 
 
-def load_sweep(source):
-    """The sweep file (a path, JSON or YAML) or dict, checked; returns the normalised spec (a dict with base,
-    case, axes (an ordered list of [key, values]), fixed, measures, warm_up, name). Raises
-    :class:`warpsph.errors.SceneError` naming the file and the key."""
-    from .validation.cases import CASES, MIN_RESOLUTION
-    from .validation.taylor_green import METHODS
+def _read(source):
+    """(file name, data) of a sweep given as a path (JSON or YAML) or a dict."""
+    if isinstance(source, dict):
+        return "<sweep>", source
+    file = str(source)
+    path = Path(source)
+    if not path.is_file():
+        raise SceneError(file, "", "no such sweep file")
+    text = path.read_text()
+    if path.suffix.lower() in (".yaml", ".yml"):
+        try:
+            import yaml
+        except ImportError:
+            raise SceneError(file, "", "YAML sweep files need pyyaml (pip install pyyaml); or write it as JSON") from None
+        try:
+            return file, yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise SceneError(file, "", f"not valid YAML: {exc}") from None
+    try:
+        return file, json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise SceneError(file, "", f"not valid JSON: {exc}") from None
 
-    file = "<sweep>"
-    if not isinstance(source, dict):
-        file = str(source)
-        path = Path(source)
-        if not path.is_file():
-            raise SceneError(file, "", "no such sweep file")
-        text = path.read_text()
-        if path.suffix.lower() in (".yaml", ".yml"):
-            try:
-                import yaml
-            except ImportError:
-                raise SceneError(file, "", "YAML sweep files need pyyaml (pip install pyyaml); or write it as JSON") from None
-            try:
-                data = yaml.safe_load(text)
-            except yaml.YAMLError as exc:
-                raise SceneError(file, "", f"not valid YAML: {exc}") from None
+
+def _number(value, low=0.0):
+    return not isinstance(value, bool) and isinstance(value, (int, float)) and math.isfinite(value) and value > low
+
+
+def _function(name):
+    """The function of a function base ("module:name")."""
+    module, _, attr = str(name).partition(":")
+    if not module or not attr:
+        raise ValueError(f"expected \"module:function\", got {name!r}")
+    try:
+        fn = getattr(importlib.import_module(module), attr)
+    except (ImportError, AttributeError) as exc:
+        raise ValueError(f"cannot import {name}: {exc}") from None
+    if not callable(fn) or "device" not in inspect.signature(fn).parameters:
+        raise ValueError(f"{name} is not a function taking device and the cell's keys")
+    return fn
+
+
+class _Base:
+    """What a sweep's cells run: checks keys and values, builds the cell dicts."""
+
+    kind = ""
+    fixed_defaults = {}
+
+    def __init__(self, file):
+        self.file = file
+
+    def error(self, where, reason):
+        return SceneError(self.file, where, reason)
+
+
+class _Case(_Base):
+    kind = "case"
+
+    def __init__(self, file, case):
+        super().__init__(file)
+        self.case = self.label = case
+        self.fixed_defaults = {"method": "dfsph"}
+
+    def key(self, where, name):
+        key = ALIASES.get(name, name)
+        if key in ("method", "resolution"):
+            return key
+        parts = key.split(".")
+        if len(parts) != 2 or parts[0] not in SCENE_SECTIONS or not parts[1]:
+            raise self.error(where, "unknown axis; expected method, resolution, a scene key solver.NAME or time.NAME, "
+                                    f"or one of {', '.join(a for a in ALIASES if a not in ('methods', 'resolutions'))}")
+        return key
+
+    def value(self, where, key, value):
+        from .validation.cases import MIN_RESOLUTION
+        from .validation.taylor_green import METHODS
+
+        if key == "method":
+            if not isinstance(value, str) or value not in METHODS:
+                raise self.error(where, f"unknown method {value!r}; expected one of {', '.join(METHODS)}")
+        elif key == "resolution":
+            if isinstance(value, bool) or not isinstance(value, int) or value < MIN_RESOLUTION:
+                raise self.error(where, f"expected an integer >= {MIN_RESOLUTION}, got {value!r}")
         else:
+            from .scene import scene_from_dict
+
             try:
-                data = json.loads(text)
-            except json.JSONDecodeError as exc:
-                raise SceneError(file, "", f"not valid JSON: {exc}") from None
-    else:
-        data = source
-    if not isinstance(data, dict):
-        raise SceneError(file, "", "expected an object with keys base, axes, measures")
-    for key in data:
-        if key not in SWEEP_KEYS:
-            raise SceneError(file, key, f"unknown key; known keys: {', '.join(SWEEP_KEYS)}")
+                scene_from_dict(_tiny_scene({key: value}))
+            except SceneError as exc:
+                raise self.error(where, exc.reason) from None
+            except (TypeError, ValueError) as exc:
+                raise self.error(where, str(exc)) from None
+
+    def cell(self, where, params):
+        from .scene import scene_from_dict
+
+        if "resolution" not in params:
+            raise self.error(where, "needs a resolution (an axis, in fixed or in every cell)")
+        overrides = {k: v for k, v in params.items() if "." in k}
+        try:  # keys checked together (min <= max iterations, ...)
+            scene_from_dict(_tiny_scene(overrides))
+        except SceneError as exc:
+            raise self.error(where, f"the cell {overrides}: {exc.key}: {exc.reason}") from None
+
+    def measures(self):
+        return COMMON_MEASURES + CASE_MEASURES[self.case], DEFAULT_MEASURES
+
+    def make(self, params, warm_up):
+        return {"kind": "case", "case": self.case, "params": params, "warm_up": warm_up}
+
+    def digest(self, params):
+        return [self.case, params]
+
+
+class _Function(_Base):
+    kind = "function"
+
+    def __init__(self, file, name):
+        super().__init__(file)
+        try:
+            fn = _function(name)
+        except ValueError as exc:
+            raise self.error("base.function", str(exc)) from None
+        self.function = self.label = name
+        self.parameters = [p for p in inspect.signature(fn).parameters if p not in ("device", "warm_up")]
+        self.takes_warm_up = "warm_up" in inspect.signature(fn).parameters
+
+    def key(self, where, name):
+        if name not in self.parameters:
+            close = difflib.get_close_matches(name, self.parameters, n=1)
+            hint = f"did you mean '{close[0]}'?" if close else f"expected one of {', '.join(self.parameters)}"
+            raise self.error(where, f"not a parameter of {self.function}; {hint}")
+        return name
+
+    def value(self, where, key, value):
+        pass
+
+    def cell(self, where, params):
+        pass
+
+    def measures(self):
+        return None, ("wall_s",)
+
+    def make(self, params, warm_up):
+        return {"kind": "function", "case": self.function, "function": self.function, "params": params,
+                "warm_up": warm_up if self.takes_warm_up else None}
+
+    def digest(self, params):
+        return [self.function, params]
+
+
+class _SceneFile(_Base):
+    kind = "scene"
+
+    def __init__(self, file, data):
+        super().__init__(file)
+        from .scene import Scene
+
+        self.fields = [f.name for f in dataclasses.fields(Scene) if f.name != "source"]
+        scene = data["scene"]
+        if not isinstance(scene, str) or not scene:
+            raise self.error("scene", f"expected a scene file path, got {scene!r}")
+        here = [Path(file).parent / scene] if file != "<sweep>" and not Path(scene).is_absolute() else []
+        found = [p for p in here + [Path(scene)] if p.is_file()]
+        if not found:
+            raise self.error("scene", f"no such scene file: {' or '.join(str(p) for p in here + [Path(scene)])}")
+        self.path, self.label = found[0].resolve(), scene
+        for key in SCENE_ONLY:
+            if key in data and not (_number(data[key]) if key != "frames" else
+                                    isinstance(data[key], int) and not isinstance(data[key], bool) and data[key] >= 1):
+                raise self.error(key, f"expected {'an integer >= 1' if key == 'frames' else 'a number > 0'}, "
+                                      f"got {data[key]!r}")
+        if "frames" in data and "time" in data:
+            raise self.error("time", "give frames or time (simulated seconds), not both")
+        self.scale, self.frames, self.seconds = data.get("scale", 1.0), data.get("frames"), data.get("time")
+        from .scene import load_scene
+
+        try:
+            load_scene(self.path, self.scale)
+        except SceneError as exc:
+            raise self.error("scene", f"{self.path}: {exc.key}: {exc.reason}") from None
+        self.data = json.loads(self.path.read_text(encoding="utf-8-sig"))
+        from .io.splishsplash import convert, is_splishsplash
+
+        if is_splishsplash(self.data):
+            self.data = convert(self.data, self.path)
+
+    def key(self, where, name):
+        from .scene import key_path
+
+        key = ALIASES.get(name, name)
+        if key in ("method", "models", "scale"):
+            return key
+        try:
+            first = key_path(key)[0]
+        except ValueError as exc:
+            raise self.error(where, str(exc)) from None
+        if first not in self.fields:
+            known = ["scale", "method", "models", "models[K].NAME", *ALIASES]
+            close = difflib.get_close_matches(name, ["scale", "method", "models", *ALIASES, *self.fields], n=1)
+            raise self.error(where, f"unknown axis; expected a scene key path ({', '.join(self.fields)}; e.g. "
+                                    f"fluid.viscosity) or {', '.join(a for a in known if a not in ('methods', 'resolutions'))}"
+                                    + (f"; did you mean '{close[0]}'?" if close else ""))
+        return key
+
+    def value(self, where, key, value):
+        from .validation.taylor_green import METHODS
+
+        if key == "method" and (not isinstance(value, str) or value not in METHODS):
+            raise self.error(where, f"unknown method {value!r}; expected one of {', '.join(METHODS)}")
+        if key == "scale" and not _number(value):
+            raise self.error(where, f"expected a number > 0, got {value!r}")
+        if key == "models" and not isinstance(value, list):
+            raise self.error(where, f"expected a list of models, e.g. [] or [{{\"type\": \"rankine\", \"beta\": 0.5}}], "
+                                    f"got {value!r}")
+
+    def cell(self, where, params, sources):
+        """Builds the cell's scene; an error names the sweep key that set the failing scene key."""
+        if "method" in params and "models" in params:
+            raise self.error(sources["models"], "method and models both set the scene's models: give one")
+        try:
+            scene_of({"scene": self.data, "scene_file": str(self.path), "scale": self.scale, "params": params})
+        except (SceneError, ValueError) as exc:
+            if isinstance(exc, SceneError):
+                scene_key, reason = exc.key, exc.reason
+            else:  # with_overrides: "'models[1]': no such item ..."
+                text = str(exc)
+                scene_key, reason = text[1:].split("': ", 1) if text.startswith("'") and "': " in text else ("", text)
+            owner = [k for k in params if k == scene_key or scene_key.startswith((k + ".", k + "["))
+                     or k.startswith((scene_key + ".", scene_key + "["))
+                     or (k == "method" and scene_key.startswith("models"))]
+            if owner:
+                key = max(owner, key=len)
+                raise self.error(sources[key], reason if key == scene_key else f"{scene_key}: {reason}") from None
+            raise self.error(where, f"the cell {params}: {scene_key}: {reason}") from None
+
+    def measures(self):
+        return SCENE_MEASURES, SCENE_DEFAULT_MEASURES
+
+    def make(self, params, warm_up):
+        return {"kind": "scene", "case": self.label, "scene": self.data, "scene_file": str(self.path),
+                "scale": self.scale, "frames": self.frames, "seconds": self.seconds, "params": params,
+                "warm_up": warm_up}
+
+    def digest(self, params):
+        return [self.data, self.scale, self.frames, self.seconds, params]
+
+
+def _base(file, data):
+    from .validation.cases import CASES
+
+    if "scene" in data:
+        if "base" in data:
+            raise SceneError(file, "scene", "give base (a validation case or a function) or scene (a scene file), "
+                                            "not both")
+        return _SceneFile(file, data)
+    for key in SCENE_ONLY:
+        if key in data:
+            raise SceneError(file, key, "only for a scene-file sweep (\"scene\": FILE)")
     if "base" not in data:
-        raise SceneError(file, "base", f"missing: a validation case ({', '.join(CASES)})")
+        raise SceneError(file, "base", f"missing: a validation case ({', '.join(CASES)}), {{\"function\": "
+                                       f"\"module:name\"}}, or \"scene\": a scene file")
     base = data["base"]
     if isinstance(base, dict):
+        if set(base) == {"function"}:
+            return _Function(file, base["function"])
         if set(base) != {"case"}:
-            raise SceneError(file, "base", "expected a case name or {\"case\": NAME}")
+            raise SceneError(file, "base", "expected a case name, {\"case\": NAME} or {\"function\": \"module:name\"}")
         base = base["case"]
     if not isinstance(base, str) or not base:
         raise SceneError(file, "base", f"expected a validation case name ({', '.join(CASES)}), got {base!r}")
     if base not in CASES:
         if base.endswith((".json", ".yaml", ".yml")) or Path(base).exists():
-            raise SceneError(file, "base", f"scene-file sweeps ('{base}') are not supported yet; use a validation "
-                                           f"case: {', '.join(CASES)}")
+            raise SceneError(file, "base", f"'{base}' is a scene file: give it as \"scene\": \"{base}\" (base names "
+                                           f"a validation case: {', '.join(CASES)})")
         raise SceneError(file, "base", f"unknown case '{base}'; expected one of {', '.join(CASES)}")
-    case = base
+    return _Case(file, base)
 
-    def check_value(where, key, value):
-        if key == "method":
-            if not isinstance(value, str) or value not in METHODS:
-                raise SceneError(file, where, f"unknown method {value!r}; expected one of {', '.join(METHODS)}")
-        elif key == "resolution":
-            if isinstance(value, bool) or not isinstance(value, int) or value < MIN_RESOLUTION:
-                raise SceneError(file, where, f"expected an integer >= {MIN_RESOLUTION}, got {value!r}")
-        else:
-            try:
-                from .scene import scene_from_dict
 
-                scene_from_dict(_tiny_scene({key: value}))
-            except SceneError as exc:
-                raise SceneError(file, where, exc.reason) from None
-            except (TypeError, ValueError) as exc:
-                raise SceneError(file, where, str(exc)) from None
+def load_sweep(source):
+    """The sweep file (a path, JSON or YAML) or dict, checked; returns the normalised spec (a dict: name, kind,
+    case (the base's label), axes (an ordered list of [key, values]), cells (a list of key -> value objects, or
+    None), columns (the keys that vary), fixed, measures, warm_up, device, and the base's own keys). Raises
+    :class:`warpsph.errors.SceneError` naming the file and the key."""
+    file, data = _read(source)
+    if not isinstance(data, dict):
+        raise SceneError(file, "", "expected an object with keys base (or scene), axes, measures")
+    for key in data:
+        if key not in SWEEP_KEYS:
+            raise SceneError(file, key, f"unknown key; known keys: {', '.join(SWEEP_KEYS)}")
+    base = _base(file, data)
 
-    def check_key(where, key):
-        key = ALIASES.get(key, key)
-        if key in ("method", "resolution"):
-            return key
-        parts = key.split(".")
-        if len(parts) != 2 or parts[0] not in SCENE_SECTIONS or not parts[1]:
-            raise SceneError(file, where, "unknown axis; expected method, resolution, a scene key solver.NAME or "
-                                          f"time.NAME, or one of {', '.join(a for a in ALIASES if a not in ('methods', 'resolutions'))}")
-        return key
-
-    axes_in = data.get("axes")
-    if not isinstance(axes_in, dict) or not axes_in:
+    axes_in, entries_in = data.get("axes"), data.get("cells")
+    if entries_in is None and (not isinstance(axes_in, dict) or not axes_in):
         raise SceneError(file, "axes", "expected an object of axis name -> list of values, e.g. "
-                                       "{\"method\": [\"dfsph\", \"vr\"], \"resolution\": [16, 32]}")
-    axes = []
-    for name, values in axes_in.items():
-        key = check_key(f"axes.{name}", name)
+                                       "{\"method\": [\"dfsph\", \"vr\"], \"resolution\": [16, 32]} (or a cells list)")
+    if axes_in is not None and not isinstance(axes_in, dict):
+        raise SceneError(file, "axes", "expected an object of axis name -> list of values")
+    axes, sources = [], {}  # sources: key -> where each value comes from (for errors naming the sweep key)
+    for name, values in (axes_in or {}).items():
+        key = base.key(f"axes.{name}", name)
         if any(key == k for k, _ in axes):
             raise SceneError(file, f"axes.{name}", f"axis {key} given twice")
         if not isinstance(values, list) or not values:
             raise SceneError(file, f"axes.{name}", f"expected a non-empty list of values, got {values!r}")
         for k, value in enumerate(values):
-            check_value(f"axes.{name}[{k}]", key, value)
+            base.value(f"axes.{name}[{k}]", key, value)
         if len({json.dumps(v, sort_keys=True) for v in values}) != len(values):
             raise SceneError(file, f"axes.{name}", "repeated value")
         axes.append([key, list(values)])
+        sources[key] = [f"axes.{name}[{k}]" for k in range(len(values))]
+    entries = None
+    if entries_in is not None:
+        if not isinstance(entries_in, list) or not entries_in:
+            raise SceneError(file, "cells", f"expected a non-empty list of objects (key -> value), got {entries_in!r}")
+        entries, entry_names = [], []
+        for n, entry in enumerate(entries_in):
+            if not isinstance(entry, dict):
+                raise SceneError(file, f"cells[{n}]", f"expected an object of key -> value, got {entry!r}")
+            cell, entry_names_n = {}, {}
+            for name, value in entry.items():
+                key = base.key(f"cells[{n}].{name}", name)
+                if any(key == k for k, _ in axes):
+                    raise SceneError(file, f"cells[{n}].{name}", f"{key} is also an axis")
+                base.value(f"cells[{n}].{name}", key, value)
+                cell[key] = value
+                entry_names_n[key] = name
+            entries.append(cell)
+            entry_names.append(entry_names_n)
+        if len({json.dumps(e, sort_keys=True) for e in entries}) != len(entries):
+            raise SceneError(file, "cells", "repeated cell")
     fixed_in = data.get("fixed", {})
     if not isinstance(fixed_in, dict):
         raise SceneError(file, "fixed", "expected an object of key -> value")
     fixed = {}
     for name, value in fixed_in.items():
-        key = check_key(f"fixed.{name}", name)
-        if any(key == k for k, _ in axes):
-            raise SceneError(file, f"fixed.{name}", f"{key} is also an axis")
-        check_value(f"fixed.{name}", key, value)
+        key = base.key(f"fixed.{name}", name)
+        if any(key == k for k, _ in axes) or any(key in e for e in entries or ()):
+            raise SceneError(file, f"fixed.{name}", f"{key} is also an axis or a cell's key")
+        base.value(f"fixed.{name}", key, value)
         fixed[key] = value
-    keys = [k for k, _ in axes] + list(fixed)
-    if "resolution" not in keys:
-        raise SceneError(file, "axes", "needs a resolution (an axis or in fixed)")
-    if "method" not in keys:
-        fixed["method"] = "dfsph"
-    for values in itertools.product(*[v for _, v in axes]):  # keys checked together (min <= max iterations, ...)
-        overrides = {k: v for k, v in [*zip([k for k, _ in axes], values), *fixed.items()] if "." in k}
-        try:
-            from .scene import scene_from_dict
+        sources[key] = f"fixed.{name}"
+    varied = [k for k, _ in axes] + list(dict.fromkeys(k for e in entries or () for k in e))
+    for key, value in base.fixed_defaults.items():
+        if key not in varied and key not in fixed:
+            fixed[key] = value
+    names = [k for k, _ in axes]
+    for index in itertools.product(*[range(len(v)) for _, v in axes]):
+        for n, entry in enumerate(entries if entries is not None else [{}]):
+            where = "axes" if entries is None else f"cells[{n}]"
+            params = {**{k: dict(axes)[k][i] for k, i in zip(names, index)}, **entry, **fixed}
+            if isinstance(base, _SceneFile):  # the sweep key behind each scene key, for errors
+                here = {k: sources[k][i] for k, i in zip(names, index)}
+                here.update({k: f"{where}.{entry_names[n][k]}" for k in entry})
+                here.update({k: sources[k] for k in fixed})
+                base.cell(where, params, here)
+            else:
+                base.cell(where, params)
 
-            scene_from_dict(_tiny_scene(overrides))
-        except SceneError as exc:
-            raise SceneError(file, "axes", f"the cell {overrides}: {exc.key}: {exc.reason}") from None
-    measures = data.get("measures", list(DEFAULT_MEASURES))
-    known = COMMON_MEASURES + CASE_MEASURES[case]
+    known, default = base.measures()
+    measures = data.get("measures", list(default))
     if not isinstance(measures, list) or not measures:
-        raise SceneError(file, "measures", f"expected a non-empty list of row keys, e.g. {list(DEFAULT_MEASURES)}")
+        raise SceneError(file, "measures", f"expected a non-empty list of row keys, e.g. {list(default)}")
     for k, m in enumerate(measures):
-        if m not in known:
-            raise SceneError(file, f"measures[{k}]", f"unknown measure {m!r} for {case}; known: {', '.join(known)}")
+        if not isinstance(m, str) or (known is not None and m not in known):
+            raise SceneError(file, f"measures[{k}]", f"unknown measure {m!r} for {base.label}; known: "
+                                                     f"{', '.join(known or ())}")
     warm = data.get("warm_up", True)
     if not isinstance(warm, bool):
         raise SceneError(file, "warm_up", f"expected true or false, got {warm!r}")
@@ -209,31 +499,149 @@ def load_sweep(source):
     name = data.get("name", Path(file).stem if file != "<sweep>" else "sweep")
     if not isinstance(name, str):
         raise SceneError(file, "name", f"expected a string, got {name!r}")
-    return {"name": name, "base": data["base"], "case": case, "axes": axes, "fixed": fixed,
-            "measures": list(measures), "warm_up": warm, "device": device}
+    spec = {"name": name, "kind": base.kind, "base": data.get("base"), "case": base.label, "axes": axes,
+            "cells": entries, "columns": varied, "fixed": fixed, "measures": list(measures), "warm_up": warm,
+            "device": device}
+    if isinstance(base, _SceneFile):
+        spec.update(scene=base.label, scene_file=str(base.path), scene_data=base.data, scale=base.scale,
+                    frames=base.frames, time=base.seconds)
+    if isinstance(base, _Function):
+        spec.update(function=base.function, takes_warm_up=base.takes_warm_up)
+    return spec
+
+
+def _combinations(axes, entries):
+    """(axis values, cell entry, where) per cell: the product of the axes, each with every entry."""
+    names = [k for k, _ in axes]
+    for values in itertools.product(*[v for _, v in axes]):
+        for n, entry in enumerate(entries if entries is not None else [{}]):
+            yield dict(zip(names, values)), entry, ("axes" if entries is None else f"cells[{n}]")
 
 
 def cells(spec):
-    """The cells of ``spec`` in order: dicts {"case", "params", "warm_up", "id"}."""
+    """The cells of ``spec`` in order: dicts {"kind", "case", "params", "warm_up", "id", ...}."""
     out = []
-    names = [k for k, _ in spec["axes"]]
-    for values in itertools.product(*[v for _, v in spec["axes"]]):
-        params = dict(zip(names, values))
-        params.update(spec["fixed"])
-        out.append({"case": spec["case"], "params": params, "warm_up": spec["warm_up"],
-                    "id": cell_id(spec["case"], params, [k for k, _ in spec["axes"]])})
+    for point, entry, _ in _combinations(spec["axes"], spec.get("cells")):
+        params = {**point, **entry, **spec["fixed"]}
+        if spec.get("kind") == "scene":
+            cell = {"kind": "scene", "case": spec["case"], "scene": spec["scene_data"], "scene_file": spec["scene_file"],
+                    "scale": spec["scale"], "frames": spec["frames"], "seconds": spec["time"], "params": params,
+                    "warm_up": spec["warm_up"], "track_dt": "dt_min" in spec["measures"]}
+            digest = [spec["scene_data"], spec["scale"], spec["frames"], spec["time"], params]
+        elif spec.get("kind") == "function":
+            cell = {"kind": "function", "case": spec["case"], "function": spec["function"], "params": params,
+                    "warm_up": spec["warm_up"] if spec["takes_warm_up"] else None}
+            digest = [spec["function"], params]
+        else:
+            cell = {"kind": "case", "case": spec["case"], "params": params, "warm_up": spec["warm_up"]}
+            digest = [spec["case"], params]
+        cell["id"] = cell_id(digest, params, [k for k in spec.get("columns", [k for k, _ in spec["axes"]])
+                                              if k in params])
+        out.append(cell)
     return out
 
 
-def cell_id(case, params, axis_names):
-    """A file name for the cell: the axis values, then a hash of everything that defines it."""
-    label = "_".join(f"{k.split('.')[-1]}-{params[k]}" for k in axis_names)
+def _label(value):
+    """A short text for a value: a models list as rankine-beta-0.5 (none for [])."""
+    if isinstance(value, list) and all(isinstance(m, dict) and "type" in m for m in value):
+        return "+".join("-".join([str(m["type"])] + [f"{k}-{v}" for k, v in m.items() if k != "type"])
+                        for m in value) or "none"
+    return str(value)
+
+
+def cell_id(digest, params, names):
+    """A file name for the cell: its varied values, then a hash of everything that defines it."""
+    label = "_".join(f"{k.split('.')[-1]}-{_label(params[k])}" for k in names)
     label = "".join(c if c.isalnum() or c in "-._" else "-" for c in label)[:80]
-    digest = hashlib.sha1(json.dumps([case, params], sort_keys=True).encode()).hexdigest()[:8]
-    return f"{label}_{digest}"
+    return f"{label}_{hashlib.sha1(json.dumps(digest, sort_keys=True).encode()).hexdigest()[:8]}"
 
 
 # --- one cell ------------------------------------------------------------------------------------------
+
+def scene_overrides(params):
+    """A scene cell's keys as scene key paths in the order they apply: the models (``method`` or ``models``)
+    before their items; ``scale`` is not a scene key."""
+    from .scene import key_path
+    from .validation.taylor_green import METHODS
+
+    overrides = {k: v for k, v in params.items() if k not in ("method", "scale")}
+    if "method" in params:
+        overrides["models"] = METHODS[params["method"]]
+    return dict(sorted(overrides.items(), key=lambda kv: len(key_path(kv[0]))))
+
+
+def scene_data(cell):
+    """A scene-file cell's scene dict: the base scene with the cell's keys set."""
+    from .scene import with_overrides
+
+    return with_overrides(cell["scene"], scene_overrides(cell["params"]))
+
+
+def scene_of(cell):
+    """The :class:`warpsph.scene.Scene` of a scene-file cell: its base scene with the cell's keys set, at its
+    scale (a key's value is as written in the scene file: the scale then applies, as for ``load_scene``)."""
+    from .scene import Scene, parse_dataclass, rescale
+
+    params = cell["params"]
+    scene = parse_dataclass(Scene, scene_data(cell), cell["scene_file"])
+    return rescale(dataclasses.replace(scene, source=cell["scene_file"]), params.get("scale", cell["scale"]))
+
+
+def scene_row(cell, device):
+    """Runs a scene-file cell; returns (status, row): "done", or "unstable" with the health check's diagnostic
+    and the measures up to the blow-up."""
+    import numpy as np
+
+    from .diagnostics import Diagnostics
+    from .simulation import InstabilityError, Simulation
+    from .validation.cases import timed_run
+
+    start = time.perf_counter()
+    sim = Simulation(scene_of(cell), device=device)
+    row = {"particles": sim.num_fluid, "setup_s": time.perf_counter() - start}
+    diagnostics, frames, dts = Diagnostics(), [], []
+    if cell.get("track_dt"):  # every step's dt (a read-back per step)
+        step = sim.step
+
+        def tracked():
+            step()
+            dts.append(float(sim.dt.numpy()[0]))
+        sim.step = tracked
+
+    def run(callback):
+        if cell.get("seconds") is not None:
+            sim.run(until_time=cell["seconds"], on_frame=callback)
+        else:
+            sim.run(frames=cell.get("frames"), on_frame=callback)
+
+    status, t0 = "done", time.perf_counter()
+    try:
+        row["wall_s"], row["measure_s"] = timed_run(sim, run, lambda s, f: frames.append(diagnostics.measure(s, f)))
+    except InstabilityError as exc:
+        status = "unstable"
+        row.update(wall_s=time.perf_counter() - t0, unstable=str(exc), blow_up_step=exc.step, blow_up_time=exc.time,
+                   instability={"step": exc.step, "time": exc.time, "check": exc.check, "particle_id": exc.particle_id,
+                                "position": None if exc.position is None else [float(c) for c in exc.position]})
+    stats = sim.statistics()
+    ke = [f["kinetic_energy"] for f in frames]
+    enstrophy = [f["enstrophy"] for f in frames]
+    row.update(
+        steps=sim.step_count, frames=sim.frame, time_reached=sim.time,
+        ke_start=ke[0] if ke else None, ke_end=ke[-1] if ke else None,
+        ke_ratio=ke[-1] / ke[0] if ke and ke[0] > 0 else None, ke_max=max(ke, default=None),
+        ke_tail_mean=float(np.mean(ke[-max(1, len(ke) // 4):])) if ke else None,
+        enstrophy_start=enstrophy[0] if ke else None, enstrophy_end=enstrophy[-1] if ke else None,
+        density_iterations=stats["density_iterations"], divergence_iterations=stats["divergence_iterations"],
+        solver_density_error_pct=100 * stats["density_error"],
+        max_density_error_pct=100 * max(f["density_error_max"] for f in frames) if frames else None,
+        mean_density_error_pct=100 * float(np.mean([f["density_error_mean"] for f in frames])) if frames else None,
+        dt_mean=sim.time / max(sim.step_count, 1), ms_per_step=1e3 * row["wall_s"] / max(sim.step_count, 1),
+        kinetic_energy=[float(f"{e:.5g}") for e in ke], frame_times=[round(f["time"], 5) for f in frames])
+    row.setdefault("blow_up_step", None)
+    if dts:
+        row["dt_min"] = min(dts)
+    return status, row
+
 
 def run_cell(cell, device="cpu"):
     """Runs one cell (in this process) on ``device``; returns its record: status "done" with the row,
@@ -249,25 +657,38 @@ def run_cell(cell, device="cpu"):
         from .validation.cases import ERRORS, ROWS, _finite, device_info, warm_up
         from .validation.taylor_green import METHODS
 
-        params = cell["params"]
-        models = METHODS[params["method"]]
-        overrides = {k: v for k, v in params.items() if "." in k}
+        params, kind = cell["params"], cell.get("kind", "case")
         record.update(device_info(device))  # "device": the device's name, "device_alias": cpu, cuda:0, ...
-        row = {"case": cell["case"], "method": params["method"], "resolution": params["resolution"],
-               "error_units": ERRORS[cell["case"]][0]}
-        if cell.get("warm_up", True):
+        if cell.get("warm_up") and kind != "function":
             t0 = time.perf_counter()
-            warm_up(models, device, overrides)
+            if kind == "case":
+                warm_up(METHODS[params["method"]], device, {k: v for k, v in params.items() if "." in k})
+            else:
+                warm_up(scene_data(cell).get("models", []), device)
             record["warmup_s"] = time.perf_counter() - t0
-        try:
-            row.update(ROWS[cell["case"]](models, params["resolution"], device, overrides))
-            record["status"] = "done"
-        except InstabilityError as exc:  # as warpsph validate records it
-            row.update(particles=None, error_pct=None, wall_s=None, steps=exc.step, unstable=str(exc),
-                       unstable_time=exc.time)
-            record["status"] = "unstable"
+        if kind == "scene":
+            record["status"], row = scene_row(cell, device)
+        elif kind == "function":
+            kwargs = dict(params) if cell.get("warm_up") is None else {**params, "warm_up": cell["warm_up"]}
+            try:
+                row = dict(_function(cell["function"])(device=device, **kwargs))
+                record["status"] = "unstable" if row.get("unstable") else "done"
+            except InstabilityError as exc:
+                row = {"unstable": str(exc), "blow_up_step": exc.step, "unstable_time": exc.time}
+                record["status"] = "unstable"
+        else:
+            row = {"case": cell["case"], "method": params["method"], "resolution": params["resolution"],
+                   "error_units": ERRORS[cell["case"]][0]}
+            try:
+                row.update(ROWS[cell["case"]](METHODS[params["method"]], params["resolution"], device,
+                                              {k: v for k, v in params.items() if "." in k}))
+                record["status"] = "done"
+            except InstabilityError as exc:  # as warpsph validate records it
+                row.update(particles=None, error_pct=None, wall_s=None, steps=exc.step, unstable=str(exc),
+                           unstable_time=exc.time)
+                record["status"] = "unstable"
+            row["error_pct"] = _finite(row.get("error_pct"))
         wp.synchronize_device(device)
-        row["error_pct"] = _finite(row.get("error_pct"))
         record["row"] = row
     except Exception as exc:  # noqa: BLE001 - recorded; the next run of the sweep retries the cell
         record.update(status="failed", error=f"{type(exc).__name__}: {exc}", traceback=traceback.format_exc())
@@ -298,23 +719,31 @@ def finished(out, cell):
     return None
 
 
+def records(sweep, out):
+    """(cell, record) per cell of ``sweep`` (a path, dict or spec) in order; the record is None where ``out``
+    holds no file for the cell."""
+    spec = sweep if isinstance(sweep, dict) and "columns" in sweep else load_sweep(sweep)
+    pairs = []
+    for cell in cells(spec):
+        try:
+            record = json.loads(_cell_path(out, cell).read_text())
+        except (OSError, ValueError):
+            record = None
+        pairs.append((cell, record if record and record.get("params") == cell["params"] else None))
+    return pairs
+
+
 def assemble(spec, out):
     """``table.json`` and ``table.md`` in ``out`` from the cell files; returns the table (a dict)."""
     from .validation.cases import commit_info, write_json
 
-    axis_names = [k for k, _ in spec["axes"]]
+    columns = spec.get("columns", [k for k, _ in spec["axes"]])
     rows, counts = [], {"done": 0, "unstable": 0, "failed": 0, "missing": 0}
-    for cell in cells(spec):
-        path = _cell_path(out, cell)
-        try:
-            record = json.loads(path.read_text())
-        except (OSError, ValueError):
-            record = {"status": "missing"}
-        if record.get("params") not in (None, cell["params"]):
-            record = {"status": "missing"}
+    for cell, record in records(spec, out):
+        record = record or {"status": "missing"}
         status = record.get("status", "missing")
         counts[status] = counts.get(status, 0) + 1
-        row = {k: cell["params"][k] for k in axis_names}
+        row = {k: cell["params"].get(k) for k in columns}
         r = record.get("row", {})
         row.update({m: r.get(m) for m in spec["measures"]})
         row["status"] = status
@@ -324,9 +753,9 @@ def assemble(spec, out):
             row["error"] = record.get("error")
         row["device"] = record.get("device_alias", record.get("device"))
         rows.append(row)
-    table = {"sweep": spec["name"], "case": spec["case"], "axes": axis_names, "fixed": spec["fixed"],
-             "measures": spec["measures"], "counts": counts, "complete": counts["done"] + counts["unstable"] == len(rows),
-             **commit_info(), "rows": rows}
+    table = {"sweep": spec["name"], "kind": spec.get("kind", "case"), "case": spec["case"], "axes": columns,
+             "fixed": spec["fixed"], "measures": spec["measures"], "counts": counts,
+             "complete": counts["done"] + counts["unstable"] == len(rows), **commit_info(), "rows": rows}
     write_json(table, Path(out) / "table.json")
     _write_text(Path(out) / "table.md", markdown(table))
     return table
@@ -338,13 +767,17 @@ def _write_text(path, text):
     os.replace(tmp, path)
 
 
-def _fmt(v):
+def value_text(v):
+    """A table cell's text: 4 significant digits, a models list as rankine(beta=0.5), None as —."""
     if v is None:
         return "—"
     if isinstance(v, float):
         return f"{v:.4g}"
     if isinstance(v, list):
-        return "[" + ", ".join(_fmt(x) for x in v) + "]"
+        if v and all(isinstance(m, dict) and "type" in m for m in v):
+            return " + ".join(f"{m['type']}(" + ", ".join(f"{k}={value_text(x)}" for k, x in m.items() if k != "type") + ")"
+                              for m in v)
+        return "[" + ", ".join(value_text(x) for x in v) + "]"
     return str(v)
 
 
@@ -352,7 +785,7 @@ def markdown(table):
     cols = table["axes"] + table["measures"] + ["status"]
     lines = [f"# Sweep {table['sweep']}: {table['case']}", ""]
     if table["fixed"]:
-        lines += ["Fixed: " + ", ".join(f"{k} = {v}" for k, v in table["fixed"].items()), ""]
+        lines += ["Fixed: " + ", ".join(f"{k} = {value_text(v)}" for k, v in table["fixed"].items()), ""]
     c = table["counts"]
     lines += [f"{c['done']} done, {c['unstable']} unstable, {c['failed']} failed, {c['missing']} missing", ""]
     lines.append("| " + " | ".join(cols) + " |")
@@ -365,7 +798,7 @@ def markdown(table):
                 v = f"unstable: {r['unstable']}"
             elif k == "status" and r.get("error"):
                 v = f"failed: {r['error']}"
-            cells_.append(_fmt(v).replace("|", "\\|").replace("\n", " "))
+            cells_.append(value_text(v).replace("|", "\\|").replace("\n", " "))
         lines.append("| " + " | ".join(cells_) + " |")
     return "\n".join(lines) + "\n"
 
@@ -469,6 +902,43 @@ def _ray(todo, address, num_gpus, num_cpus, max_retries, on_record, progress, in
                 record = {"id": cell["id"], "case": cell["case"], "params": cell["params"], "status": "failed",
                           "error": f"{type(exc).__name__}: {exc}"}
             on_record(cell, record)
+
+
+def add_executor_arguments(parser):
+    """The executor options of a study run as a sweep (``warpsph pareto``, ``warpsph stress``)."""
+    parser.add_argument("--executor", choices=["local", "ray"], default="local",
+                        help="local (a process per cell, default) or ray (pip install 'warpsph[ray]')")
+    parser.add_argument("--workers", type=int, default=1, help="local: cells at once (default 1)")
+    parser.add_argument("--devices", metavar="D[,D...]",
+                        help="local: devices given to the worker slots in turn, e.g. cuda:0,cuda:0 packs two cells "
+                             "on one GPU (default: --device)")
+    parser.add_argument("--address", help="ray: the cluster to join (e.g. auto); default a local instance")
+    parser.add_argument("--num-gpus", type=float, default=0.0,
+                        help="ray: GPUs per cell (0.25 packs four cells on a GPU; 0: CPU cells, default)")
+    parser.add_argument("--max-retries", type=int, default=3, help="ray: retries of a cell lost with its worker")
+
+
+def executor_arguments(args):
+    """run_sweep's keyword arguments from :func:`add_executor_arguments`' options; a bad one raises
+    :class:`warpsph.errors.SceneError` naming it (each of --devices is checked as --device is)."""
+    from .cli import _pick_device
+
+    if args.workers < 1:
+        raise SceneError("", "--workers", f"expected an integer >= 1, got {args.workers}")
+    if args.max_retries < 0:
+        raise SceneError("", "--max-retries", f"expected an integer >= 0, got {args.max_retries}")
+    if not 0 <= args.num_gpus < math.inf:
+        raise SceneError("", "--num-gpus", f"expected a number >= 0, got {args.num_gpus:g}")
+    devices = [args.device]
+    if args.devices:
+        try:
+            devices = [_pick_device(d.strip()) for d in args.devices.split(",") if d.strip()]
+        except SceneError as exc:
+            raise SceneError("", "--devices", exc.reason) from None
+        if not devices:
+            raise SceneError("", "--devices", "expected at least one device")
+    return {"executor": args.executor, "workers": args.workers, "devices": devices, "address": args.address,
+            "num_gpus": args.num_gpus, "max_retries": args.max_retries}
 
 
 def run_sweep(sweep, out, executor="local", workers=1, devices=None, address=None, num_gpus=None, num_cpus=1,

@@ -34,17 +34,19 @@ run). Recorded per point: fluid particles, steps, mean density and divergence it
 Solver tolerance: the scene's ``solver.density_max_error`` (average density error in %; the divergence
 tolerance stays at its default 0.1 %/s).
 
-Writes JSON (every point, device, Warp version, commit) after every point, so a run cut off by a time
-limit keeps what it finished; a markdown table beside it (``*.md``, with the Pareto-optimal points
-marked: no other point has both a lower error and a lower time), and a PNG when matplotlib imports.
-Points run from the coarsest resolution up.
+The points are the cells of a sweep (:mod:`warpsph.sweep`, each cell :func:`point` in a process of its own,
+after its method's warm-up): ``--workers N`` runs N at once, ``--devices cuda:0,cuda:1`` spreads them,
+``--executor ray`` runs them on a Ray cluster; one file per point goes to ``OUT.sweep/cells/`` and running the
+same command again runs only the points not finished there. Then JSON (every point, device, Warp version,
+commit), a markdown table beside it (``*.md``, with the Pareto-optimal points marked: no other point has both a
+lower error and a lower time), and a PNG when matplotlib imports. Points are listed from the coarsest
+resolution up.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import gc
 import json
 import math
 import os
@@ -108,7 +110,7 @@ def mark_pareto(points):
 
 # --- timing -----------------------------------------------------------------------------------------
 
-def warm_up(models, device, case="lamb-oseen"):
+def warm_up_method(models, device, case="lamb-oseen"):
     """Loads (compiles) every kernel module a method uses, outside the timed runs: a tiny vortex, a few
     steps (the second captures the CUDA graph) and one measurement."""
     if case == "taylor-green":
@@ -256,6 +258,52 @@ def dam_front_point(models, resolution, tolerance, device, T_end=6.0, depth=4):
             "dam_simulated_s": simulated, "dam_wall_s": log["wall_s"], DAM_TIME_KEY: log["wall_s"] / simulated,
             "dam_mean_density_iterations": sim.statistics()["density_iterations"],
             DAM_ERROR_KEY: c["shifted_rms"], "dam_time_shift_T": c["time_shift_T"], "dam_raw_rms": c["raw_rms"]}
+
+
+def point(method, resolution, tolerance, device="cpu", case="lamb-oseen", core_radius=CORE_RADIUS, nu=0.01, T=None,
+          u_peak=0.5, depth=6, frames=10, on_instability="stop", pack_steps=None, dam_resolution=None, dam_T_end=6.0,
+          warm_up=True):
+    """One point of the study, a sweep cell (``warpsph.validation.pareto:point``): the method's warm-up (kernel
+    loading kept out of the timed run), the vortex of ``case`` (``T`` None: 0.5 s Lamb-Oseen, 0.3 s Taylor-Green),
+    and the dam front at ``dam_resolution`` when given. Returns the point (``unstable`` set: it blew up)."""
+    label, models = METHODS[method]
+    out = {"method": method, "label": label, "models": models, "resolution": resolution, "tolerance": tolerance}
+    if warm_up:
+        start = time.perf_counter()
+        warm_up_method(models, device, case)
+        out["warmup_s"] = time.perf_counter() - start
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+    if case == "taylor-green":
+        from warpsph.validation.taylor_green import T_END
+
+        out.update(taylor_green_point(models, resolution, tolerance, device, nu, T_END if T is None else T, frames,
+                                      on_instability, pack_steps))
+    else:
+        out.update(lamb_oseen_point(models, resolution, tolerance, device, core_radius, nu, 0.5 if T is None else T,
+                                    u_peak, depth, frames, on_instability))
+    if load is not None:  # host load before and after: other processes on the machine skew the timings
+        out["load_average"] = [round(load, 2), round(os.getloadavg()[0], 2)]
+    if dam_resolution:
+        out.update(dam_front_point(models, dam_resolution, tolerance, device, dam_T_end))
+    return out
+
+
+def point_line(p):
+    """A line saying how a point went."""
+    head = f"{p['label']}, resolution {p['resolution']} ({p.get('particles') or 0:,} particles), tolerance {p['tolerance']} %: "
+    if "unstable" in p:
+        return head + f"unstable: {p['unstable']}"
+    detail = (f"KE error {fmt(p['ke_error_percent'], '+.2f')} %, mean density {fmt(p['mean_density_ratio'], '.4f')}"
+              if "ke_error_percent" in p else f"omega ratio {fmt(p['omega_ratio'], '.3f')}")
+    line = (head + f"error {fmt(p[ERROR_KEY], '.2f')} %, {detail}, {p['steps']} steps, "
+            f"{fmt(p['mean_density_iterations'], '.2f')} density it., {fmt(p['wall_s'], '.2f')} s wall "
+            f"({fmt(p[TIME_KEY], '.3g')} s/s, {fmt(p['ms_per_step'], '.2f')} ms/step; measuring {fmt(p['measure_s'], '.2f')} s)")
+    if "dam_unstable" in p:
+        line += f"; dam front: unstable: {p['dam_unstable']}"
+    elif DAM_ERROR_KEY in p:
+        line += (f"; dam front (resolution {p['dam_resolution']}, {p['dam_particles']:,} particles): RMS "
+                 f"{fmt(p[DAM_ERROR_KEY], '.3f')} a, {p['dam_steps']} steps, {fmt(p[DAM_TIME_KEY], '.3g')} s/s")
+    return line
 
 
 # --- report -----------------------------------------------------------------------------------------
@@ -427,14 +475,42 @@ def write(report, out, png=False):
 
 # --- driver -----------------------------------------------------------------------------------------
 
+def sweep(methods, resolutions, tolerances, device="cpu", case="lamb-oseen", core_radius=CORE_RADIUS, nu=0.01,
+          T=None, u_peak=0.5, depth=6, frames=10, dam_resolutions=(), dam_T_end=6.0, on_instability="stop",
+          pack_steps=None):
+    """The study as a sweep (a dict for :func:`warpsph.sweep.run_sweep`): a cell per (resolution, tolerance,
+    method), coarsest first, each :func:`point`; the dam front's resolutions go to the coarsest resolutions'
+    points, one each."""
+    dams = list(dam_resolutions) + [None] * max(0, len(resolutions) - len(dam_resolutions))
+    dam_of = dict(zip(sorted(resolutions), dams))
+    cells = [{"method": name, "resolution": res, "tolerance": tol, "dam_resolution": dam_of.get(res)}
+             for res in sorted(resolutions) for tol in tolerances for name in methods]
+    fixed = {"case": case, "nu": nu, "T": T, "frames": frames, "on_instability": on_instability,
+             "dam_T_end": dam_T_end}
+    if case == "taylor-green":
+        fixed["pack_steps"] = pack_steps
+    else:
+        fixed.update(core_radius=core_radius, u_peak=u_peak, depth=depth)
+    return {"name": f"pareto-{case}", "base": {"function": "warpsph.validation.pareto:point"}, "cells": cells,
+            "fixed": fixed, "device": device,
+            "measures": ["particles", ERROR_KEY, TIME_KEY, "steps", "mean_density_iterations", "ms_per_step",
+                         DAM_ERROR_KEY, DAM_TIME_KEY]}
+
+
 def study(methods, resolutions, tolerances, device="cpu", out=None, core_radius=CORE_RADIUS, nu=0.01, T=None,
           u_peak=0.5, depth=6, frames=10, dam_resolutions=(), dam_T_end=6.0, png=True, quiet=False,
-          on_instability="stop", case="lamb-oseen", pack_steps=None):
-    """Runs every (resolution, tolerance, method) point, coarsest first; returns the report (and writes it
-    to ``out`` after every point). ``case``: "lamb-oseen" or "taylor-green" (then ``core_radius``,
-    ``u_peak`` and ``depth`` do not apply; ``T`` None means 0.3 s there, 0.5 s for Lamb-Oseen)."""
+          on_instability="stop", case="lamb-oseen", pack_steps=None, sweep_dir=None, **executor):
+    """Runs every (resolution, tolerance, method) point as a cell of :func:`sweep` (``executor``: run_sweep's
+    executor, workers, devices, address, num_gpus, max_retries); returns the report, written to ``out`` (and
+    ``.md``, ``.png``). The cells' files go to ``sweep_dir`` (default ``out`` with the suffix .sweep; a
+    temporary folder without ``out``): running again runs only the points not finished there. ``case``:
+    "lamb-oseen" or "taylor-green" (then ``core_radius``, ``u_peak`` and ``depth`` do not apply; ``T`` None means
+    0.3 s there, 0.5 s for Lamb-Oseen)."""
+    import tempfile
+
     import warp as wp
 
+    from warpsph.sweep import records, run_sweep
     from warpsph.validation.lamb_oseen import L
 
     wp.config.log_level = wp.LOG_WARNING
@@ -467,49 +543,36 @@ def study(methods, resolutions, tolerances, device="cpu", out=None, core_radius=
               "tolerance": "solver.density_max_error [%]", "pareto": "no other point has both lower error and lower time",
               "methods": {name: {"label": METHODS[name][0], "models": METHODS[name][1]} for name in methods},
               "points": []}
+    spec = sweep(methods, resolutions, tolerances, device, case, core_radius, nu, T, u_peak, depth, frames,
+                 dam_resolutions, dam_T_end, on_instability, pack_steps)
+    executor.setdefault("devices", [device])
     started = time.perf_counter()
-    for name in methods:
-        t0 = time.perf_counter()
-        warm_up(METHODS[name][1], device, case)
-        report.setdefault("warmup_s", {})[name] = time.perf_counter() - t0
-    say(f"device {report['device']}, Warp {report['warp']}; warm-up {sum(report['warmup_s'].values()):.1f} s")
-    grid = [(res, tol, name) for res in sorted(resolutions) for tol in tolerances for name in methods]
-    dams = list(dam_resolutions) + [None] * max(0, len(resolutions) - len(dam_resolutions))
-    dam_of = dict(zip(sorted(resolutions), dams))
-    for k, (res, tol, name) in enumerate(grid, 1):
-        label, models = METHODS[name]
-        say(f"[{k}/{len(grid)}] {label}, resolution {res} ({res * res * depth:,} particles), tolerance {tol} % ...")
-        point = {"method": name, "label": label, "models": models, "resolution": res, "tolerance": tol}
-        load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
-        if tg:
-            point.update(taylor_green_point(models, res, tol, device, nu, T, frames, on_instability, pack_steps))
-        else:
-            point.update(lamb_oseen_point(models, res, tol, device, core_radius, nu, T, u_peak, depth, frames,
-                                          on_instability))
-        if load is not None:  # host load before and after: other processes on the machine skew the timings
-            point["load_average"] = [round(load, 2), round(os.getloadavg()[0], 2)]
-        if "unstable" in point:
-            say(f"    unstable: {point['unstable']}")
-        else:
-            detail = (f"KE error {point['ke_error_percent']:+.2f} %, mean density {point['mean_density_ratio']:.4f}" if tg
-                      else f"omega ratio {point['omega_ratio']:.3f}")
-            say(f"    error {point[ERROR_KEY]:.2f} %, {detail}, {point['steps']} steps, "
-                f"{point['mean_density_iterations']:.2f} density it., {point['wall_s']:.2f} s wall "
-                f"({point[TIME_KEY]:.3g} s/s, {point['ms_per_step']:.2f} ms/step; measuring {point['measure_s']:.2f} s)")
-        if dam_of.get(res):
-            point.update(dam_front_point(models, dam_of[res], tol, device, dam_T_end))
-            if "dam_unstable" in point:
-                say(f"    dam front: unstable: {point['dam_unstable']}")
+    with contextlib.ExitStack() as stack:
+        if sweep_dir is None:
+            sweep_dir = (Path(out).with_suffix(".sweep") if out else
+                         Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="pareto-"))))
+        say(f"device {report['device']}, Warp {report['warp']}; {len(spec['cells'])} points, cells in {sweep_dir}")
+        run_sweep(spec, sweep_dir, log=None if quiet else say, **executor)
+        failed = []
+        for cell, record in records(spec, sweep_dir):
+            if record is not None and record.get("status") in ("done", "unstable"):
+                report["points"].append(record["row"])
+                say("    " + point_line(record["row"]))
             else:
-                say(f"    dam front (resolution {point['dam_resolution']}, {point['dam_particles']:,} particles): RMS "
-                    f"{point[DAM_ERROR_KEY]:.3f} a, {point['dam_steps']} steps, {point[DAM_TIME_KEY]:.3g} s/s")
-        report["points"].append(point)
-        report["elapsed_s"] = time.perf_counter() - started
-        report["complete"] = k == len(grid)
-        gc.collect()
-        if out:
-            write(report, out, png=png and k == len(grid))
+                failed.append({"cell": cell["params"], "error": (record or {}).get("error", "missing")})
+    for p in report["points"]:
+        if "warmup_s" in p:
+            report.setdefault("warmup_s", {})
+            report["warmup_s"][p["method"]] = report["warmup_s"].get(p["method"], 0.0) + p["warmup_s"]
+    if out:
+        report["sweep"] = str(sweep_dir)
+    if failed:
+        report["failed"] = failed
+    report["elapsed_s"] = time.perf_counter() - started
+    report["complete"] = not failed
     mark_pareto(report["points"])
+    if out:
+        write(report, out, png=png)
     return report
 
 
@@ -565,6 +628,9 @@ def add_arguments(parser):
                         help="draw the PNG (and table) of JSON made elsewhere; with --out, write JSON, table and PNG "
                              "there; several files (same set-up and device, e.g. one per tolerance) are merged")
     parser.add_argument("--no-plot", action="store_true", help="no PNG")
+    from warpsph.sweep import add_executor_arguments
+
+    add_executor_arguments(parser)
 
 
 def main(argv=None):
@@ -617,9 +683,12 @@ def command(args):
         png = plot(report, out.with_suffix(".png"))
         print(f"wrote {png}" + (f", {out}, {out.with_suffix('.md')}" if args.out else ""))
         return 0
+    from warpsph.sweep import executor_arguments
+
     report = study(args.methods, args.resolutions, args.tolerances, args.device, args.out, args.core_radius, args.nu,
                    args.T, args.u_peak, args.depth, args.frames, args.dam_front, args.dam_T_end, png=not args.no_plot,
-                   on_instability=args.on_instability, case=args.case, pack_steps=args.pack_steps)
+                   on_instability=args.on_instability, case=args.case, pack_steps=args.pack_steps,
+                   **executor_arguments(args))
     print(markdown(report), flush=True)
     return 0
 

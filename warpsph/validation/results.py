@@ -4,8 +4,9 @@
     warpsph plot results --out-dir /tmp/figs tools/results/stress_h100_dam_break.json
 
 Knows the validation reports (Taylor-Green, Lamb-Oseen, hydrostatic, Martin & Moyce dam front: their
-``figures(report)``), the Pareto studies, the stress matrices and the multi-size benchmarks; other JSON files
-are skipped with a line saying so. Needs matplotlib.
+``figures(report)``), the Pareto studies, the stress matrices, the multi-size benchmarks and the tables of
+``warpsph sweep`` (DIR/table.json -> table.pareto.png when it has a time and an error measure, and
+table.heat_map.png); other JSON files are skipped with a line saying so. Needs matplotlib.
 """
 
 import argparse
@@ -56,6 +57,10 @@ def plot(path, out_dir=None):
         from warpsph.validation.pareto import plot as pareto_plot
 
         return [pareto_plot(report, png)]
+    if isinstance(report, dict) and "sweep" in report and "rows" in report:  # warpsph sweep's table.json
+        from warpsph.plots import sweep_figures
+
+        return sweep_figures(report, out.with_suffix(""))
     if isinstance(report, dict) and "cells" in report and "axes" in report:
         from warpsph.validation.stress import heat_map
 

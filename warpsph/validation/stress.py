@@ -22,14 +22,20 @@ the end relative to the plain cell's: the VR paper's Fig 7 criterion (a dam brea
 not keep, or add, energy the plain solver lets go). Also the mean kinetic energy over the last quarter
 of the run (less sensitive to the phase of a slosh).
 
+The cells are two scene-file sweeps (:mod:`warpsph.sweep`, a process per cell): the plain cell (every
+step's dt read back for the CFL dt), then the others (``--workers N`` at once, ``--devices``, ``--executor
+ray``). Their files go to OUT.sweep/plain and OUT.sweep/matrix; running the same command again runs only the
+cells not finished there. A cell that raises anything but an instability is recorded as failed (and run again
+next time).
+
 Writes OUT.json, OUT.md (a table) and OUT.png (heat map; needs matplotlib; ``warpsph plot results OUT.json``
 draws it again).
 """
 
 import argparse
-import dataclasses
+import contextlib
 import json
-import time
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -48,76 +54,58 @@ MODEL_AXES = {"alpha": ("vorticity_refinement", "alpha"), "beta": ("rankine", "b
 REPO = Path(__file__).resolve().parents[2]
 
 
-def cell_scene(base, axis=None, value=None, dt_ref=None):
-    """The plain scene with one change (``axis`` None: the plain cell)."""
-    from warpsph.scene import parse_model
+MEASURES = ["particles", "steps", "time_reached", "max_density_error_pct", "density_iterations", "ke_end",
+            "blow_up_step", "wall_s"]
 
-    scene = dataclasses.replace(base, models=())
+
+def cell_keys(axis=None, value=None, dt_ref=None):
+    """The scene keys of a cell: plain DFSPH (the scene's own models removed) with one change (``axis`` None:
+    the plain cell)."""
+    keys = {"models": []}
     if axis in MODEL_AXES:
         kind, key = MODEL_AXES[axis]
-        scene = dataclasses.replace(scene, models=(parse_model({"type": kind, key: value}),))
+        keys["models"] = [{"type": kind, key: value}]
     elif axis == "cfl":
-        scene = dataclasses.replace(scene, time=dataclasses.replace(scene.time, cfl=value, fixed_dt=None))
+        keys.update({"time.cfl": value, "time.fixed_dt": None})
     elif axis == "fixed_dt":
-        scene = dataclasses.replace(scene, time=dataclasses.replace(scene.time, fixed_dt=value * dt_ref))
-    return scene
+        keys["time.fixed_dt"] = value * dt_ref
+    return keys
 
 
-def run_cell(scene, seconds, device, track_dt=False):
-    """Runs one cell; returns its record (never raises for an instability or a failed cell)."""
-    from warpsph.diagnostics import Diagnostics
-    from warpsph.simulation import InstabilityError, Simulation
+def sweep(scene_path, scale, seconds, cells, device="cpu", plain=False):
+    """A scene-file sweep of the matrix's ``cells`` (their scene keys); ``plain``: also every step's dt."""
+    return {"name": "stress-plain" if plain else "stress", "scene": str(Path(scene_path).resolve()), "scale": scale,
+            "time": seconds, "cells": cells, "warm_up": False, "device": device,
+            "measures": MEASURES + (["dt_min"] if plain else [])}
 
-    start = time.perf_counter()
-    out = {"blew_up": False}
-    frames, dts = [], []
-    try:
-        sim = Simulation(scene, device=device)
-    except Exception as exc:  # noqa: BLE001 - a cell that cannot even start is a result too
-        return {**out, "error": f"{type(exc).__name__}: {exc}", "wall_s": time.perf_counter() - start}
-    out["particles"] = sim.num_fluid
-    diagnostics = Diagnostics()
-    if track_dt:  # every step's dt, for the CFL reference of the fixed-dt cells
-        step = sim.step
 
-        def tracked():
-            step()
-            dts.append(float(sim.dt.numpy()[0]))
-        sim.step = tracked
-    try:
-        sim.run(until_time=seconds, on_frame=lambda s, f: frames.append(diagnostics.measure(s, f)))
-    except InstabilityError as exc:
-        out["blew_up"] = True
-        out["instability"] = {"step": exc.step, "time": exc.time, "check": exc.check,
-                              "particle_id": exc.particle_id,
-                              "position": None if exc.position is None else [float(c) for c in exc.position]}
-    except Exception as exc:  # noqa: BLE001 - e.g. a solver error: recorded, the matrix goes on
-        out["blew_up"] = True
-        out["error"] = f"{type(exc).__name__}: {exc}"
-    stats = sim.statistics()
-    out.update({
-        "steps": sim.step_count, "time_reached": sim.time, "frames": len(frames),
-        "max_density_error_pct": 100 * max((f["density_error_max"] for f in frames), default=float("nan")),
-        "mean_density_error_pct": 100 * float(np.mean([f["density_error_mean"] for f in frames])) if frames else float("nan"),
-        "solver_density_error_pct": 100 * stats["density_error"],
-        "density_iterations": stats["density_iterations"], "divergence_iterations": stats["divergence_iterations"],
-        "dt_mean": sim.time / max(sim.step_count, 1),
-        "ke_end": frames[-1]["kinetic_energy"] if frames else float("nan"),
-        "ke_tail_mean": float(np.mean([f["kinetic_energy"] for f in frames[-max(1, len(frames) // 4):]])) if frames else float("nan"),
-        "ke_max": max((f["kinetic_energy"] for f in frames), default=float("nan")),
-        # per frame, for plots (rounded: the JSON stays small)
-        "kinetic_energy": [float(f"{f['kinetic_energy']:.5g}") for f in frames],
-        "frame_times": [round(f["time"], 5) for f in frames],
-        "wall_s": time.perf_counter() - start,
-    })
-    if dts:
-        out["dt_min_step"] = min(dts)
+def cell_of(record):
+    """The matrix's record of a cell from its sweep record (never raises for an instability or a failed cell)."""
+    if record is None or record.get("status") not in ("done", "unstable"):
+        error = "missing" if record is None else record.get("error", "failed")
+        return {"blew_up": True, "error": error, "wall_s": (record or {}).get("elapsed_s", 0.0)}
+    r = record["row"]
+    out = {"blew_up": record["status"] == "unstable"}
+    if out["blew_up"]:
+        out["instability"] = r["instability"]
+    out.update({key: r.get(key) for key in (
+        "particles", "steps", "time_reached", "max_density_error_pct", "mean_density_error_pct",
+        "solver_density_error_pct", "density_iterations", "divergence_iterations", "dt_mean", "ke_end",
+        "ke_tail_mean", "ke_max", "kinetic_energy", "frame_times")})
+    out["frames"] = len(r["kinetic_energy"])
+    out["wall_s"] = r["setup_s"] + r["wall_s"] + (r.get("measure_s") or 0.0)  # the cell's set-up and run
+    if r.get("dt_min") is not None:
+        out["dt_min_step"] = r["dt_min"]
     return out
 
 
-def stress(scene_path, scale=0.05, seconds=2.0, axes=None, values=None, device="cpu", log=print):
-    """Runs the matrix; returns the report (dict). ``values`` overrides an axis's values."""
+def stress(scene_path, scale=0.05, seconds=2.0, axes=None, values=None, device="cpu", log=print, sweep_dir=None,
+           **executor):
+    """Runs the matrix; returns the report (dict). ``values`` overrides an axis's values. ``executor``:
+    run_sweep's executor, workers, devices, address, num_gpus, max_retries; the cells' files go to
+    ``sweep_dir`` (plain/ and matrix/; None: a temporary folder)."""
     from warpsph.scene import load_scene
+    from warpsph.sweep import records, run_sweep
 
     base = load_scene(scene_path, scale=scale)
     axes = list(AXES) if axes is None else list(axes)
@@ -128,17 +116,32 @@ def stress(scene_path, scale=0.05, seconds=2.0, axes=None, values=None, device="
         name = str(scene_path)
     report = {"scene": name, "scale": scale, "seconds": seconds, "radius": base.particle_radius,
               "cfl": base.time.cfl, "dt_bounds": list(base.time_step_bounds), "axes": values, "cells": []}
-    plain = run_cell(cell_scene(base), seconds, device, track_dt=True)
-    plain.update(name="plain DFSPH", axis=None, value=None)
-    report["cells"].append(plain)
-    report["particles"] = plain.get("particles")
-    # the CFL dt: the smallest step the plain run took (the CFL rule at its fastest)
-    dt_ref = plain.get("dt_min_step") or base.time_step_bounds[1]
-    report["dt_cfl"] = dt_ref
-    log(_line(plain))
-    for axis in axes:
-        for value in values[axis]:
-            cell = run_cell(cell_scene(base, axis, value, dt_ref), seconds, device)
+    executor.setdefault("devices", [device])
+    with contextlib.ExitStack() as stack:
+        if sweep_dir is None:
+            sweep_dir = stack.enter_context(tempfile.TemporaryDirectory(prefix="stress-"))
+        else:
+            report["sweep"] = str(sweep_dir)
+        spec = sweep(scene_path, scale, seconds, [cell_keys()], device, plain=True)
+        run_sweep(spec, Path(sweep_dir) / "plain", log=log, **executor)
+        plain = cell_of(records(spec, Path(sweep_dir) / "plain")[0][1])
+        plain.update(name="plain DFSPH", axis=None, value=None)
+        report["cells"].append(plain)
+        report["particles"] = plain.get("particles")
+        # the CFL dt: the smallest step the plain run took (the CFL rule at its fastest)
+        dt_ref = plain.get("dt_min_step") or base.time_step_bounds[1]
+        report["dt_cfl"] = dt_ref
+        log(_line(plain))
+        grid = [(axis, value) for axis in axes for value in values[axis]]
+        keys = [cell_keys(axis, value, dt_ref) for axis, value in grid]
+        unique = list({json.dumps(k, sort_keys=True): k for k in keys}.values())  # a value given twice runs once
+        if unique:
+            spec = sweep(scene_path, scale, seconds, unique, device)
+            run_sweep(spec, Path(sweep_dir) / "matrix", log=log, **executor)
+            done = {json.dumps(cell["params"], sort_keys=True): record
+                    for cell, record in records(spec, Path(sweep_dir) / "matrix")}
+        for (axis, value), k in zip(grid, keys):
+            cell = cell_of(done[json.dumps(k, sort_keys=True)])
             cell.update(name=f"{axis} = {value:g}", axis=axis, value=value)
             if axis == "fixed_dt":
                 cell["fixed_dt_s"] = value * dt_ref
@@ -160,9 +163,9 @@ def _line(cell):
     if cell["blew_up"]:
         i = cell.get("instability")
         status = (f"BLEW UP step {i['step']} t {i['time']:.3f} s: {i['check']}" if i else "FAILED " + cell.get("error", ""))
-    return (head + f" {status}; max density error {cell['max_density_error_pct']:.2f} %, iterations "
-            f"{cell['density_iterations']:.2f}/{cell['divergence_iterations']:.2f}, KE end {cell['ke_end']:.4g} J, "
-            f"{cell['steps']} steps, {cell['wall_s']:.1f} s")
+    return (head + f" {status}; max density error {_fmt(cell['max_density_error_pct'], '.2f')} %, iterations "
+            f"{_fmt(cell['density_iterations'], '.2f')}/{_fmt(cell['divergence_iterations'], '.2f')}, KE end "
+            f"{_fmt(cell['ke_end'], '.4g')} J, {cell['steps']} steps, {cell['wall_s']:.1f} s")
 
 
 def _fmt(v, spec):
@@ -270,7 +273,10 @@ def add_arguments(parser):
         parser.add_argument("--" + axis.replace("_", "-"), nargs="+", type=float, dest=axis,
                             help=f"{label} values (default {' '.join(f'{v:g}' for v in defaults)})")
     parser.add_argument("--device", default="cpu", help="cpu (default), cuda or cuda:N")
-    parser.add_argument("--out", help="output prefix: OUT.json, OUT.md, OUT.png")
+    parser.add_argument("--out", help="output prefix: OUT.json, OUT.md, OUT.png (and the cells in OUT.sweep/)")
+    from warpsph.sweep import add_executor_arguments
+
+    add_executor_arguments(parser)
 
 
 def check_arguments(args):
@@ -304,8 +310,13 @@ def command(args):
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING
+    from warpsph.sweep import executor_arguments
+
+    executor = executor_arguments(args)
     values = {a: getattr(args, a) for a in AXES if getattr(args, a)}
-    report = stress(args.scene, args.scale, args.seconds, args.axes, values, args.device)
+    prefix = Path(args.out).with_suffix("") if args.out and Path(args.out).suffix in (".json", ".md", ".png") else args.out
+    report = stress(args.scene, args.scale, args.seconds, args.axes, values, args.device,
+                    sweep_dir=Path(f"{prefix}.sweep") if args.out else None, **executor)
     report.update(device=args.device, warp=wp.__version__)
     print(markdown(report))
     if args.out:
