@@ -326,10 +326,10 @@ def test_a_mesher_behind_the_simulation_skips_frames_or_waits(tmp_path, monkeypa
     pytest.importorskip("pysplashsurf")
     from warpsph import cli, surface
 
-    def slow_mesher(options, radius):  # in this process, so that the sleep holds
+    def slow_mesher(options, radius, device="cpu"):  # in this process, so that the sleep holds
         def mesh(arrays):
             time.sleep(SLOW)
-            return surface.mesh_frame(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options)
+            return surface.mesh_frame(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options, device)
         return mesh
 
     monkeypatch.setattr(surface, "mesher_for", slow_mesher)
