@@ -181,6 +181,37 @@ def test_dense_modes_are_refused_and_run_anyway_on_the_cubic_lattice(scenes, mon
     assert count_particles(scene)[0] > 0
 
 
+def test_fluid_models_fill_meshes_as_splishsplash_does(scenes):
+    """A FluidModels entry with an OBJ: the scaled mesh filled from its bounding box's corner plus r, rotated and
+    translated (VolumeSampling::sampleMesh); pysplishsplash 2.19.0 puts 1416 particles in this ellipsoid."""
+    trimesh.creation.icosphere(subdivisions=4, radius=1.0).export(scenes.parent / "models" / "sphere.obj")
+    data = edited(FluidBlocks=None, Configuration__particleRadius=0.025)
+    data["RigidBodies"][0].update(translation=[0, 1, 0], scale=[2, 2, 2])
+    data["FluidModels"] = [{"particleFile": "../models/sphere.obj", "translation": [0.3, 1.0, 0.1],
+                            "scale": [0.4, 0.3, 0.35], "rotationAxis": [0, 0, 1], "rotationAngle": 0.5,
+                            "initialVelocity": [0, -1, 0], "resolutionSDF": [20, 20, 20]}]
+    scene = load_quiet(write(scenes, data))
+    (m,) = scene.fluid_meshes
+    assert (m.mesh, m.scale, m.rotation_axis, m.velocity) == ("../models/sphere.obj", (0.4, 0.3, 0.35), (0, 0, 1), (0, -1, 0))
+    x = sample_scene(scene)[0].astype(np.float64)
+    assert count_particles(scene)[0] == len(x) == 1416
+    rot = sampling.rotation_matrix([0, 0, 1], 0.5)
+    local = (x - [0.3, 1.0, 0.1]) @ rot  # back into the scaled mesh's frame
+    assert np.all(np.sum((local / [0.4, 0.3, 0.35]) ** 2, axis=1) < 1.0)
+    lattice = (local - (np.array([-0.4, -0.3, -0.35]) + 0.025)) / 0.05  # the bounding box corner + r
+    assert np.allclose(lattice, np.round(lattice), atol=1e-3)
+    sim = Simulation(load_quiet(write(scenes, data)), device="cpu")
+    sim.run(frames=1)
+    assert sim.num_fluid == 1416
+
+
+def test_fluid_models_from_particle_files_are_refused(scenes):
+    data = edited(FluidModels=[{"particleFile": "../models/bunny.bgeo", "translation": [0, 0.5, 0]}])
+    with pytest.raises(SceneError, match=r"FluidModels\[0\].particleFile: '../models/bunny.bgeo': fluid read from a "
+                                         r"particle file"):
+        load_scene(write(scenes, data))
+
+
 # --- 3. physics: mapped, or refused by name ---------------------------------------------------------------
 
 
@@ -237,7 +268,7 @@ def test_emitters_map_to_warpsph_emitters(scenes):
     ({"Configuration__scriptFile": "drive.py"}, "Configuration.scriptFile"),
     ({"FluidBlocks__0__initialAngularVelocity": [0, 1, 0]}, "FluidBlocks[0].initialAngularVelocity"),
     ({"AnimationFields": [{"particleField": "velocity", "expression_x": "1"}]}, "AnimationFields: 1 fields"),
-    ({"FluidModels": [{"particleFile": "../models/bunny.bgeo"}]}, "FluidModels: fluid read from particle files"),
+    ({"FluidModels": [{"particleFile": "../models/bunny.bgeo"}]}, "FluidModels[0].particleFile: '../models/bunny.bgeo'"),
     ({"TargetVelocityMotorHingeJoints": [{"bodyID1": 1, "bodyID2": 0}]}, "TargetVelocityMotorHingeJoints: 1 joints"),
 ])
 def test_unsupported_physics_is_refused_by_key(scenes, change, refused):

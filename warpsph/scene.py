@@ -95,6 +95,20 @@ class FluidBlock:
 
 
 @schema
+class FluidMesh:
+    """A closed mesh (OBJ/STL/PLY) filled with fluid at t = 0: the lattice of spacing 2r over the scaled
+    mesh's bounding box, its first point half a spacing inside the lower corner, kept inside the mesh; then
+    rotated and translated with the mesh. An open mesh is refused."""
+
+    mesh: str = key(doc="closed mesh file path, relative to the scene file")
+    translation: Vec3 = key((0.0, 0.0, 0.0), doc="placement", unit="m")
+    scale: Vec3 = key((1.0, 1.0, 1.0), doc="scale per axis")
+    rotation_axis: Vec3 = key((0.0, 1.0, 0.0), doc="placement rotation axis")
+    rotation_angle: float = key(0.0, doc="placement rotation angle", unit="rad")
+    velocity: Vec3 = key((0.0, 0.0, 0.0), doc="initial velocity", unit="m/s")
+
+
+@schema
 class Keyframe:
     """A body's offset from its placement at one time; linear in between, held outside."""
 
@@ -286,6 +300,7 @@ class Scene:
     particle_radius: float = key(doc="particle radius r; the spacing is 2r and the kernel support 4r", unit="m", gt=0)
     domain: Box = key(doc="the domain box")
     fluid_blocks: Tuple[FluidBlock, ...] = key((), doc="boxes of fluid at t = 0")
+    fluid_meshes: Tuple[FluidMesh, ...] = key((), doc="closed meshes filled with fluid at t = 0")
     name: str = key("scene", doc="the scene's name (USD prim and log lines)")
     fluid: Fluid = key(Fluid(), doc="the fluid's material")
     gravity: Vec3 = key((0.0, -9.81, 0.0), doc="gravity", unit="m/s^2")
@@ -317,8 +332,8 @@ class Scene:
         return min(dt_min, dt_max), dt_max
 
     def validate(self, file, key):
-        if not self.fluid_blocks and not self.emitters:
-            raise SceneError(file, "fluid_blocks", "the scene has no fluid: give at least one block or emitter")
+        if not self.fluid_blocks and not self.fluid_meshes and not self.emitters:
+            raise SceneError(file, "fluid_blocks", "the scene has no fluid: give at least one block, mesh or emitter")
         for n, e in enumerate(self.emitters):
             if any(s < a - 1e-9 or t > b + 1e-9 for s, t, a, b in zip(e.min, e.max, self.domain.min, self.domain.max)):
                 raise SceneError(file, f"emitters[{n}]", f"box {list(e.min)}..{list(e.max)} lies outside the domain")
@@ -336,12 +351,14 @@ class Scene:
             if kinds.index(kind) != n:
                 raise SceneError(file, f"models[{n}]", "this model is already enabled")
         base = Path(file).parent if file else Path(".")
-        for n, obstacle in enumerate(self.obstacles):
-            path = base / obstacle.mesh
-            if not path.is_file():
-                raise SceneError(path, f"obstacles[{n}].mesh", "mesh file not found")
+        for where, items in (("obstacles", self.obstacles), ("fluid_meshes", self.fluid_meshes)):
+            for n, item in enumerate(items):
+                path = base / item.mesh
+                if not path.is_file():
+                    raise SceneError(path, f"{where}[{n}].mesh", "mesh file not found")
 
-    def mesh_path(self, obstacle: Obstacle) -> Path:
+    def mesh_path(self, obstacle) -> Path:
+        """An obstacle's or fluid mesh's file, relative to the scene file."""
         base = Path(self.source).parent if self.source else Path(".")
         return base / obstacle.mesh
 
@@ -586,12 +603,13 @@ def scene_json_schema() -> dict:
     return out
 
 
-def load_scene(path, scale: float = 1.0) -> Scene:
+def load_scene(path, scale: float = 1.0, run_anyway=None) -> Scene:
     """Reads and validates a scene file.
 
     ``scale`` multiplies the particle count: the particle radius is divided by
     ``scale ** (1/3)``, so ``scale=0.01`` runs a 1 % version of the scene and the
-    scene file keeps the paper's full-size radius.
+    scene file keeps the paper's full-size radius. ``run_anyway``: a SPlisHSPlasH scene
+    runs without the physics warpsph refuses (see :mod:`warpsph.io.splishsplash`).
     """
     path = Path(path)
     if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
@@ -611,7 +629,7 @@ def load_scene(path, scale: float = 1.0) -> Scene:
     from .io.splishsplash import convert, is_splishsplash
 
     if is_splishsplash(data):  # a SPlisHSPlasH scene file
-        data = convert(data, path)
+        data = convert(data, path, run_anyway=run_anyway)
     scene = parse_dataclass(Scene, data, path)
     return rescale(dataclasses.replace(scene, source=str(path)), scale)
 

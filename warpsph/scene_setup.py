@@ -1,8 +1,9 @@
 """From a scene to its initial particles, on the host before anything is allocated: particle counts, the
-fluid blocks and boundary samples, and the fluid that the blocks put inside bodies removed."""
+fluid blocks and meshes and boundary samples, and the fluid that they put inside bodies removed."""
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
@@ -25,10 +26,41 @@ WALL_OFFSET = 1.2
 MAX_PARTICLES = 50_000_000
 
 
+@functools.lru_cache(maxsize=16)
+def _filled_mesh(path, stamp, scale, axis, angle, translation, spacing):
+    mesh = sampling.load_mesh(path)
+    if not mesh.is_watertight:
+        return None
+    local = sampling.fill_mesh(np.asarray(mesh.vertices) * np.asarray(scale), mesh.faces, spacing)
+    points = (local @ sampling.rotation_matrix(axis, angle).T + np.asarray(translation)).astype(np.float32)
+    points.flags.writeable = False
+    return points
+
+
+def fluid_mesh_points(scene: Scene, n: int):
+    """The fluid particles of ``scene.fluid_meshes[n]`` (world space, float32): the closed mesh filled
+    on the lattice of spacing 2r (``sampling.fill_mesh``), then rotated and translated. An open mesh, or
+    fluid outside the domain, is a :class:`SceneError` naming the key."""
+    m = scene.fluid_meshes[n]
+    path = scene.mesh_path(m)
+    stamp = path.stat().st_mtime_ns if path.is_file() else None
+    points = _filled_mesh(str(path), stamp, tuple(m.scale), tuple(m.rotation_axis), m.rotation_angle,
+                          tuple(m.translation), scene.particle_diameter)
+    if points is None:
+        raise SceneError(path, f"fluid_meshes[{n}].mesh", "the mesh is not closed (watertight): it has no inside to fill")
+    lo, hi = np.asarray(scene.domain.min), np.asarray(scene.domain.max)
+    if len(points) and (np.any(points.min(axis=0) < lo - 1e-9) or np.any(points.max(axis=0) > hi + 1e-9)):
+        raise SceneError(scene.source, f"fluid_meshes[{n}]", f"the filled mesh reaches {points.min(axis=0).tolist()}.."
+                                                              f"{points.max(axis=0).tolist()}, outside the domain "
+                                                              f"{list(lo)}..{list(hi)}")
+    return points
+
+
 def count_particles(scene: Scene):
-    """Fluid and domain-wall particle counts, computed before anything is sampled."""
+    """Fluid and domain-wall particle counts, computed before anything is sampled (fluid meshes are filled)."""
     d = scene.particle_diameter
     fluid = sum(int(np.prod(np.floor((np.subtract(b.end, b.start)) / d + 1e-6))) for b in scene.fluid_blocks)
+    fluid += sum(len(fluid_mesh_points(scene, n)) for n in range(len(scene.fluid_meshes)))
     ext = np.subtract(scene.domain.max, scene.domain.min) + 2 * WALL_OFFSET * scene.particle_radius
     walls = int(2 * (ext[0] * ext[1] + ext[1] * ext[2] + ext[0] * ext[2]) / d**2) if scene.domain.walls else 0
     return fluid, walls
@@ -44,12 +76,15 @@ def sample_scene(scene: Scene):
                          f"{MAX_PARTICLES:,} limit: use a larger radius or a smaller --scale")
     if fluid == 0 and not any(e.start == 0.0 for e in scene.emitters):
         raise SceneError(scene.source, "fluid_blocks", "no fluid at t = 0: every block is thinner than one particle "
-                                                       "spacing (or missing) and no emitter starts at 0")
+                                                       "spacing, every fluid mesh holds no lattice point (or they are "
+                                                       "missing) and no emitter starts at 0")
     d = scene.particle_diameter
+    sources = list(scene.fluid_blocks) + list(scene.fluid_meshes)
     blocks = [sampling.fill_block(b.start, b.end, d) for b in scene.fluid_blocks]
+    blocks += [fluid_mesh_points(scene, n) for n in range(len(scene.fluid_meshes))]
     fluid_x = np.concatenate(blocks) if blocks else np.zeros((0, 3), np.float32)
     fluid_v = np.concatenate([np.tile(np.asarray(b.velocity, np.float32), (len(p), 1))
-                              for b, p in zip(scene.fluid_blocks, blocks)]) if blocks else np.zeros((0, 3), np.float32)
+                              for b, p in zip(sources, blocks)]) if blocks else np.zeros((0, 3), np.float32)
     # walls stand off 1.2 r from the faces; along periodic axes they span the domain exactly
     offset = np.where(np.asarray(scene.domain.period) > 0, 0.0, WALL_OFFSET * scene.particle_radius)
     bodies = [sampling.sample_box_walls(np.asarray(scene.domain.min) - offset, np.asarray(scene.domain.max) + offset, d,

@@ -25,7 +25,9 @@ gives the :class:`Conversion` of a loaded scene (``refused`` is what the run lea
 
 Fluid blocks are filled by SPlisHSPlasH's rule (``sampling.splishsplash_block``): a denseMode 0
 block becomes the warpsph block whose lattice is exactly SPlisHSPlasH's (DamBreakModel: 6859
-particles, as SPlisHSPlasH prints); denseMode 1 and 2 (staggered lattices) are refused.
+particles, as SPlisHSPlasH prints); denseMode 1 and 2 (staggered lattices) are refused. A FluidModels
+entry with an OBJ/PLY mesh becomes a warpsph fluid mesh filled on SPlisHSPlasH's lattice (the scaled
+mesh's bounding box corner plus r, spacing 2r, then rotated and translated); particle files are refused.
 """
 
 from __future__ import annotations
@@ -88,6 +90,8 @@ MATERIAL_EMITTER = {"maxEmitterParticles", "emitterReuseParticles", "emitterBoxM
 
 BLOCK_KEYS = {"id", "start", "end", "translation", "scale", "denseMode", "initialVelocity", "initialAngularVelocity",
               "visMesh"}
+MODEL_KEYS = {"id", "particleFile", "translation", "scale", "rotationAxis", "rotationAngle", "denseMode", "invert",
+              "resolutionSDF", "initialVelocity", "initialAngularVelocity", "visMesh"}
 EMITTER_KEYS = {"id", "width", "height", "translation", "velocity", "rotationAxis", "rotationAngle", "emitStartTime",
                 "emitEndTime", "type"}
 BODY_READ = {"geometryFile", "particleFile", "translation", "scale", "rotationAxis", "rotationAngle", "isDynamic",
@@ -218,18 +222,14 @@ class _Reader:
         phases = self.phases()
         self.materials(phases)
         self.fluid_blocks()
+        self.fluid_models()
         self.bodies()
         self.emitters()
         if "domain" not in scene:
             self.open_domain()
-        for key in ("FluidModels", "AnimationFields"):
-            if d.get(key):
-                n = len(d[key])
-                what = ("fluid read from particle files or filled into meshes: warpsph fills only fluid blocks, "
-                        f"so these {n} bodies of fluid would be missing") if key == "FluidModels" else (
-                        f"{n} fields that set the particles' velocity (or other quantities) by expressions over time: "
-                        "the fluid would not be driven")
-                self.refuse(key, what)
+        if d.get("AnimationFields"):
+            self.refuse("AnimationFields", f"{len(d['AnimationFields'])} fields that set the particles' velocity (or "
+                                           "other quantities) by expressions over time: the fluid would not be driven")
         joints = [k for k in d if "Joint" in k]
         for k in joints:
             self.refuse(k, f"{len(d[k]) if isinstance(d[k], list) else ''} joints between rigid bodies (PositionBasedDynamics): "
@@ -519,6 +519,55 @@ class _Reader:
         self.block_particles = total
 
     # ---------------------------------------------------------------------------------------------
+    def fluid_models(self):
+        """FluidModels: a closed OBJ/PLY mesh becomes a warpsph fluid mesh (SimulatorBase::createFluidModels
+        samples it with VolumeSampling::sampleMesh: the mesh scaled, the lattice of spacing 2r from its bounding
+        box's lower corner plus r, kept inside; then rotated and translated). Particle files are refused."""
+        meshes = []
+        for n, m in enumerate(self.data.get("FluidModels") or []):
+            key = f"FluidModels[{n}]"
+            if not isinstance(m, dict):
+                raise SceneError(self.file, key, f"expected an object, got {json.dumps(m)}")
+            if m.get("id", "Fluid") != self.phase:
+                continue  # the refused extra phase
+            name = str(m.get("particleFile", ""))
+            if Path(name).suffix.lower() not in (".obj", ".ply"):
+                self.refuse(f"{key}.particleFile", f"{name!r}: fluid read from a particle file (partio), which "
+                                                   "warpsph does not read; this body of fluid would be missing")
+                continue
+            mode = m.get("denseMode", 0)
+            if mode not in (0, 1, 2):
+                raise SceneError(self.file, f"{key}.denseMode", f"expected 0, 1 or 2, got {json.dumps(mode)}")
+            if mode != 0:
+                self.refuse(f"{key}.denseMode", f"{mode} (a staggered, denser lattice): warpsph fills meshes on the "
+                                                "cubic lattice (denseMode 0); run anyway, the cubic lattice")
+            if m.get("invert"):
+                self.refuse(f"{key}.invert", "fluid filling the mesh's bounding box outside the mesh: warpsph fills "
+                                             "the inside; run anyway, the inside")
+            mesh = {"mesh": name,
+                    "translation": list(_vec(m.get("translation"), [0, 0, 0], self.file, f"{key}.translation")),
+                    "scale": list(_vec(m.get("scale"), [1, 1, 1], self.file, f"{key}.scale")),
+                    "rotation_axis": list(_vec(m.get("rotationAxis"), [1, 0, 0], self.file, f"{key}.rotationAxis")),
+                    "rotation_angle": float(_num(m.get("rotationAngle"), 0.0))}
+            self.mapped(f"{key}.particleFile/translation/scale/rotationAxis/rotationAngle", f"fluid_meshes[{len(meshes)}]",
+                        f"{name} filled at spacing 2r")
+            if "initialVelocity" in m:
+                mesh["velocity"] = list(_vec(m["initialVelocity"], [0, 0, 0], self.file, f"{key}.initialVelocity"))
+                self.mapped(f"{key}.initialVelocity", f"fluid_meshes[{len(meshes)}].velocity", mesh["velocity"])
+            omega = _vec(m.get("initialAngularVelocity"), [0, 0, 0], self.file, f"{key}.initialAngularVelocity")
+            if np.any(omega != 0):
+                self.refuse(f"{key}.initialAngularVelocity", f"{omega.tolist()}: the fluid would start spinning; "
+                                                             "warpsph fluid meshes start with one velocity")
+            self.note(f"{key}: SPlisHSPlasH keeps the lattice points where a signed distance field of resolution "
+                      f"{m.get('resolutionSDF', [20, 20, 20])} is negative; warpsph tests each point against the mesh "
+                      "itself (points within the field's error of the surface may differ)")
+            self.no_effect(key, [k for k in m if k == "visMesh"], "meshes for rendering")
+            self.no_effect(key, [k for k in m if k not in MODEL_KEYS], "not read by SPlisHSPlasH either")
+            meshes.append(mesh)
+        if meshes:
+            self.c.scene["fluid_meshes"] = meshes
+
+    # ---------------------------------------------------------------------------------------------
     def bodies(self):
         obstacles, domain = [], None
         for n, body in enumerate(self.data.get("RigidBodies") or []):
@@ -589,9 +638,11 @@ class _Reader:
             corners += [block["start"], block["end"]]
         for e in scene.get("emitters", []):
             corners += [e["min"], e["max"]]
-        for o in scene.get("obstacles", []):
+        placed = [("RigidBodies", o) for o in scene.get("obstacles", [])]
+        placed += [("FluidModels", m) for m in scene.get("fluid_meshes", [])]
+        for where, o in placed:
             lo, hi = _box_bounds({"geometryFile": o["mesh"], "scale": [1, 1, 1], "translation": [0, 0, 0]},
-                                 self.base, self.file, "RigidBodies")
+                                 self.base, self.file, where)
             box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
             from ..sampling import rotation_matrix
 
@@ -686,7 +737,7 @@ def translate(data, file) -> Conversion:
     """The :class:`Conversion` of a SPlisHSPlasH scene dict (raises nothing for refused keys)."""
     reader = _Reader(data, file)
     conversion = reader.run()
-    if not conversion.scene.get("fluid_blocks") and not conversion.scene.get("emitters"):
+    if not any(conversion.scene.get(k) for k in ("fluid_blocks", "fluid_meshes", "emitters")):
         if not any("FluidModels" in r for r in conversion.refused):
             conversion.refused.append("FluidBlocks: no fluid block holds a particle by SPlisHSPlasH's rule")
     conversion.splishsplash_particles = None if data.get("FluidModels") else reader.block_particles
