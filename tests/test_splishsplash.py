@@ -311,6 +311,35 @@ def test_run_anyway_argument_and_no_container_is_an_open_domain(scenes):
     assert not scene.domain.walls
 
 
+@pytest.mark.parametrize("clips", [False, True])
+def test_run_anyway_flag_records_what_is_left_out(scenes, tmp_path, capsys, clips):
+    """warpsph run refuses a scene with physics it does not simulate, naming the key; with --run-anyway it runs,
+    prints the list and records it in the cache's metadata and beside the stats CSV (which stays plain CSV)."""
+    from pxr import Sdf
+
+    from warpsph.cli import main
+    from warpsph.diagnostics import read_csv, read_metadata
+
+    path = write(scenes, edited(Materials__0__surfaceTensionMethod=2, Configuration__stopAt=0.04))
+    out = tmp_path / "run.usdc"
+    args = ["run", str(path), "--device", "cpu", "--out", str(out), "--scale", "0.3"] + (["--clips"] if clips else [])
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "Materials[0].surfaceTensionMethod: 2 (Akinci et al. 2013): surface tension" in err and not out.exists()
+    assert main(args + ["--run-anyway"]) == 0
+    err = capsys.readouterr().err
+    assert "RUN ANYWAY, left out: Materials[0].surfaceTensionMethod" in err and "warpsph:import_dropped" in err
+    (item,) = Sdf.Layer.OpenAsAnonymous(str(out)).customLayerData["warpsph:import_dropped"]
+    assert item.startswith("Materials[0].surfaceTensionMethod: 2 (Akinci et al. 2013): surface tension")
+    assert read_metadata(out.with_suffix(".stats.csv")) == {"warpsph:import_dropped": [item]}
+    assert list(read_csv(out.with_suffix(".stats.csv"))["frame"]) == [0, 1]
+    # an ordinary run over it: no list, and the old one is gone
+    assert main(["run", str(write(scenes, DAM_BREAK)), "--device", "cpu", "--out", str(out), "--scale", "0.3",
+                 "--frames", "1", "--overwrite"] + (["--clips"] if clips else [])) == 0
+    assert "warpsph:import_dropped" not in Sdf.Layer.OpenAsAnonymous(str(out)).customLayerData
+    assert read_metadata(out.with_suffix(".stats.csv")) == {}
+
+
 def test_every_key_is_accounted_for(scenes):
     """Nothing is dropped silently: each key of the file is mapped, refused or noted."""
     data = copy.deepcopy(DAM_BREAK)

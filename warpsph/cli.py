@@ -145,7 +145,7 @@ def _rich_bar():
                console=Console(file=sys.stderr))
 
 
-CLIP_FILE = re.compile(r"frame\.\d{6}\.usdc|boundary\.npz|bodies\.npz")
+CLIP_FILE = re.compile(r"frame\.\d{6}\.usdc|boundary\.npz|bodies\.npz|surface\.json|metadata\.json")
 
 
 class Outputs:
@@ -160,11 +160,13 @@ class Outputs:
         self.clips = self.out.with_name(self.out.stem + ".clips")
         self.stitched = [self.out.with_name(f"{self.out.stem}.{kind}{self.out.suffix}") for kind in ("topology", "manifest")]
         self.stats = self.out.with_suffix(".stats.csv")
+        self.stats_meta = self.out.with_suffix(".stats.meta.json")
         self.checkpoint = self.out.with_suffix(".checkpoint.h5")
         self.particles = self.out.with_suffix(".particles.h5")
 
     def existing(self):
-        return [p for p in (self.out, self.partial, self.clips, *self.stitched, self.stats, self.checkpoint, self.particles)
+        return [p for p in (self.out, self.partial, self.clips, *self.stitched, self.stats, self.stats_meta, self.checkpoint,
+                            self.particles)
                 if p.exists() or p.is_symlink()]
 
     def check(self):
@@ -185,7 +187,7 @@ class Outputs:
 
     def owned(self, path):
         """Whether warpsph wrote ``path`` (so that --overwrite may replace it)."""
-        from .diagnostics import is_stats_csv
+        from .diagnostics import is_metadata, is_stats_csv
         from .io.particles_h5 import is_particles_h5
 
         if path.is_symlink():
@@ -196,6 +198,8 @@ class Outputs:
             return False
         if path == self.stats:
             return is_stats_csv(path)
+        if path == self.stats_meta:
+            return is_metadata(path)
         if path == self.particles:
             return is_particles_h5(path)
         if path == self.checkpoint:
@@ -291,22 +295,23 @@ def _simulate(sim, outputs, frames, args, options, append):
     from .diagnostics import DiagnosticsWriter
     from .io.checkpoint import save_checkpoint
     from .io.frames import FrameWriter, WriterFailed, parse_fields
-    from .io.usd import UsdClipCache, UsdPointCache, body_meshes, write_host_frame
+    from .io.usd import UsdClipCache, UsdPointCache, body_meshes, run_metadata, write_host_frame
 
     scene = sim.scene
     fields = parse_fields(options.get("fields") or None, sim)
     static = sim.num_boundary if sim.moving_bodies is None else sim.moving_bodies.first_sample
     boundary = None if append is not None else sim.boundary.x.numpy()[:static]
     meshes = None if append is not None else body_meshes(sim)
+    metadata = None if append is not None else run_metadata(scene)  # a resumed run keeps its first part's
     if options.get("clips"):
         cache = UsdClipCache(outputs.out, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
-                             boundary_radius=scene.particle_radius, append=append, bodies=meshes)
+                             boundary_radius=scene.particle_radius, append=append, bodies=meshes, metadata=metadata)
     else:
         if append is not None and outputs.out.exists():
             os.replace(outputs.out, outputs.partial)
         cache = UsdPointCache(outputs.partial, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
-                              boundary_radius=scene.particle_radius, append=append, bodies=meshes)
-    diagnostics = DiagnosticsWriter(outputs.stats, append=append)
+                              boundary_radius=scene.particle_radius, append=append, bodies=meshes, metadata=metadata)
+    diagnostics = DiagnosticsWriter(outputs.stats, append=append, metadata=metadata)
     particles = None
     if options.get("particles_h5"):
         from .io.particles_h5 import ParticleFrames
@@ -462,6 +467,9 @@ def _simulate(sim, outputs, frames, args, options, append):
                 f"({steps / max(loop_wall, 1e-9):.1f} steps/s); mean iterations: divergence "
                 f"{stats['divergence_iterations']:.2f}, density {stats['density_iterations']:.2f}; wrote {outputs.out} "
                 f"and {outputs.stats.name}")
+    if metadata:
+        logger.warning(f"run anyway: {len(metadata['warpsph:import_dropped'])} part(s) of the SPlisHSPlasH scene left out, "
+                       f"listed in the cache's metadata warpsph:import_dropped and in {outputs.stats_meta.name}")
     if stats["removed_in_sinks"] or stats["removed_outside"]:
         logger.info(f"removed: {stats['removed_in_sinks']} particles in sinks, {stats['removed_outside']} that left "
                     f"the open domain; {sim.num_fluid} remain")
@@ -592,7 +600,7 @@ def run_command(args):
                "surface_every": args.surface_every, "surface_behind": args.surface_behind,
                "surface_method": args.surface_method}
     _surface_options(surface)  # a bad value or no pysplashsurf: refused before anything is written
-    scene = load_scene(args.scene, scale=args.scale)
+    scene = load_scene(args.scene, scale=args.scale, run_anyway=True if args.run_anyway else None)
     frames = scene.output.frames if args.frames is None else args.frames
     outputs = Outputs(args.out or f"out/{scene.name}.usdc")
     outputs.check()
@@ -769,6 +777,9 @@ def build_parser():
                           "scene's fields (density, vorticity, vorticity_magnitude, angular_velocity, ...); default all. "
                           "ids and widths get a time sample only when they change (particles are written in id order)")
     run.add_argument("--dry-run", action="store_true", help="print particle counts and the memory estimate, run nothing")
+    run.add_argument("--run-anyway", action="store_true",
+                     help="a SPlisHSPlasH scene: run without the physics warpsph refuses (the list is printed and recorded "
+                          "in the cache's metadata warpsph:import_dropped and in OUT.stats.meta.json)")
     run.add_argument("--surface", action="store_true",
                      help="also write the fluid's surface mesh /World/FluidSurface every frame (splashsurf, in the "
                           "background writer; needs pip install 'warpsph[surface]')")

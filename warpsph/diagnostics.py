@@ -1,12 +1,15 @@
 """Per-frame diagnostics: energies, enstrophy, density error, solver iterations.
 
 Computed at output frames only, never inside a step: reduced on the device, a few numbers read. Written as CSV beside
-the USD cache by the CLI, and plotted by ``tools/plot_energy.py`` (like Fig 7 of the VR paper).
+the USD cache by the CLI, and plotted by ``tools/plot_energy.py`` (like Fig 7 of the VR paper). The run's metadata
+(``warpsph:import_dropped``: what a SPlisHSPlasH scene run anyway leaves out) goes into a JSON sidecar, OUT.stats.meta.json,
+so the CSV stays plain for every reader.
 """
 
 from __future__ import annotations
 
 import csv
+import json
 from pathlib import Path
 
 import numpy as np
@@ -103,11 +106,13 @@ class DiagnosticsWriter:
     ``append``: continue the file after frame ``append`` (rows of later frames, from a run resumed
     before, are dropped: each frame once)."""
 
-    def __init__(self, path, append=None):
+    def __init__(self, path, append=None, metadata=None):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.diagnostics = Diagnostics()
         append = append is not None and self.path.exists() and _keep_rows(self.path, append)
+        if not append:
+            write_metadata(self.path, metadata)
         self._file = open(self.path, "a" if append else "w", newline="")
         self._csv = csv.DictWriter(self._file, fieldnames=COLUMNS)
         if not append:
@@ -154,6 +159,34 @@ def is_stats_csv(path):
             return f.readline().strip().startswith(",".join(COLUMNS[:3]) + ",")
     except (OSError, UnicodeDecodeError):
         return False
+
+
+def metadata_path(path):
+    """The JSON sidecar of a diagnostics CSV (OUT.stats.csv -> OUT.stats.meta.json)."""
+    return Path(path).with_suffix(".meta.json")
+
+
+def write_metadata(path, metadata):
+    """Writes the run's ``metadata`` (a dict) beside the CSV ``path``; none: removes an earlier run's sidecar."""
+    side = metadata_path(path)
+    if metadata:
+        side.write_text(json.dumps({"generator": "warpsph", **metadata}, indent=1) + "\n")
+    elif is_metadata(side):
+        side.unlink()
+
+
+def is_metadata(path):
+    """Whether ``path`` is a metadata sidecar that warpsph wrote."""
+    try:
+        return Path(path).is_file() and json.loads(Path(path).read_text()).get("generator") == "warpsph"
+    except (OSError, ValueError, UnicodeDecodeError, AttributeError):
+        return False
+
+
+def read_metadata(path):
+    """The metadata of the run whose diagnostics CSV is ``path`` ({} when it has none)."""
+    side = metadata_path(path)
+    return {k: v for k, v in json.loads(side.read_text()).items() if k != "generator"} if side.is_file() else {}
 
 
 def read_csv(path):

@@ -136,6 +136,13 @@ def conversion_of(scene):
     return _CONVERSIONS.get(str(source)) if source is not None else None
 
 
+def dropped(scene) -> list:
+    """What a SPlisHSPlasH scene run anyway leaves out, each "key: what it would have changed" (the run's
+    metadata: the USD cache's ``warpsph:import_dropped``, OUT.stats.meta.json); [] for other scenes."""
+    conversion = conversion_of(scene)
+    return list(conversion.refused) if conversion is not None and conversion.run_anyway else []
+
+
 def is_splishsplash(data) -> bool:
     return isinstance(data, dict) and "Configuration" in data
 

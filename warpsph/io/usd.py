@@ -15,7 +15,8 @@ Layout of the stage (``metersPerUnit`` = 1, ``upAxis`` from the scene,
   background (``--surface-every K``, frames skipped by ``--surface-behind skip``), a frame
   without its own sample holds the last mesh before it (USD holds arrays of a different length;
   value clips interpolate missing values), and the layer's customLayerData ``warpsph:surface``
-  says how it was meshed and which frames were skipped;
+  says how it was meshed and which frames were skipped; a SPlisHSPlasH scene run anyway has
+  ``warpsph:import_dropped`` there, the physics the run leaves out (:func:`run_metadata`);
 - ``/World/Boundary`` (Points, purpose ``guide``): the static boundary samples, written
   once without time samples;
 - ``/World/Bodies/NAME`` (Mesh), one per obstacle, in metres: a static body in world space; a
@@ -41,6 +42,23 @@ from pxr import Gf, Sdf, Usd, UsdGeom, UsdUtils, Vt
 
 _PRIMVAR_TYPES = {1: Sdf.ValueTypeNames.FloatArray, 3: Sdf.ValueTypeNames.Float3Array}
 GENERATOR = "warpsph"  # customLayerData["generator"] of every layer warpsph writes: --overwrite replaces only these
+IMPORT_DROPPED = "warpsph:import_dropped"
+
+
+def run_metadata(scene) -> dict:
+    """The customLayerData a run's cache records about its scene: ``warpsph:import_dropped``, each part
+    of a SPlisHSPlasH scene run anyway that the run leaves out ("key: what it would have changed"),
+    when there is one."""
+    from .splishsplash import dropped
+
+    items = dropped(scene)
+    return {IMPORT_DROPPED: items} if items else {}
+
+
+def _note_metadata(layer, metadata):
+    if metadata:
+        values = {k: Vt.StringArray(list(v)) if isinstance(v, (list, tuple)) else v for k, v in metadata.items()}
+        layer.customLayerData = {**layer.customLayerData, **values}
 
 
 def _mark(layer):
@@ -178,7 +196,8 @@ class UsdPointCache:
     ``append=K`` reopens an existing cache to continue it after frame K (later frames, from a run
     resumed before, are dropped: each frame once)."""
 
-    def __init__(self, path, fps, up_axis="Y", boundary_points=None, boundary_radius=None, append=None, bodies=None):
+    def __init__(self, path, fps, up_axis="Y", boundary_points=None, boundary_radius=None, append=None, bodies=None,
+                 metadata=None):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.frames = 0
@@ -198,6 +217,7 @@ class UsdPointCache:
             self.path.unlink()
         self.stage = Usd.Stage.CreateNew(str(self.path))
         _mark(self.stage.GetRootLayer())
+        _note_metadata(self.stage.GetRootLayer(), metadata)
         _set_stage_metadata(self.stage, fps, up_axis)
         self.stage.SetStartTimeCode(0)
         self.stage.SetEndTimeCode(0)
@@ -258,10 +278,11 @@ class UsdClipCache:
     Memory does not grow with the number of frames: each frame's stage is written and
     released. The top-level file is made when the run ends or stops; the frame layers of a
     crashed run stay readable on their own. ``append=K`` continues after frame K (later frame
-    layers are dropped)."""
+    layers are dropped). ``metadata`` (customLayerData of the top-level file) waits in
+    OUT.clips/metadata.json."""
 
     def __init__(self, final_path, fps, up_axis="Y", boundary_points=None, boundary_radius=None, append=None,
-                 bodies=None):
+                 bodies=None, metadata=None):
         self.final = Path(final_path)
         self.dir = self.final.with_name(self.final.stem + ".clips")
         self.dir.mkdir(parents=True, exist_ok=True)
@@ -273,6 +294,11 @@ class UsdClipCache:
         self.boundary_file = self.dir / "boundary.npz"
         if boundary_points is not None:
             np.savez(self.boundary_file, points=np.asarray(boundary_points), radius=boundary_radius)
+        self.metadata_file = self.dir / "metadata.json"
+        if metadata:
+            import json
+
+            self.metadata_file.write_text(json.dumps(metadata))
         self.bodies_file = self.dir / "bodies.npz"
         if bodies:
             arrays = {}
@@ -346,6 +372,10 @@ class UsdClipCache:
             import json
 
             _note_surface(layer, json.loads(note.read_text()))
+        if self.metadata_file.exists():
+            import json
+
+            _note_metadata(layer, json.loads(self.metadata_file.read_text()))
         stage = Usd.Stage.Open(layer)
         _set_stage_metadata(stage, self.fps, self.up_axis)
         stage.SetDefaultPrim(stage.GetPrimAtPath("/World"))
@@ -449,7 +479,7 @@ class UsdWriter:
         boundary = sim.boundary.x.numpy()[:static]
         kind = UsdClipCache if clips else UsdPointCache
         self.cache = kind(self.path, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
-                          boundary_radius=scene.particle_radius, bodies=body_meshes(sim))
+                          boundary_radius=scene.particle_radius, bodies=body_meshes(sim), metadata=run_metadata(scene))
         self._on_frame = frame_writer(self.cache, list(fields) if fields is not None else None)
         self.closed = False
 
