@@ -367,7 +367,7 @@ def test_a_run_meshes_in_a_worker_process_of_its_own(method):
     r = 0.02
     x = lattice_sphere(r, 0.3).astype(np.float32)
     options = SurfaceOptions(method=method)
-    mesher = mesher_for(options, r)
+    mesher = mesher_for(options, r, workers=2)
     try:
         mesh = mesher({"x": x, "v": np.zeros_like(x)})
     finally:
@@ -376,6 +376,29 @@ def test_a_run_meshes_in_a_worker_process_of_its_own(method):
     here = mesh_frame(x, r, np.zeros_like(x), None, options)
     assert len(mesh.faces) > 100 and np.array_equal(mesh.faces, here.faces)
     np.testing.assert_allclose(mesh.points, here.points, atol=1e-6)
+
+
+def test_a_mesh_function_with_two_workers_meshes_two_frames_at_once():
+    """Meshing one 1M-particle frame takes longer than simulating one: the background mesher keeps as many
+    frames in flight as its mesh function has workers (both calls below must run together to pass the barrier)."""
+    import threading
+
+    from warpsph.surface import BackgroundMesher, SurfaceMesh
+
+    class TwoWorkers:
+        workers = 2
+        barrier = threading.Barrier(2, timeout=20)
+
+        def __call__(self, arrays):
+            self.barrier.wait()
+            mesh = SurfaceMesh.empty(False)
+            mesh.seconds = 0.0
+            return mesh
+
+    mesher = BackgroundMesher(TwoWorkers(), depth=2)
+    assert mesher.submit(0, {"x": np.zeros((1, 3), np.float32)}) and mesher.submit(1, {"x": np.zeros((1, 3), np.float32)})
+    done = sorted(frame for frame, _ in mesher.close())
+    assert done == [0, 1] and mesher.error is None
 
 
 def test_surface_command_with_the_preview_method(tmp_path, monkeypatch):
