@@ -721,16 +721,9 @@ def schema_command(args):
 
 
 def sweep_command(args):
-    from .sweep import run_sweep
+    from .sweep import executor_arguments, run_sweep
 
-    devices = args.devices
-    if devices and devices != "auto":
-        devices = [_pick_device(d.strip()) for d in devices.split(",") if d.strip()]
-    elif devices == "auto":
-        devices = [_pick_device("auto")]
-    table = run_sweep(args.sweep, args.out, executor=args.executor, workers=args.workers, devices=devices,
-                      address=args.address, num_gpus=args.num_gpus, num_cpus=args.num_cpus,
-                      max_retries=args.max_retries)
+    table = run_sweep(args.sweep, args.out, **executor_arguments(args))
     print((Path(args.out) / "table.md").read_text(), end="")
     if args.plot:
         from .plots import sweep_figures
@@ -847,17 +840,9 @@ def build_parser():
                                                            "file), axes, measures (see warpsph/sweep.py)")
     sweep.add_argument("--out", required=True, metavar="DIR", help="output folder (cells/, table.json, table.md); "
                                                                    "running again skips the finished cells")
-    sweep.add_argument("--executor", choices=["local", "ray"], default="local",
-                       help="local (a process per cell, no extra dependency) or ray (pip install 'warpsph[ray]')")
-    sweep.add_argument("--workers", type=int, default=1, help="local: cells at once (default 1)")
-    sweep.add_argument("--devices", metavar="D[,D...]",
-                       help="local: devices given to the worker slots in turn, e.g. cuda:0,cuda:1 or auto "
-                            "(default: the sweep file's device, else cpu)")
-    sweep.add_argument("--address", help="ray: the cluster to join (e.g. auto or ray://host:10001); default a local instance")
-    sweep.add_argument("--num-gpus", type=float, default=0.0,
-                       help="ray: GPUs per cell (0.25 packs four cells on a GPU; 0: CPU cells, default)")
-    sweep.add_argument("--num-cpus", type=float, default=1.0, help="ray: CPUs per cell (default 1)")
-    sweep.add_argument("--max-retries", type=int, default=3, help="ray: retries of a cell lost with its worker (default 3)")
+    from .sweep import add_executor_arguments
+
+    add_executor_arguments(sweep, default_devices="the sweep file's device, else cpu")
     sweep.add_argument("--plot", action="store_true", help="also DIR/table.pareto.png (with a time and an error "
                                                            "measure) and DIR/table.heat_map.png (needs matplotlib)")
     sweep.set_defaults(func=sweep_command)

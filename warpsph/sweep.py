@@ -904,18 +904,20 @@ def _ray(todo, address, num_gpus, num_cpus, max_retries, on_record, progress, in
             on_record(cell, record)
 
 
-def add_executor_arguments(parser):
-    """The executor options of a study run as a sweep (``warpsph pareto``, ``warpsph stress``)."""
+def add_executor_arguments(parser, default_devices="--device"):
+    """The executor options of a sweep (``warpsph sweep``) and of a study run as one (``warpsph pareto``,
+    ``warpsph stress``); ``default_devices`` says what --devices defaults to."""
     parser.add_argument("--executor", choices=["local", "ray"], default="local",
-                        help="local (a process per cell, default) or ray (pip install 'warpsph[ray]')")
+                        help="local (a process per cell, no extra dependency; default) or ray (pip install 'warpsph[ray]')")
     parser.add_argument("--workers", type=int, default=1, help="local: cells at once (default 1)")
     parser.add_argument("--devices", metavar="D[,D...]",
-                        help="local: devices given to the worker slots in turn, e.g. cuda:0,cuda:0 packs two cells "
-                             "on one GPU (default: --device)")
-    parser.add_argument("--address", help="ray: the cluster to join (e.g. auto); default a local instance")
+                        help="local: devices given to the worker slots in turn, e.g. cuda:0,cuda:1, or cuda:0 with "
+                             f"--workers 4 to pack four cells on one GPU, or auto (default: {default_devices})")
+    parser.add_argument("--address", help="ray: the cluster to join (e.g. auto or ray://host:10001); default a local instance")
     parser.add_argument("--num-gpus", type=float, default=0.0,
                         help="ray: GPUs per cell (0.25 packs four cells on a GPU; 0: CPU cells, default)")
-    parser.add_argument("--max-retries", type=int, default=3, help="ray: retries of a cell lost with its worker")
+    parser.add_argument("--num-cpus", type=float, default=1.0, help="ray: CPUs per cell (default 1)")
+    parser.add_argument("--max-retries", type=int, default=3, help="ray: retries of a cell lost with its worker (default 3)")
 
 
 def executor_arguments(args):
@@ -929,7 +931,7 @@ def executor_arguments(args):
         raise SceneError("", "--max-retries", f"expected an integer >= 0, got {args.max_retries}")
     if not 0 <= args.num_gpus < math.inf:
         raise SceneError("", "--num-gpus", f"expected a number >= 0, got {args.num_gpus:g}")
-    devices = [args.device]
+    devices = [args.device] if getattr(args, "device", None) else None  # None: the sweep file's device
     if args.devices:
         try:
             devices = [_pick_device(d.strip()) for d in args.devices.split(",") if d.strip()]
@@ -937,8 +939,10 @@ def executor_arguments(args):
             raise SceneError("", "--devices", exc.reason) from None
         if not devices:
             raise SceneError("", "--devices", "expected at least one device")
+    if not 0 < args.num_cpus < math.inf:
+        raise SceneError("", "--num-cpus", f"expected a number > 0, got {args.num_cpus:g}")
     return {"executor": args.executor, "workers": args.workers, "devices": devices, "address": args.address,
-            "num_gpus": args.num_gpus, "max_retries": args.max_retries}
+            "num_gpus": args.num_gpus, "num_cpus": args.num_cpus, "max_retries": args.max_retries}
 
 
 def run_sweep(sweep, out, executor="local", workers=1, devices=None, address=None, num_gpus=None, num_cpus=1,

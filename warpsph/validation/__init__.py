@@ -20,4 +20,20 @@ The scripts tools/validate_*.py call the cases' ``main``.
 
 from .cases import CASES, validate
 
-__all__ = ["CASES", "validate"]
+__all__ = ["CASES", "validate", "study_main"]
+
+
+def study_main(doc, add_arguments, command, argv=None):
+    """A study's script entry point: its options (``add_arguments``), then ``command(args)``; a
+    :class:`~warpsph.errors.SceneError` naming an option becomes argparse's usage error."""
+    import argparse
+
+    from warpsph.errors import SceneError
+
+    parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return command(args)
+    except SceneError as exc:
+        parser.error(str(exc))

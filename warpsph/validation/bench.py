@@ -19,7 +19,6 @@ counted; and the pool's live bytes) and the mean solver iterations.
 
 from __future__ import annotations
 
-import argparse
 import gc
 import json
 import math
@@ -74,13 +73,9 @@ def check_arguments(args):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(parser)
-    args = parser.parse_args(argv)
-    try:
-        return command(args)
-    except SceneError as exc:
-        parser.error(str(exc))
+    from warpsph.validation import study_main
+
+    return study_main(__doc__, add_arguments, command, argv)
 
 
 def command(args):

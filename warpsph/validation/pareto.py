@@ -45,7 +45,6 @@ resolution up.
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import json
 import math
@@ -634,13 +633,9 @@ def add_arguments(parser):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(parser)
-    args = parser.parse_args(argv)
-    try:
-        return command(args)
-    except SceneError as exc:
-        parser.error(str(exc))
+    from warpsph.validation import study_main
+
+    return study_main(__doc__, add_arguments, command, argv)
 
 
 def check_arguments(args):

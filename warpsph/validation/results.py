@@ -9,7 +9,6 @@ Knows the validation reports (Taylor-Green, Lamb-Oseen, hydrostatic, Martin & Mo
 table.heat_map.png); other JSON files are skipped with a line saying so. Needs matplotlib.
 """
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -93,13 +92,9 @@ def command(args):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(parser)
-    args = parser.parse_args(argv)
-    try:
-        return command(args)
-    except SceneError as exc:
-        parser.error(str(exc))
+    from warpsph.validation import study_main
+
+    return study_main(__doc__, add_arguments, command, argv)
 
 
 if __name__ == "__main__":

@@ -32,7 +32,6 @@ Writes OUT.json, OUT.md (a table) and OUT.png (heat map; needs matplotlib; ``war
 draws it again).
 """
 
-import argparse
 import contextlib
 import json
 import tempfile
@@ -295,13 +294,9 @@ def check_arguments(args):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    add_arguments(parser)
-    args = parser.parse_args(argv)
-    try:
-        return command(args)
-    except SceneError as exc:
-        parser.error(str(exc))
+    from warpsph.validation import study_main
+
+    return study_main(__doc__, add_arguments, command, argv)
 
 
 def command(args):
