@@ -26,8 +26,8 @@ def compute_density_and_factor(
     (Bender & Koschier 2017; no squared boundary term, 0 when the denominator is tiny), and the divergence
     of position div r_i = -sum_f V_j x_ij . grad W_ij - sum_b V_b x_ib . grad W_ib (Lind et al. 2012; 3 in
     the bulk, about 2.2 on a flat free surface), which :func:`classify_free_surface` reads. The gradient
-    sum is also the gradient of the particle concentration that shifting reads (``concentration_gradient``
-    may be empty: shifting off)."""
+    sum is also the gradient of the particle concentration that shifting reads. ``factor``, ``position_divergence``
+    and ``concentration_gradient`` may be empty: the solver (IISPH) or shifting (off) does not read them."""
     i = wp.tid()
     xi = x[i]
     rho = fluid_volume * cubic_kernel_zero(support_radius)
@@ -49,11 +49,13 @@ def compute_density_and_factor(
         grad_sum += gb
         div_r -= wp.dot(x_ib, gb)
     density[i] = rest_density * rho
-    position_divergence[i] = div_r
+    if position_divergence.shape[0] > 0:
+        position_divergence[i] = div_r
     if concentration_gradient.shape[0] > 0:
         concentration_gradient[i] = grad_sum
-    denominator = wp.dot(grad_sum, grad_sum) + grad_sq
-    if denominator > 1.0e-6 / (support_radius * support_radius):
-        factor[i] = 1.0 / denominator
-    else:
-        factor[i] = 0.0
+    if factor.shape[0] > 0:
+        denominator = wp.dot(grad_sum, grad_sum) + grad_sq
+        if denominator > 1.0e-6 / (support_radius * support_radius):
+            factor[i] = 1.0 / denominator
+        else:
+            factor[i] = 0.0

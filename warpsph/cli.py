@@ -696,9 +696,10 @@ def validate_command(args):
 
     case, resolutions, out = check_arguments(args.case, args.resolutions, args.json)
     device = _pick_device(args.device)
-    report = validate(case, resolutions, args.methods, device, out, log=logger.info,
+    report = validate(case, resolutions, args.methods, device, out, log=logger.info, solver=args.solver,
                       command=" ".join(["warpsph", "validate", case, "--resolutions", *map(str, resolutions),
                                         "--methods", *args.methods, "--device", args.device]
+                                       + (["--solver", args.solver] if args.solver else [])
                                        + (["--json", str(args.json)] if args.json else [])))
     print(table(report["rows"]))
     if out is not None:
@@ -830,6 +831,8 @@ def build_parser():
                             "across the column width a (dam-front)")
     check.add_argument("--methods", nargs="+", default=["dfsph"], choices=list(METHODS),
                        help="dfsph (the solver alone, default), vr, rankine, micropolar")
+    check.add_argument("--solver", choices=["dfsph", "iisph"],
+                       help="pressure solver (scene key solver.method; default: the scenes' default, dfsph)")
     check.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
     check.add_argument("--json", metavar="OUT.json", help="write the rows and metadata here (atomically, after every row)")
     check.set_defaults(func=validate_command)

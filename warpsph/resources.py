@@ -12,6 +12,10 @@ from warpsph.errors import SceneError
 # on the 1M dam break, tools/results/bench_dam_break_1M_model_none_h100.json)
 FLUID_STATE = 12 + 12 + 8 + 4 + 4 + 12  # x, v, ids, density, factor, acceleration
 SOLVER = 4 * 4  # stiffness, error, two warm-start pressures
+# IISPH (solver.method "iisph"): no factor; its warm-start pressure, and its scratch columns (IISPHSolver's,
+# shared with the models')
+IISPH_FLUID_STATE = FLUID_STATE - 4
+IISPH_SOLVER = 4
 SORT = 2 * 8 + 12 + 8  # keys and order (2N each) and a gather copy: held only while sorting (the peak)
 NEIGHBOUR_ROWS = 4 * 4  # counts and offsets of both lists
 NEIGHBOUR_LISTS = 4 * (32 + 8)  # initial capacity: 32 fluid, 8 boundary neighbours a particle
@@ -21,15 +25,21 @@ SHARED_VORTICITY = 12  # the vorticity field of v~, once for all models that rea
 
 def estimate_bytes(scene, num_fluid, num_boundary):
     """Device bytes a simulation of ``scene`` allocates (an estimate, slightly high)."""
+    from warpsph.iisph import IISPHSolver
     from warpsph.models import plugin_of
 
-    per_fluid = FLUID_STATE + SOLVER + SORT + NEIGHBOUR_ROWS + NEIGHBOUR_LISTS
     from warpsph.neighbours import grid_geometry
 
     plugins = [plugin_of(m) for m in scene.models]
+    scratch = [p.scratch_columns for p in plugins] + [0]
+    if scene.solver.method == "iisph":
+        per_fluid = IISPH_FLUID_STATE + IISPH_SOLVER + SORT + NEIGHBOUR_ROWS + NEIGHBOUR_LISTS
+        scratch.append(IISPHSolver.scratch_columns)
+    else:
+        per_fluid = FLUID_STATE + SOLVER + SORT + NEIGHBOUR_ROWS + NEIGHBOUR_LISTS
     per_fluid += sum(p.bytes_per_particle for p in plugins)  # each model's own arrays
     per_fluid += SHARED_VORTICITY if any(p.needs_vorticity for p in plugins) else 0
-    per_fluid += 4 * max([p.scratch_columns for p in plugins] + [0])  # the scratch pool, if wider than the solver's
+    per_fluid += 4 * max(scratch)  # the scratch pool (DFSPH: if wider than its own, counted in SOLVER)
     _, dims = grid_geometry(scene.domain, 4.0 * scene.particle_radius, num_fluid + num_boundary)
     cell_tables = 2 * 4 * int(np.prod(dims))  # the fluid's and the boundary's
     return num_fluid * per_fluid + num_boundary * BOUNDARY + cell_tables

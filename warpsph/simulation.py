@@ -1,4 +1,5 @@
-"""The stepper: DFSPH with non-pressure models, in the order of the VR paper's Algorithm 2."""
+"""The stepper: a pressure solver (DFSPH or IISPH) with non-pressure models, in the order of the VR paper's
+Algorithm 2."""
 
 from __future__ import annotations
 
@@ -36,7 +37,11 @@ from warpsph.scene import Scene
 from warpsph.state import FluidParticles, State  # noqa: F401 (FluidParticles: public here too)
 from warpsph.scene_setup import count_particles, remove_fluid_inside_bodies, sample_scene  # noqa: F401 (public here too)
 
+from warpsph.iisph import IISPHSolver
 from warpsph.solver import DFSPHSolver
+
+# scene key solver.method -> the pressure solver
+SOLVERS = {"dfsph": DFSPHSolver, "iisph": IISPHSolver}
 
 
 @dataclass
@@ -121,11 +126,12 @@ class Simulation:
         self.state = State(self.device, capacity, len(fluid_x))
         self._scratch = None
         model_classes = [plugin_of(p) for p in scene.models]
-        self._scratch_columns = max([DFSPHSolver.columns(scene)] + [m.scratch_columns for m in model_classes])
+        solver_class = SOLVERS[scene.solver.method]
+        self._scratch_columns = max([solver_class.columns(scene)] + [m.scratch_columns for m in model_classes])
         check_fits(scene, self.capacity, self.num_boundary, self.device)  # refuse before allocating
         with wp.ScopedDevice(self.device):
             z = self.zeros
-            self.state.allocate_fluid(fluid_x, fluid_v)
+            self.state.allocate_fluid(fluid_x, fluid_v, factor=solver_class.needs_factor)
             self.state.allocate_clock(scene.time_step_bounds[1])
             has_dynamic = any(b.kind == "dynamic" for b in moving)
             first_dynamic = first_moving + sum(len(b.samples) for b in moving if b.kind == "kinematic")
@@ -142,7 +148,7 @@ class Simulation:
                 self.launch(compute_boundary_volume, self.num_boundary,
                             [self.neighbours.boundary_grid.grid, self.boundary.x, sample_body, first_moving_body,
                              self.support_radius, self.neighbours.lower, self.neighbours.period, self.boundary.volume])
-            self.pressure_solver = DFSPHSolver(self)
+            self.pressure_solver = solver_class(self)
             viscous = scene.fluid.viscosity > 0.0 or scene.fluid.boundary_viscosity > 0.0
             self.model_context = ModelContext(self)  # what the plug-ins see
             self.viscosity_model = REGISTRY["viscosity"](self.model_context) if viscous else None
@@ -310,11 +316,13 @@ class Simulation:
 
     # -- the step --------------------------------------------------------------------------------------
     def step(self):
-        """One DFSPH step with its models (VR paper Algorithm 2; SPlisHSPlasH's step order).
+        """One step with its models (VR paper Algorithm 2; SPlisHSPlasH's step order).
 
         The divergence correction of Algorithm 1 runs at the start of the step, on the
         densities of the new positions: it turns v^n (advected at the end of the last
-        step) into the divergence-free v~ that the models refine."""
+        step) into the divergence-free v~ that the models refine. IISPH has no divergence
+        correction and no free-surface pass (no-ops): its one solve is the density solve
+        after the non-pressure forces, where DFSPH's is, as SPlisHSPlasH's TimeStepIISPH orders it."""
         with wp.ScopedDevice(self.device):
             # t^n, read from the device once for the emitters and the bodies' poses
             now = self.time if self.inflow is not None or self.moving_bodies is not None else None
@@ -356,7 +364,7 @@ class Simulation:
 
     def _solve_step(self):
         f, n, t = self.fluid, self.num_fluid, self.timer
-        with t("density"):  # rho^n, the DFSPH factor and the free surface at x^n
+        with t("density"):  # rho^n, the DFSPH factor and the free surface at x^n (IISPH: rho^n only)
             self._compute_density()
             self.pressure_solver.detect_free_surface()
         with t("time_step"):  # CFL condition on |v^n|
@@ -377,7 +385,7 @@ class Simulation:
                 model.step(self.model_context)
         with t("advection"):  # v_adv = v~ + dt (a_adv + g)
             self.launch(predict_velocity, n, [f.acceleration, self.gravity, self.dt, f.v])
-        with t("density_solve"):  # projection: rho*(x + dt v_adv) -> rho0
+        with t("density_solve"):  # projection: rho*(x + dt v_adv) -> rho0 (IISPH: its whole pressure solve)
             self.pressure_solver.correct_density()
         with t("integration"):  # x^{n+1} = x^n + dt v
             self.launch(advect_positions, n, [f.v, self.dt, self.neighbours.lower, self.neighbours.period, f.x])
@@ -395,7 +403,7 @@ class Simulation:
                                              self.health_first])
 
     def update_densities(self):
-        """Neighbour lists, densities and DFSPH factors for the current positions (the initial state, a
+        """Neighbour lists, densities (and DFSPH factors) for the current positions (the initial state, a
         restored checkpoint); the step computes its own."""
         with wp.ScopedDevice(self.device):
             self.neighbours.update(self.fluid.x)

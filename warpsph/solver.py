@@ -48,6 +48,7 @@ MAX_SHIFT = 0.1
 
 
 class DFSPHSolver:
+    needs_factor = True  # the density pass writes the DFSPH factor
     scratch_columns = 2  # stiffness and error live within a solve: they share the models' scratch pool
 
     @staticmethod
@@ -186,6 +187,12 @@ class DFSPHSolver:
 
     def last_errors(self):
         return float(self.average_error[DIVERGENCE].numpy()[0]), float(self.average_error[DENSITY].numpy()[0])
+
+    def pressure_field(self):
+        """Pressure [Pa] of the last density solve per particle (host copy): p = k rho^2 / rho0 of the
+        accumulated stiffness, with the densities of that step."""
+        sim = self.sim
+        return sim.host(self.pressure_sum[DENSITY]) * sim.host(sim.fluid.density) ** 2 / sim.rest_density
 
     def free_surface_count(self):
         """Fluid particles on the free surface at the last step (host read)."""

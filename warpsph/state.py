@@ -23,7 +23,7 @@ class FluidParticles:
     v: wp.array  # velocity [m/s]
     ids: wp.array  # stable id (int32; int64 in USD), follows the particle through re-sorting
     density: wp.array  # [kg/m^3]
-    factor: wp.array  # DFSPH factor
+    factor: wp.array  # DFSPH factor (empty under IISPH)
     acceleration: wp.array  # non-pressure acceleration of this step [m/s^2]
 
 
@@ -69,13 +69,15 @@ class State:
         self.carried[name] = array
         return array
 
-    def allocate_fluid(self, x, v):
-        """The fluid's arrays, with positions ``x`` and velocities ``v`` in the first rows, and the clock."""
+    def allocate_fluid(self, x, v, factor=True):
+        """The fluid's arrays, with positions ``x`` and velocities ``v`` in the first rows; ``factor`` False:
+        an empty DFSPH factor (a solver without one)."""
         p = self.per_particle
         self.fluid = FluidParticles(
             x=p("fluid", wp.vec3, x), v=p("fluid", wp.vec3, v),
             ids=p("fluid", wp.int32, np.arange(len(x), dtype=np.int32)),
-            density=p("fluid"), factor=p("fluid"), acceleration=p("fluid", wp.vec3))
+            density=p("fluid"), factor=p("fluid") if factor else self.zeros("fluid", 0),
+            acceleration=p("fluid", wp.vec3))
         for name in ("x", "v", "ids"):
             self.carry(f"fluid/{name}", getattr(self.fluid, name))
 

@@ -3,6 +3,7 @@
     warpsph bench steps --device cuda --particles 1e6 --out tools/results/bench_dam_break_h100.json
     warpsph bench steps --device cuda --particles 125e3 1e6 4e6 --out tools/results/scaling_h100.json
     warpsph bench steps --scene scenes/propeller.json --particles 1.29e6 --warmup 200 ...
+    warpsph bench steps --device cuda --particles 1e6 --method iisph --out tools/results/bench_dam_break_1M_iisph_h100.json
 
 With several ``--particles`` the JSON holds one result per size and a markdown table (step time,
 stages in %, iterations, neighbour passes k, bytes per particle, steps/s) is written beside it;
@@ -41,6 +42,7 @@ def add_arguments(parser):
     parser.add_argument("--warmup", type=int, default=100, help="steps before the timed ones (default 100)")
     parser.add_argument("--steps", type=int, default=50, help="timed steps, per timer (default 50)")
     parser.add_argument("--density-error", type=float, help="override solver.density_max_error [%%]")
+    parser.add_argument("--method", choices=["dfsph", "iisph"], help="override solver.method (the pressure solver)")
     parser.add_argument("--model", choices=MODELS, default="none",
                         help="turbulence model to enable with its default parameters (all: the three at once)")
     parser.add_argument("--sort-interval", type=int, help="override solver.sort_interval (0: never re-sort)")
@@ -99,9 +101,12 @@ def command(args):
 
 
 def neighbour_passes(result, models):
-    """k: neighbour passes a step (density+factor 1; each solver: warm start 1 + source 1 + 2 per
-    iteration; viscosity 1; the models' own passes)."""
+    """k: neighbour passes a step (density+factor 1; DFSPH, each solve: warm start 1 + source 1 + 2 per
+    iteration; IISPH: coefficients 1 + 2 per iteration + the pressure acceleration 1; viscosity 1; the models'
+    own passes)."""
     extra = sum({"none": 0, "vorticity_refinement": 3, "rankine": 1, "micropolar": 1}[m] for m in models)
+    if result.get("solver_method") == "iisph":
+        return 1 + 1 + 2 * result["mean_density_iterations"] + 1 + 1 + extra
     return 1 + 4 + 2 * result["mean_divergence_iterations"] + 2 * result["mean_density_iterations"] + 1 + extra
 
 
@@ -149,6 +154,8 @@ def make_scene(args, particles):
         solver = dataclasses.replace(solver, density_max_error=args.density_error)
     if getattr(args, "sort_interval", None) is not None:
         solver = dataclasses.replace(solver, sort_interval=args.sort_interval)
+    if getattr(args, "method", None):
+        solver = dataclasses.replace(solver, method=args.method)
     scene = dataclasses.replace(scene, solver=solver)
     if args.model != "none":
         types = model_types()
@@ -221,6 +228,7 @@ def run(args, particles):
         "fluid_particles": sim.num_fluid,
         "boundary_particles": sim.num_boundary,
         "particle_radius": scene.particle_radius,
+        "solver_method": scene.solver.method,
         "density_max_error_percent": scene.solver.density_max_error,
         "sort_interval": scene.solver.sort_interval,
         "divergence_max_error_percent": scene.solver.divergence_max_error,

@@ -1,6 +1,7 @@
-"""The runner behind ``warpsph validate CASE --resolutions N ... [--methods ...] --device DEV --json OUT``.
+"""The runner behind ``warpsph validate CASE --resolutions N ... [--methods ...] [--solver iisph] --device DEV --json OUT``.
 
-Every case runs with the default solver (no "solver" keys in its scene); a method adds only its model.
+Every case runs with the default solver settings (no "solver" keys in its scene but ``solver.method`` when
+``--solver`` names one); a method adds only its model.
 One row per (method, resolution), with at least: case, method, resolution, particles, error_pct,
 error_units, wall_s, steps (and setup_s and the case's own measurements).
 
@@ -249,17 +250,19 @@ def table(rows):
         unit = " %" if r.get("error_units") == "%" else " " + str(r.get("error_units", ""))
         error = f"unstable: {r['unstable']}" if r.get("unstable") else (
             "—" if r.get("error_pct") is None else f"{r['error_pct']:.4g}{unit}")
-        lines.append([r["case"], r["method"], str(r["resolution"]), f"{r['particles']:,}" if r.get("particles") else "—",
+        method = r["method"] if r.get("solver", "dfsph") == "dfsph" else f"{r['method']} ({r['solver']})"
+        lines.append([r["case"], method, str(r["resolution"]), f"{r['particles']:,}" if r.get("particles") else "—",
                       error, str(r.get("steps", "—")), "—" if r.get("wall_s") is None else f"{r['wall_s']:.2f}"])
     widths = [max(len(line[k]) for line in lines) for k in range(len(head))]
     return "\n".join("  ".join(c.ljust(w) if k < 2 else c.rjust(w) for k, (c, w) in enumerate(zip(line, widths))).rstrip()
                      for line in lines)
 
 
-def validate(case, resolutions, methods=("dfsph",), device="cpu", out=None, log=None, command=None):
+def validate(case, resolutions, methods=("dfsph",), device="cpu", out=None, log=None, command=None, solver=None):
     """Runs ``case`` at every resolution with every method (the default solver; a method adds its model);
     returns the report. With ``out`` the JSON is written (atomically) after every row, ``complete`` false
-    until the last. ``log``: a function taking a line of progress (None: silent); ``command``: recorded."""
+    until the last. ``log``: a function taking a line of progress (None: silent); ``command``: recorded;
+    ``solver``: the pressure solver (scene key ``solver.method``, "dfsph" or "iisph"; None: the default)."""
     import warp as wp
 
     from ..simulation import InstabilityError
@@ -268,8 +271,9 @@ def validate(case, resolutions, methods=("dfsph",), device="cpu", out=None, log=
         raise ValueError(f"unknown case {case!r}; expected one of {', '.join(CASES)}")
     say = log or (lambda line: None)
     units, definition = ERRORS[case]
+    overrides = {"solver.method": solver} if solver else None
     report = {"benchmark": "warpsph validate", "case": case, **device_info(device), **commit_info(),
-              "command": command, "solver": "default (no solver keys)",
+              "command": command, "solver": {"method": solver} if solver else "default (no solver keys)",
               "definitions": {"resolution": RESOLUTION_MEANS[case], "error_pct": definition, "error_units": units,
                               "wall_s": "time stepping alone, device synchronised, per-frame measurements subtracted",
                               "setup_s": "scene sampling and set-up (the Taylor-Green packing included), not timed in wall_s"},
@@ -278,14 +282,14 @@ def validate(case, resolutions, methods=("dfsph",), device="cpu", out=None, log=
     started = time.perf_counter()
     for name in methods:
         t0 = time.perf_counter()
-        warm_up(METHODS[name], device)
+        warm_up(METHODS[name], device, overrides)
         report.setdefault("warmup_s", {})[name] = time.perf_counter() - t0
     grid = [(res, name) for res in resolutions for name in methods]
     for k, (res, name) in enumerate(grid, 1):
         say(f"[{k}/{len(grid)}] {case} {name} resolution {res} ...")
-        row = {"case": case, "method": name, "resolution": res, "error_units": units}
+        row = {"case": case, "method": name, "resolution": res, "error_units": units, "solver": solver or "dfsph"}
         try:
-            row.update(ROWS[case](METHODS[name], res, device))
+            row.update(ROWS[case](METHODS[name], res, device, overrides))
         except InstabilityError as exc:
             row.update(particles=None, error_pct=None, wall_s=None, steps=exc.step, unstable=str(exc),
                        unstable_time=exc.time)

@@ -26,7 +26,6 @@ def hydrostatic(radius=0.02, T=T_END, device="cpu", ramp=0.2, models=(), overrid
     ``steps``). ``overrides``: dotted scene keys to set (:func:`warpsph.scene.with_overrides`)."""
     from warpsph.scene import scene_from_dict, with_overrides
     from warpsph.simulation import Simulation
-    from warpsph.solver import DENSITY
 
     side = SIDE
     data = {"name": "hydrostatic", "particle_radius": radius, "gravity": [0, 0, 0],
@@ -47,8 +46,7 @@ def hydrostatic(radius=0.02, T=T_END, device="cpu", ramp=0.2, models=(), overrid
     pressures = []
     for _ in range(20):
         sim.step()
-        rho = sim.fluid.density.numpy()
-        pressures.append(sim.pressure_solver.pressure_sum[DENSITY].numpy() * rho**2 / sim.rest_density)
+        pressures.append(sim.pressure_solver.pressure_field())
     p = np.mean(pressures, axis=0)
     wp.synchronize_device(sim.device)
     wall = time.perf_counter() - start
