@@ -24,7 +24,7 @@ DAM_BREAK = {
     },
     "Materials": [{"id": "Fluid", "density0": 1000, "viscosityMethod": 1, "Standard viscosity": {"viscosity": 0.01},
                    "colorMapType": 1}],
-    "RigidBodies": [{"geometryFile": "../models/UnitBox.obj", "translation": [0, 0.5, 0], "scale": [1.2, 1, 0.4],
+    "RigidBodies": [{"geometryFile": "../models/UnitBox.obj", "translation": [0, 0.5, 0], "scale": [1.2, 1, 0.5],
                      "isDynamic": False, "isWall": True, "mapInvert": True, "color": [0.1, 0.4, 0.6, 1.0],
                      "mapThickness": 0.0, "mapResolution": [20, 20, 20]}],
     "FluidBlocks": [{"denseMode": 0, "start": [-0.6, 0.0, -0.2], "end": [-0.3, 0.4, 0.2], "translation": [0, 0, 0],
@@ -73,7 +73,9 @@ def test_nested_blocks_are_read_and_the_scene_runs(scenes):
     scene = load_quiet(write(scenes, DAM_BREAK))
     assert scene.particle_radius == 0.03 and scene.time.cfl == 0.4 and scene.time.dt_max == 0.004
     assert scene.time.dt_min == 0.0001  # SPlisHSPlasH's default, not warpsph's
-    assert (scene.domain.min, scene.domain.max) == ((-0.6, 0.0, -0.2), (0.6, 1.0, 0.2))
+    inset = 0.03 * 1.4013  # where the volume map holds the fluid: the walls' test below
+    assert scene.domain.min == pytest.approx((-0.6 + inset, inset, -0.25 + inset), abs=1e-5)
+    assert scene.domain.max == pytest.approx((0.6 - inset, 1.0 - inset, 0.25 - inset), abs=1e-5)
     assert scene.solver.max_iterations == 80 and scene.solver.density_max_error == 0.05
     assert scene.solver.divergence_max_iterations == 50
     assert scene.fluid.viscosity == 0.01  # "Standard viscosity": {"viscosity": 0.01}, not warpsph's 0.05
@@ -161,11 +163,11 @@ def test_block_rule_reproduces_splishsplash_counts():
 
 def test_imported_block_has_splishsplashs_lattice(scenes):
     data = edited(FluidBlocks__0__start=[-0.5, 0.0, -0.5], FluidBlocks__0__end=[0.5, 1.0, 0.5],
-                  FluidBlocks__0__translation=[0.0, 0.0, 0.0], FluidBlocks__0__scale=[0.5, 0.5, 0.3],
+                  FluidBlocks__0__translation=[0.0, 0.1, 0.0], FluidBlocks__0__scale=[0.5, 0.5, 0.3],
                   Configuration__particleRadius=0.0125)
     scene = load_quiet(write(scenes, data))
     fluid_x = sample_scene(scene)[0]
-    theirs = sampling.splishsplash_block([-0.25, 0.0, -0.15], [0.25, 0.5, 0.15], 0.0125)
+    theirs = sampling.splishsplash_block([-0.25, 0.1, -0.15], [0.25, 0.6, 0.15], 0.0125)
     assert count_particles(scene)[0] == len(fluid_x) == len(theirs) == 19 * 19 * 11
     key = lambda p: np.round(np.asarray(p, np.float64) / 1e-5).astype(np.int64)  # noqa: E731
     assert sorted(map(tuple, key(fluid_x))) == sorted(map(tuple, key(theirs)))
@@ -210,6 +212,45 @@ def test_fluid_models_from_particle_files_are_refused(scenes):
     with pytest.raises(SceneError, match=r"FluidModels\[0\].particleFile: '../models/bunny.bgeo': fluid read from a "
                                          r"particle file"):
         load_scene(write(scenes, data))
+
+
+def test_walls_stand_where_splishsplashs_hold_the_fluid(scenes):
+    """A volume-map container (boundaryHandlingMethod 2) holds a fluid at rest 2.40 r from its surface (pysplishsplash
+    2.19.0, a tank at rest after 1.5 s: the floor's layer 2.35 r, the side walls' 2.45 r); warpsph's wall layer holds
+    it 2.20 r from itself: the layer stands 0.20 r inside the box, the domain's faces 1.2 r inside that. Boundary
+    particles (method 0) lie on the surface, as warpsph's layer."""
+    from warpsph.io.splishsplash import volume_map_standoff, wall_layer_standoff
+
+    assert volume_map_standoff() == pytest.approx(2.40, abs=0.005)
+    assert wall_layer_standoff() == pytest.approx(2.20, abs=0.005)
+    box = np.array([[-0.6, 0.0, -0.25], [0.6, 1.0, 0.25]])
+    layer = volume_map_standoff() - wall_layer_standoff()  # radii inside the box
+    for method, thickness, inside in ((2, 0.0, layer), (2, 0.006, layer - 0.2), (0, 0.006, 0.0)):
+        data = edited(Configuration__boundaryHandlingMethod=method, RigidBodies__0__mapThickness=thickness)
+        scene = load_quiet(write(scenes, data))
+        inset = (inside + 1.2) * 0.03
+        assert scene.domain.min == pytest.approx(box[0] + inset) and scene.domain.max == pytest.approx(box[1] - inset)
+        walls = sample_scene(scene)[2]
+        assert walls.min(axis=0) == pytest.approx(box[0] + inside * 0.03, abs=1e-6)
+        assert walls.max(axis=0) == pytest.approx(box[1] - inside * 0.03, abs=1e-6)
+        # the block SPlisHSPlasH starts 2r from the left wall and the floor, inside the band its walls push the
+        # fluid out of, moves into the domain with all its particles
+        (block,) = scene.fluid_blocks
+        assert block.start[:2] == pytest.approx(scene.domain.min[:2]) and block.start[2] == pytest.approx(-0.17)
+        assert count_particles(scene)[0] == conversion_of(scene).splishsplash_particles == 4 * 6 * 6
+        assert any("FluidBlocks[0] starts inside the band" in n for n in conversion_of(scene).notes) == (inset > 0.03)
+
+
+def test_blocks_wider_than_the_walls_hold_keep_the_layers_that_fit(scenes):
+    """SPlisHSPlasH fills 6 layers across this 0.4 m box, where its walls hold 5 at rest: it starts them compressed
+    (a particle 1.33 r from the wall); warpsph fills the 5 that fit and says so."""
+    scene = load_quiet(write(scenes, edited(RigidBodies__0__scale=[1.2, 1, 0.4])))
+    (block,) = scene.fluid_blocks
+    assert block.start[2] >= scene.domain.min[2] and block.end[2] <= scene.domain.max[2]
+    assert count_particles(scene)[0] == 4 * 6 * 5 and conversion_of(scene).splishsplash_particles == 4 * 6 * 6
+    assert any("wider along z" in n and "120 particles of 144" in n for n in conversion_of(scene).notes)
+    sim = Simulation(scene, device="cpu").run(frames=1)
+    assert sim.num_fluid == 120
 
 
 # --- 3. physics: mapped, or refused by name ---------------------------------------------------------------

@@ -5,6 +5,8 @@ the CPU; the scene file is read from that installation's data directory at run t
 SPlisHSPlasH is copied into this repository). warpsph runs the same file on the CPU. Both are
 sampled at the first step at or after each sample time: fluid particle count, front (max x of the
 fluid, and its 99th percentile), centre of mass and kinetic energy per kg, plus solver iterations.
+warpsph's walls are where the importer puts them: where SPlisHSPlasH's volume maps hold the fluid
+(``warpsph.io.splishsplash.container_inset``).
 
     python -m venv /tmp/pssvenv && /tmp/pssvenv/bin/pip install pysplishsplash==2.19.0
     python tools/splishsplash_side_by_side.py --pss-python /tmp/pssvenv/bin/python \
@@ -111,7 +113,7 @@ def run_warpsph(scene_file, stop, wall_inset=0.0):
     from warpsph.simulation import Simulation
 
     scene = load_scene(str(scene_file))
-    if wall_inset:  # the walls (not the open top) moved in, to where SPlisHSPlasH's volume maps hold the fluid
+    if wall_inset:  # experiment: the walls (not the top) moved further in than the importer puts them
         lo, hi = np.asarray(scene.domain.min), np.asarray(scene.domain.max)
         hi_inset = np.array([wall_inset, 0.0, wall_inset])
         scene = dataclasses.replace(scene, domain=dataclasses.replace(
@@ -136,6 +138,7 @@ def run_warpsph(scene_file, stop, wall_inset=0.0):
                                    sim.fluid.density.numpy()[:n], sim.rest_density))
     conversion = conversion_of(scene)
     return {"program": "warpsph", "scene": str(scene_file), "wall_inset": wall_inset,
+            "domain": {"min": list(scene.domain.min), "max": list(scene.domain.max)},
             "initial": {"mass": sim.particle_mass, "volume": sim.fluid_volume, "density0": sim.rest_density,
                         "radius": scene.particle_radius, "particles": sim.num_fluid},
             "mapped": conversion.mapped if conversion else None, "notes": conversion.notes if conversion else None,
@@ -175,8 +178,8 @@ def main(argv=None):
     ap.add_argument("--work", default="/tmp/splishsplash_side_by_side", help="SPlisHSPlasH's output directory")
     ap.add_argument("--splishsplash-json", help="reuse a finished SPlisHSPlasH run (the worker's JSON)")
     ap.add_argument("--wall-inset", type=float, default=0.0,
-                    help="experiment: move warpsph's walls in by this much [m] (SPlisHSPlasH's volume maps hold the "
-                         "fluid about 2r from its walls, warpsph's boundary particles let it reach the wall plane)")
+                    help="experiment: move warpsph's walls (not the top) this much [m] further in than the importer "
+                         "puts them (where SPlisHSPlasH's volume maps hold the fluid)")
     ap.add_argument("--worker", choices=["splishsplash"], help=argparse.SUPPRESS)
     ap.add_argument("--worker-out", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
@@ -204,7 +207,7 @@ def main(argv=None):
     agree = all(abs(r[k]["relative_difference"]) <= TOLERANCE for r in report for k in keys)
     result = {
         "scene": f"pysplishsplash 2.19.0 data/Scenes/{SCENE}", "device": "cpu", "tolerance": TOLERANCE,
-        "warpsph_wall_inset_m": args.wall_inset,
+        "warpsph_wall_inset_m": args.wall_inset, "warpsph_domain": ours["domain"],
         "agree_within_tolerance": agree, "compared": list(keys), "report_times": list(REPORT_TIMES),
         "initial": {"splishsplash": theirs["initial"], "warpsph": ours["initial"]},
         "iterations": {"splishsplash": iterations(theirs["steps"]), "warpsph": iterations(ours["steps"])},

@@ -28,11 +28,18 @@ block becomes the warpsph block whose lattice is exactly SPlisHSPlasH's (DamBrea
 particles, as SPlisHSPlasH prints); denseMode 1 and 2 (staggered lattices) are refused. A FluidModels
 entry with an OBJ/PLY mesh becomes a warpsph fluid mesh filled on SPlisHSPlasH's lattice (the scaled
 mesh's bounding box corner plus r, spacing 2r, then rotated and translated); particle files are refused.
+
+The container (the first static body with mapInvert) becomes the domain, its faces moved in to where
+SPlisHSPlasH's walls hold the fluid (:func:`container_inset`): its boundary particles lie on the mesh
+surface, its volume maps hold a fluid at rest :func:`volume_map_standoff` (2.40 r) from it, and warpsph's
+wall layer, 1.2 r outside the domain's faces, holds it :func:`wall_layer_standoff` (2.20 r) from itself.
 """
 
 from __future__ import annotations
 
+import functools
 import json
+import math
 import os
 import warnings
 from dataclasses import dataclass, field
@@ -103,6 +110,89 @@ BODY_PBD_CONTACT = {"friction", "restitution", "collisionObjectType", "collision
                     "tubeMapOrder"}
 TOP_KNOWN = {"Configuration", "Materials", "FluidBlocks", "FluidModels", "Emitters", "RigidBodies", "AnimationFields",
              "Simulation", "warpsph"}
+
+
+# --- where walls hold the fluid (lengths in particle radii r; both codes: cubic spline, support h = 4r) ---------
+
+
+def _cubic(q):
+    """The cubic spline kernel over its value at 0, at q = distance / h."""
+    q = np.asarray(q, np.float64)
+    return np.where(q <= 0.5, 6.0 * q**3 - 6.0 * q**2 + 1.0, np.where(q <= 1.0, 2.0 * (1.0 - q) ** 3, 0.0))
+
+
+H = 4.0
+W0 = 8.0 / (math.pi * H**3)  # W(0) in 3D
+
+
+def _integral(values, x):
+    return float(np.sum(values[1:] + values[:-1]) * (x[1] - x[0]) / 2.0)
+
+
+def _rest_distance(boundary):
+    """The distance d at which the first layer of a half-space of fluid on the lattice of spacing 2r (volume
+    (2r)^3 a particle, in both codes) has rest density: sum_j V W_ij + boundary(d) = 1."""
+    a = 2.0 * np.arange(-2, 3)
+    x, y, z = np.meshgrid(a, 2.0 * np.arange(3), a, indexing="ij")
+    fluid = 8.0 * W0 * float(_cubic(np.sqrt(x * x + y * y + z * z) / H).sum())
+    lo, hi = 0.5, H
+    for _ in range(60):  # the density falls with the distance
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if fluid + boundary(mid) > 1.0 else (lo, mid)
+    return 0.5 * (lo + hi)
+
+
+@functools.lru_cache(maxsize=None)
+def volume_map_standoff():
+    """Where SPlisHSPlasH's volume maps (boundaryHandlingMethod 2, Bender et al. 2019) hold a fluid at rest:
+    the distance from the wall surface, in r (2.40). The boundary adds Psi(d) W(max(d + r/2, 2r)) to rho/rho0:
+    Psi(d) = integral over the ball |xi| < h of chi(d + xi_n), chi = 1 behind the surface and W(s)/W(0) at a
+    distance s in front of it (SimulatorBase::initVolumeMap), the boundary point max(d + r/2, 2r) behind the
+    particle (TimeStep::computeVolumeAndBoundaryX). SPlisHSPlasH 2.16 scales Psi and the fluid volume by 0.8;
+    2.19 by 1 (fluid volume (2r)^3, and the boundary volumes its API returns are this Psi within the volume
+    map's interpolation error, ~3 %)."""
+    z = np.linspace(-H, H, 8001)
+
+    def boundary(d):
+        s = d + z
+        chi = np.where(s <= 0.0, 1.0, _cubic(s / H))
+        return _integral(math.pi * (H * H - z * z) * chi, z) * W0 * float(_cubic(max(d + 0.5, 2.0) / H))
+
+    return _rest_distance(boundary)
+
+
+@functools.lru_cache(maxsize=None)
+def wall_layer_standoff():
+    """Where warpsph's wall layer holds a fluid at rest: the distance from the layer, in r (2.20). The layer is a
+    square lattice of spacing 2r with Akinci et al.'s volumes V_b = 1 / sum_k W_bk (kernels/boundary.py); its
+    sum sum_b V_b W_ib is taken as a sheet of V_b / (2r)^2 per area (the fluid is not aligned with the layer)."""
+    a = 2.0 * np.arange(-2, 3)
+    x, z = np.meshgrid(a, a, indexing="ij")
+    volume = 1.0 / (W0 * float(_cubic(np.sqrt(x * x + z * z) / H).sum()))
+    rho = np.linspace(0.0, H, 8001)
+
+    def boundary(d):
+        return volume / 4.0 * _integral(W0 * _cubic(np.sqrt(rho * rho + d * d) / H) * 2.0 * math.pi * rho, rho)
+
+    return _rest_distance(boundary)
+
+
+def container_inset(boundary_method, map_thickness, radius):
+    """How far inside SPlisHSPlasH's container surface warpsph's domain faces go [m] so that its fluid rests where
+    SPlisHSPlasH's does, and how that was found. warpsph's fluid rests ``wall_layer_standoff`` r from its wall
+    layer, which stands WALL_OFFSET r outside the faces. SPlisHSPlasH's boundary particles (method 0) lie on the
+    mesh surface; a volume map (2) holds the fluid ``volume_map_standoff`` r from the surface, moved out by
+    mapThickness (the map of an inverted mesh is thickness - distance)."""
+    from warpsph.scene_setup import WALL_OFFSET
+
+    if boundary_method == 2:
+        inset = (volume_map_standoff() - wall_layer_standoff() + WALL_OFFSET) * radius - map_thickness
+        return inset, (f"a volume map holds the fluid {volume_map_standoff():.2f} r from its surface, warpsph's wall "
+                       f"layer {wall_layer_standoff():.2f} r from itself, {WALL_OFFSET:g} r outside the domain's faces")
+    why = ("boundary particles on the mesh surface, warpsph's wall layer " if boundary_method == 0 else
+           f"boundaryHandlingMethod {boundary_method}: where it holds the fluid is not derived; warpsph's wall layer "
+           "on the surface, as SPlisHSPlasH's boundary particles (method 0), ")
+    return WALL_OFFSET * radius, why + f"{WALL_OFFSET:g} r outside the domain's faces"
 
 
 class SplishSplashWarning(UserWarning):
@@ -176,6 +266,19 @@ def _axis_of(vector):
     return k, (1.0 if vector[k] > 0 else -1.0)
 
 
+def _filled_mesh_points(path, mesh, spacing):
+    """The fluid a warpsph fluid mesh holds (scene_setup.fluid_mesh_points without the checks); None when the
+    mesh cannot be read or is open (the scene is refused later, naming it)."""
+    try:
+        m = sampling.load_mesh(path)
+    except SceneError:
+        return None
+    if not m.is_watertight:
+        return None
+    local = sampling.fill_mesh(np.asarray(m.vertices) * np.asarray(mesh["scale"]), m.faces, spacing)
+    return local @ sampling.rotation_matrix(mesh["rotation_axis"], mesh["rotation_angle"]).T + np.asarray(mesh["translation"])
+
+
 def _box_bounds(body, base, file, key):
     """World bounds of a (wall) body: its mesh's bounds, or SPlisHSPlasH's UnitBox when the file is absent."""
     path = base / body.get("geometryFile", "")
@@ -234,6 +337,8 @@ class _Reader:
         self.emitters()
         if "domain" not in scene:
             self.open_domain()
+        else:
+            self.fit_inside_walls()
         if d.get("AnimationFields"):
             self.refuse("AnimationFields", f"{len(d['AnimationFields'])} fields that set the particles' velocity (or "
                                            "other quantities) by expressions over time: the fluid would not be driven")
@@ -331,9 +436,12 @@ class _Reader:
             self.note("no Configuration.stopAt: SPlisHSPlasH runs until stopped, warpsph its default frame count")
         scene["output"] = output
         boundary = config.get("boundaryHandlingMethod", 2)
+        self.boundary_method = boundary
         if boundary != 0:
             self.note(f"Configuration.boundaryHandlingMethod {boundary} (volume/density maps): warpsph samples walls and "
-                      "bodies with boundary particles (Akinci et al. 2012, SPlisHSPlasH's method 0)")
+                      "bodies with boundary particles (Akinci et al. 2012, SPlisHSPlasH's method 0); the domain's faces "
+                      "stand where the container holds the fluid, bodies hold it r from their surface (a volume map "
+                      f"{volume_map_standoff():.1f} r)")
         for key in ("kernel", "gradKernel"):
             if config.get(key, 0) not in (0, 4, -1):
                 self.note(f"Configuration.{key} {config[key]}: warpsph uses the cubic spline kernel (0)")
@@ -482,7 +590,7 @@ class _Reader:
 
     # ---------------------------------------------------------------------------------------------
     def fluid_blocks(self):
-        blocks = []
+        blocks, self.block_keys = [], []
         total = 0
         for n, b in enumerate(self.data.get("FluidBlocks") or []):
             key = f"FluidBlocks[{n}]"
@@ -522,6 +630,7 @@ class _Reader:
             self.no_effect(key, [k for k in b if k == "visMesh"], "meshes for rendering")
             self.no_effect(key, [k for k in b if k not in BLOCK_KEYS], "not read by SPlisHSPlasH either")
             blocks.append(block)
+            self.block_keys.append(key)
         self.c.scene["fluid_blocks"] = blocks
         self.block_particles = total
 
@@ -530,7 +639,7 @@ class _Reader:
         """FluidModels: a closed OBJ/PLY mesh becomes a warpsph fluid mesh (SimulatorBase::createFluidModels
         samples it with VolumeSampling::sampleMesh: the mesh scaled, the lattice of spacing 2r from its bounding
         box's lower corner plus r, kept inside; then rotated and translated). Particle files are refused."""
-        meshes = []
+        meshes, self.mesh_keys = [], []
         for n, m in enumerate(self.data.get("FluidModels") or []):
             key = f"FluidModels[{n}]"
             if not isinstance(m, dict):
@@ -571,6 +680,7 @@ class _Reader:
             self.no_effect(key, [k for k in m if k == "visMesh"], "meshes for rendering")
             self.no_effect(key, [k for k in m if k not in MODEL_KEYS], "not read by SPlisHSPlasH either")
             meshes.append(mesh)
+            self.mesh_keys.append(key)
         if meshes:
             self.c.scene["fluid_meshes"] = meshes
 
@@ -587,14 +697,21 @@ class _Reader:
                     self.note(f"{key} has neither geometryFile nor particleFile: SPlisHSPlasH skips it too")
                 continue
             angle = float(body.get("rotationAngle", 0.0))
-            if body.get("mapInvert") and domain is None and not body.get("isDynamic"):
+            container = body if body.get("mapInvert") and domain is None and not body.get("isDynamic") else None
+            if container is not None:
                 if angle != 0.0:
                     self.c.errors.append(f"{key}.rotationAngle: the container (mapInvert) is rotated: warpsph's "
                                          "domain is an axis-aligned box")
                     continue
                 lo, hi = _box_bounds(body, self.base, self.file, key)
-                domain = {"min": lo, "max": hi}
-                self.mapped(f"{key} (mapInvert)", "domain", {"min": lo, "max": hi})
+                thickness = float(_num(body.get("mapThickness"), 0.0)) if self.boundary_method == 2 else 0.0
+                inset, why = container_inset(self.boundary_method, thickness, self.radius)
+                domain = {"min": (np.asarray(lo) + inset).tolist(), "max": (np.asarray(hi) - inset).tolist()}
+                self.mapped(f"{key} (mapInvert), Configuration.boundaryHandlingMethod"
+                            + (f", {key}.mapThickness" if thickness else ""), "domain",
+                            f"min {np.round(domain['min'], 6).tolist()}, max {np.round(domain['max'], 6).tolist()}: the "
+                            f"box {np.round(lo, 6).tolist()}..{np.round(hi, 6).tolist()} less {inset / self.radius:.3f} r "
+                            f"a face ({why})")
             else:
                 obstacle = {"mesh": body["geometryFile"],
                             "translation": list(_vec(body.get("translation"), [0, 0, 0], self.file, f"{key}.translation")),
@@ -623,7 +740,7 @@ class _Reader:
                     self.note(f"{key}.mapInvert: a second container; warpsph samples it as an obstacle's surface")
             if body.get("particleFile"):
                 self.note(f"{key}.particleFile: warpsph samples the body from geometryFile instead")
-            if body.get("mapThickness"):
+            if body.get("mapThickness") and not (body is container and self.boundary_method == 2):
                 self.note(f"{key}.mapThickness {_fmt(body['mapThickness'])}: volume-map thickness is not modelled")
             if not body.get("isDynamic"):
                 self.no_effect(key, [k for k in body if k in BODY_PBD_CONTACT or k in ("density", "velocity", "angularVelocity")],
@@ -634,6 +751,57 @@ class _Reader:
         if domain is not None:
             self.c.scene["domain"] = domain
         self.c.scene["obstacles"] = obstacles
+
+    def fit_inside_walls(self):
+        """Fluid that SPlisHSPlasH starts closer to its container's walls than they hold it at rest (it pushes it
+        there in its first steps) is moved into the warpsph domain, keeping its particles: a block, a filled mesh
+        or an emitter is shifted; a block wider than the domain keeps the layers that fit."""
+        scene, d = self.c.scene, 2.0 * self.radius
+        lo, hi = np.asarray(scene["domain"]["min"]), np.asarray(scene["domain"]["max"])
+
+        def shift(key, a, b, move):
+            """The shift that brings [a, b] inside [lo, hi] (b - a fits), noted."""
+            delta = np.where(a < lo, lo - a, np.where(b > hi, hi - b, 0.0))
+            if np.any(delta != 0.0):
+                move(delta)
+                self.note(f"{key} starts inside the band where SPlisHSPlasH's walls push the fluid away: moved by "
+                          f"{_fmt(np.round(delta, 6).tolist())} m into the domain")
+
+        for key, block in zip(self.block_keys, scene.get("fluid_blocks", [])):
+            a, b = np.asarray(block["start"]), np.asarray(block["end"])
+            wide = [k for k in range(3) if b[k] - a[k] > hi[k] - lo[k] + 1e-9]
+            if wide:
+                before = int(np.prod(np.round((b - a) / d)))
+                for k in wide:
+                    layers = int(np.floor((hi[k] - lo[k]) / d + 1e-9))
+                    a[k] = lo[k] + 0.5 * (hi[k] - lo[k] - layers * d)
+                    b[k] = a[k] + layers * d
+                after = int(np.prod(np.round((b - a) / d)))
+                self.note(f"{key} is wider along {', '.join('xyz'[k] for k in wide)} than SPlisHSPlasH's walls hold "
+                          f"fluid at rest (it starts it compressed): warpsph fills the layers that fit, {after} "
+                          f"particles of {before}")
+            block["start"], block["end"] = a.tolist(), b.tolist()
+
+            def move(delta, block=block):
+                block["start"] = (np.asarray(block["start"]) + delta).tolist()
+                block["end"] = (np.asarray(block["end"]) + delta).tolist()
+
+            shift(key, a, b, move)
+        for key, mesh in zip(self.mesh_keys, scene.get("fluid_meshes", [])):
+            points = _filled_mesh_points(self.base / mesh["mesh"], mesh, d)
+            if points is None or not len(points):
+                continue
+
+            def move(delta, mesh=mesh):
+                mesh["translation"] = (np.asarray(mesh["translation"]) + delta).tolist()
+
+            shift(key, points.min(axis=0) - 0.5 * d, points.max(axis=0) + 0.5 * d, move)
+        for key, emitter in zip(self.emitter_keys, scene.get("emitters", [])):
+            def move(delta, emitter=emitter):
+                emitter["min"] = (np.asarray(emitter["min"]) + delta).tolist()
+                emitter["max"] = (np.asarray(emitter["max"]) + delta).tolist()
+
+            shift(key, np.asarray(emitter["min"]), np.asarray(emitter["max"]), move)
 
     def open_domain(self):
         """A scene without a container (no body with mapInvert): an open domain (no walls; particles that leave
@@ -667,7 +835,7 @@ class _Reader:
     # ---------------------------------------------------------------------------------------------
     def emitters(self):
         emitters = self.data.get("Emitters") or []
-        out = []
+        out, self.emitter_keys = [], []
         d = 2.0 * self.radius
         cap = int(_num(self.material.get("maxEmitterParticles"), 10000))
         events = []
@@ -719,6 +887,7 @@ class _Reader:
                 events.append((t, len(out), width * height))
                 t, m = start + (m + 1) * d / velocity, m + 1
             out.append(emitter)
+            self.emitter_keys.append(key)
         # maxEmitterParticles: SPlisHSPlasH stops emitting when the material's count is reached
         events.sort()
         emitted = 0
