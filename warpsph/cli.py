@@ -402,8 +402,10 @@ def _simulate(sim, outputs, frames, args, options, append):
     steps0 = sim.step_count
     code = None
     outcome = None
+    stepped = None
     try:
         sim.run(frames=frames, on_frame=on_frame)
+        stepped = time.perf_counter() - start  # to the last step; then the writer and mesher finish
         drain()
     except (StopRequest, WriteError) as exc:
         outcome = exc
@@ -457,14 +459,15 @@ def _simulate(sim, outputs, frames, args, options, append):
     disk = _disk_usage(outputs, options.get("clips"))
     per_particle = payload["bytes"] / max(payload["particle_frames"], 1)
     last_run.clear()
-    last_run.update(wall=loop_wall, steps=steps, frames=writer.frames, payload_bytes=payload["bytes"],
+    last_run.update(wall=loop_wall, stepping_wall=stepped, steps=steps, frames=writer.frames, payload_bytes=payload["bytes"],
                     particle_frames=payload["particle_frames"], disk_bytes=disk, writer_seconds=writer.seconds,
                     writer_waited=writer.waited, background=writer.background, fields=list(fields),
                     surface_seconds=payload["surface_seconds"] if surface is not None else None,
                     surface_meshed=mesher.meshed if mesher is not None else None,
                     surface_skipped=list(mesher.skipped) if mesher is not None else None)
     logger.info(f"done: frame {frames}, {steps} steps, {sim.time:.3f} s simulated, {loop_wall:.1f} s wall "
-                f"({steps / max(loop_wall, 1e-9):.1f} steps/s); mean iterations: divergence "
+                f"({steps / max(loop_wall, 1e-9):.1f} steps/s; {stepped:.1f} s to the last step, "
+                f"{1000 * stepped / max(steps, 1):.2f} ms a step); mean iterations: divergence "
                 f"{stats['divergence_iterations']:.2f}, density {stats['density_iterations']:.2f}; wrote {outputs.out} "
                 f"and {outputs.stats.name}")
     if metadata:

@@ -381,8 +381,9 @@ class ProcessMesher:
         if workers is None:
             workers = 1 if options.method == "preview" else max(1, min(4, cores // 8))
         self.workers = max(1, int(workers))
+        spare = 2 if cores > 4 else 0  # the simulation's host thread and the writer keep a core each
         self.pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                        initializer=_limit_threads, initargs=(max(1, cores // self.workers),))
+                                        initializer=_limit_threads, initargs=(max(1, (cores - spare) // self.workers),))
         self.worker_pid = None
 
     def __call__(self, arrays):
