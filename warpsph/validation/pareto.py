@@ -139,18 +139,21 @@ def solver_stats(sim):
 # --- the two error measures ---------------------------------------------------------------------------
 
 def lamb_oseen_point(models, resolution, tolerance, device, core_radius=CORE_RADIUS, nu=0.01, T=0.5, u_peak=0.5,
-                     depth=6, frames=10, on_instability="stop"):
-    """One vortex run: error, timing and solver statistics (a dict; ``unstable`` when it blew up)."""
+                     depth=6, frames=10, on_instability="stop", pack_steps=None):
+    """One vortex run: error, timing and solver statistics (a dict; ``unstable`` when it blew up). It starts
+    from the packing that ``warpsph validate lamb-oseen`` uses (``pack_steps``; None: its default)."""
     from warpsph.validation.lamb_oseen import L, build, kinetic_ratios, measure, summary
+    from warpsph.validation.taylor_green import PACK_STEPS
     from warpsph.simulation import InstabilityError
 
     core = core_radius * resolution / L  # the validation tool takes the core in spacings
+    pack_steps = PACK_STEPS if pack_steps is None else pack_steps
     start = time.perf_counter()
     sim, p, edges = build(models, resolution, nu, T, core, u_peak, depth, device, frames,
-                          solver={"density_max_error": tolerance})
+                          solver={"density_max_error": tolerance}, pack_steps=pack_steps)
     sim.on_instability = on_instability  # "reduce-dt": a failed frame is redone with dt halved (its cost counts)
     out = {"particles": sim.num_fluid, "boundary_particles": sim.num_boundary, "spacing": p["spacing"],
-           "core_spacings": core, "core_radius_m": p["core_radius_0"], "setup_s": time.perf_counter() - start}
+           "pack_steps": pack_steps, "core_spacings": core, "core_radius_m": p["core_radius_0"], "setup_s": time.perf_counter() - start}
     rows = []
     try:
         wall, measuring = timed_run(sim, lambda cb: sim.run(frames=frames, on_frame=cb),
@@ -279,7 +282,7 @@ def point(method, resolution, tolerance, device="cpu", case="lamb-oseen", core_r
                                       on_instability, pack_steps))
     else:
         out.update(lamb_oseen_point(models, resolution, tolerance, device, core_radius, nu, 0.5 if T is None else T,
-                                    u_peak, depth, frames, on_instability))
+                                    u_peak, depth, frames, on_instability, pack_steps))
     if load is not None:  # host load before and after: other processes on the machine skew the timings
         out["load_average"] = [round(load, 2), round(os.getloadavg()[0], 2)]
     if dam_resolution:
@@ -351,7 +354,7 @@ def markdown(report):
                   "(above 0: the method kept more energy than the analytic decay); mean ρ = mean density / ρ0 at T; ")
     else:
         flow = (f"Lamb-Oseen vortex (L = {s['L']:g} m, core radius {s['core_radius_m']:g} m, peak speed {s['u_peak']:g} m/s, "
-                f"nu = {s['nu']:g}, T = {s['T']:g} s, depth {s['depth_spacings']} spacings)")
+                f"nu = {s['nu']:g}, T = {s['T']:g} s, depth {s['depth_spacings']} spacings, periodic in z, packed start)")
         legend = ("error = L1 error of u_theta at T in % of the analytic peak speed; ω ratio = peak vorticity / analytic; "
                   "KE ratio = kinetic energy at T / at 0 (analytic decay keeps it below 1: above 1 the method injected energy); ")
     head = (f"{flow} on {report['device']}, Warp {report['warp']}, commit {report['commit']}"
