@@ -319,6 +319,24 @@ def test_unsupported_physics_is_refused_by_key(scenes, change, refused):
     assert refused in str(info.value) and "WARPSPH_SPLISHSPLASH_RUN_ANYWAY" in str(info.value)
 
 
+def test_an_iisph_scene_runs_with_iisph_and_its_block(scenes):
+    """simulationMethod 3 is IISPH (solver.method "iisph"), with the IISPH block's iteration limits and maxError;
+    the DFSPH block of the same file is left unread, as SPlisHSPlasH leaves it."""
+    data = edited(Configuration__simulationMethod=3)
+    data["Configuration"]["IISPH"] = {"minIterations": 3, "maxIterations": 60, "maxError": 0.02}
+    path = write(scenes, data)
+    scene = load_scene(path)
+    assert scene.solver.method == "iisph"
+    assert (scene.solver.min_iterations, scene.solver.max_iterations, scene.solver.density_max_error) == (3, 60, 0.02)
+    mapped = "\n".join(conversion_of(scene).mapped)
+    assert "Configuration.simulationMethod -> solver.method = \"iisph\"" in mapped
+    assert "Configuration.IISPH.maxError -> solver.density_max_error = 0.02" in mapped
+    sim = Simulation(scene, device="cpu")
+    for _ in range(5):
+        sim.step()
+    assert sim.check_health() is None and "iisph" in type(sim.pressure_solver).__name__.lower()
+
+
 def test_extra_phases_are_refused_and_run_anyway_from_the_file(scenes):
     data = copy.deepcopy(DAM_BREAK)
     data["FluidBlocks"].append({"id": "oil", "start": [0.1, 0.0, -0.2], "end": [0.4, 0.3, 0.2]})

@@ -55,6 +55,8 @@ REAL_MAX = 1e30  # SPlisHSPlasH's "never" (numeric_limits<Real>::max) for emitEn
 
 # pressure solvers (Configuration.simulationMethod) and their blocks
 METHODS = {0: "WCSPH", 1: "PCISPH", 2: "PBF", 3: "IISPH", 4: "DFSPH", 5: "Projective Fluids", 6: "ICSPH"}
+# pressure solvers warpsph runs: SPlisHSPlasH's number -> solver.method
+SOLVER_METHODS = {3: "iisph", 4: "dfsph"}
 # DFSPH parameter -> (warpsph solver key, SPlisHSPlasH default)
 DFSPH_KEYS = {"minIterations": ("min_iterations", 2), "maxIterations": ("max_iterations", 100),
               "maxError": ("density_max_error", 0.01), "maxIterationsV": ("divergence_max_iterations", 100),
@@ -360,39 +362,48 @@ class _Reader:
     def configuration(self, config):
         scene = self.c.scene
         method = config.get("simulationMethod", 4)
-        if method != 4:
+        supported = method in SOLVER_METHODS
+        if not supported:
             name = METHODS.get(method, f"method {method}")
             self.refuse("Configuration.simulationMethod",
-                        f"{method} ({name}): warpsph runs DFSPH (4); run anyway, DFSPH with SPlisHSPlasH's DFSPH defaults")
-        block = config.get("DFSPH") if method == 4 else None
+                        f"{method} ({name}): warpsph runs DFSPH (4) and IISPH (3); run anyway, DFSPH with "
+                        f"SPlisHSPlasH's DFSPH defaults")
+        name = METHODS.get(method) if supported else None
+        block = config.get(name) if supported else None
         block = block if isinstance(block, dict) else {}
+        # IISPH reads minIterations, maxIterations and maxError (TimeStepIISPH); the divergence keys are DFSPH's
+        keys = DFSPH_KEYS if method == 4 else {k: v for k, v in DFSPH_KEYS.items() if not k.endswith("V")
+                                               and k != "enableDivergenceSolver"}
         solver = {}
-        for theirs, (ours, default) in DFSPH_KEYS.items():
+        if method == 3:
+            solver["method"] = "iisph"
+            self.mapped("Configuration.simulationMethod", "solver.method", "iisph")
+        for theirs, (ours, default) in keys.items():
             if theirs in block:
                 value, flat, dflt = block[theirs], False, False
-            elif method == 4 and theirs in config:
+            elif supported and theirs in config:
                 value, flat, dflt = config[theirs], True, False
             else:
                 value, flat, dflt = default, False, True
             if ours == "divergence_solver":
                 value = bool(value)
             solver[ours] = value
-            self.mapped(f"Configuration.DFSPH.{theirs}" if not flat else f"Configuration.{theirs}", f"solver.{ours}",
-                        value, flat=flat, default=dflt)
+            self.mapped(f"Configuration.{name or 'DFSPH'}.{theirs}" if not flat else f"Configuration.{theirs}",
+                        f"solver.{ours}", value, flat=flat, default=dflt)
         if solver["min_iterations"] > solver["max_iterations"]:
             solver["min_iterations"] = solver["max_iterations"]
         scene["solver"] = solver
-        self.no_effect("Configuration.DFSPH", [k for k in block if k not in DFSPH_KEYS], "not read by SPlisHSPlasH either")
-        unused = [k for k in METHODS.values() if k in config and not (k == "DFSPH" and method == 4)
-                  and k != METHODS.get(method)]
+        self.no_effect(f"Configuration.{name or 'DFSPH'}", [k for k in block if k not in keys],
+                       "not read by SPlisHSPlasH either")
+        unused = [k for k in METHODS.values() if k in config and k != METHODS.get(method)]
         self.no_effect("Configuration", unused, "blocks of pressure solvers the scene does not use (SPlisHSPlasH ignores them too)")
-        if method != 4 and METHODS.get(method) in config:
+        if not supported and METHODS.get(method) in config:
             self.note(f"Configuration.{METHODS[method]}: the parameters of the refused solver are not used")
-        if method != 4:
+        if not supported:
             self.no_effect("Configuration", [k for k in config if k in SOLVER_PARAMS and k not in DFSPH_KEYS],
                            "flat solver parameters of the refused solver")
         else:
-            self.no_effect("Configuration", [k for k in config if k in SOLVER_PARAMS and k not in DFSPH_KEYS],
+            self.no_effect("Configuration", [k for k in config if k in SOLVER_PARAMS and k not in keys],
                            "flat parameters of other pressure solvers")
 
         if self.sim2d:
