@@ -3,7 +3,7 @@ frames, per variant (keys: res, A (solver.shifting, default 2), max_shift, tol, 
 (packing steps at rest in the same simulation), method, T, max_wall). It overrides the solver's module constant
 MAX_SHIFT for a variant, so it is a diagnostic, not a supported interface; the packing used by the validation
 cases is the scene key initial_packing (warpsph.packing). Results of the earlier confined mode (its keys B, w
-and relax are gone with it): tools/results/CONFINED_NOTES.md ("Packed start").
+and relax are gone with it): docs/notes/confined-mode.md ("Packed start").
 
     python tools/scan_confined.py --device cuda --variants '[{"res": 128, "pre": 40, "jitter": 0.1}]' --out /tmp/scan.json
 """
