@@ -24,16 +24,22 @@ __all__ = ["CASES", "validate", "study_main"]
 
 
 def study_main(doc, add_arguments, command, argv=None):
-    """A study's script entry point: its options (``add_arguments``), then ``command(args)``; a
-    :class:`~warpsph.errors.SceneError` naming an option becomes argparse's usage error."""
+    """A study's script entry point: its options (``add_arguments``), then ``command(args)`` with the
+    ``warpsph`` logger shown on stderr; a :class:`~warpsph.errors.SceneError` naming an option becomes
+    argparse's usage error."""
     import argparse
 
     from warpsph.errors import SceneError
 
+    from warpsph.log import configure
+
     parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_arguments(parser)
     args = parser.parse_args(argv)
+    undo = configure()  # progress and warnings on stderr, as under ``warpsph COMMAND``
     try:
         return command(args)
     except SceneError as exc:
         parser.error(str(exc))
+    finally:
+        undo()

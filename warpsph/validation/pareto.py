@@ -47,6 +47,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import math
 import os
 import platform
@@ -71,6 +72,8 @@ CASES = ("lamb-oseen", "taylor-green")
 CORE_RADIUS = LAMB_OSEEN_CORE_RADIUS  # m: 3 spacings at 24 particles across L = 1 m
 ERROR_KEY, TIME_KEY = "error_percent", "wall_per_sim_s"
 DAM_ERROR_KEY, DAM_TIME_KEY = "dam_rms", "dam_wall_per_sim_s"
+
+logger = logging.getLogger(__name__)
 
 
 # --- the Pareto front -------------------------------------------------------------------------------
@@ -472,7 +475,7 @@ def write(report, out, png=False):
         try:
             plot(report, out.with_suffix(".png"))
         except ImportError as exc:
-            print(f"no PNG ({exc}); draw it elsewhere with --plot-only {out}", flush=True)
+            logger.warning(f"no PNG ({exc}); draw it elsewhere with --plot-only {out}")
 
 
 # --- driver -----------------------------------------------------------------------------------------
@@ -517,7 +520,7 @@ def study(methods, resolutions, tolerances, device="cpu", out=None, core_radius=
 
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
-    say = (lambda *a: None) if quiet else (lambda *a: print(*a, flush=True))
+    say = (lambda *a: None) if quiet else (lambda *a: logger.info(" ".join(map(str, a))))
     tg = case == "taylor-green"
     if tg:
         from warpsph.validation import taylor_green

@@ -34,6 +34,7 @@ draws it again).
 
 import contextlib
 import json
+import logging
 import tempfile
 from pathlib import Path
 
@@ -51,6 +52,8 @@ AXES = {  # name -> (default values, label)
 MODEL_AXES = {"alpha": ("vorticity_refinement", "alpha"), "beta": ("rankine", "beta"),
               "nu_t": ("micropolar", "transfer_coefficient")}
 REPO = Path(__file__).resolve().parents[2]
+
+logger = logging.getLogger(__name__)
 
 
 MEASURES = ["particles", "steps", "time_reached", "max_density_error_pct", "density_iterations", "ke_end",
@@ -259,7 +262,7 @@ def write(report, out):
     try:
         heat_map(report, out.parent / (out.name + ".png"))
     except Exception as exc:  # noqa: BLE001 - no matplotlib: the JSON and the table are the result
-        print(f"no heat map: {exc}")
+        logger.warning(f"no heat map: {exc}")
 
 
 def add_arguments(parser):
