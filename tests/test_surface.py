@@ -378,6 +378,18 @@ def test_a_run_meshes_in_a_worker_process_of_its_own(method):
     np.testing.assert_allclose(mesh.points, here.points, atol=1e-6)
 
 
+def test_mesher_workers_run_below_the_simulation_s_cpu_priority():
+    """The simulation's host thread feeds the GPU: on a busy CPU the meshing workers yield to it."""
+    from warpsph.surface import WORKER_NICENESS, ProcessMesher
+
+    mesher = ProcessMesher(SurfaceOptions(method="preview"), 0.02)
+    try:
+        niceness = mesher.pool.submit(os.nice, 0).result()
+    finally:
+        mesher.close()
+    assert niceness >= min(19, os.nice(0) + WORKER_NICENESS)
+
+
 def test_a_mesh_function_with_two_workers_meshes_two_frames_at_once():
     """Meshing one 1M-particle frame takes longer than simulating one: the background mesher keeps as many
     frames in flight as its mesh function has workers (both calls below must run together to pass the barrier)."""

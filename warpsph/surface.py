@@ -383,7 +383,7 @@ class ProcessMesher:
         self.workers = max(1, int(workers))
         spare = 2 if cores > 4 else 0  # the simulation's host thread and the writer keep a core each
         self.pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                        initializer=_limit_threads, initargs=(max(1, (cores - spare) // self.workers),))
+                                        initializer=_init_worker, initargs=(max(1, (cores - spare) // self.workers),))
         self.worker_pid = None
 
     def __call__(self, arrays):
@@ -396,11 +396,17 @@ class ProcessMesher:
         self.pool.shutdown(wait=True)
 
 
-def _limit_threads(threads):
-    """A mesher worker's share of the cores (splashsurf's rayon pool reads this when it starts)."""
+WORKER_NICENESS = 10  # the simulation's host thread launches the GPU's work: it goes first on a busy CPU
+
+
+def _init_worker(threads):
+    """A mesher worker: its share of the cores (splashsurf's rayon pool reads RAYON_NUM_THREADS when it
+    starts) at a lower CPU priority than the simulation."""
     import os
 
     os.environ.setdefault("RAYON_NUM_THREADS", str(threads))
+    if hasattr(os, "nice"):
+        os.nice(WORKER_NICENESS)
 
 
 def _mesh_in_worker(points, radius, velocities, vorticity, options, device):
