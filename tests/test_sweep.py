@@ -204,6 +204,22 @@ def test_scene_sweep_measures_and_the_viscosity_direction(scene_sweep):
     assert "| models | fluid.viscosity | particles | ke_ratio |" in md and "vorticity_refinement(alpha=1)" in md
 
 
+def test_scene_sweep_cells_keep_the_energies_and_enstrophy_per_frame(scene_sweep):
+    """The per-frame series the paper tables read (#21): rotational energy (0 without a model, > 0 with VR's
+    spin) and enstrophy beside the kinetic energy, one value a frame."""
+    path, table, out = scene_sweep
+    for cell, record in records(path, out):
+        row = record["row"]
+        n = row["frames"] + 1
+        assert len(row["kinetic_energy"]) == len(row["rotational_energy"]) == len(row["enstrophy"]) == n
+        assert row["enstrophy"][-1] == pytest.approx(row["enstrophy_end"], rel=1e-4)
+        assert row["enstrophy"][0] == pytest.approx(row["enstrophy_start"], rel=1e-4)
+        if cell["params"]["models"]:
+            assert all(e > 0 for e in row["rotational_energy"][1:])
+        else:
+            assert row["rotational_energy"] == [0.0] * n
+
+
 def test_scene_sweep_records_a_blow_up_with_its_step(tmp_path):
     path = _scene_sweep(tmp_path, axes={"time.fixed_dt": [0.05]}, fixed={"solver.max_iterations": 2})
     table = run_sweep(path, tmp_path / "out", log=lambda line: None)

@@ -45,7 +45,9 @@ Scene-file measures (``SCENE_MEASURES``, every frame measured by :class:`warpsph
 ``ke_ratio`` kinetic energy at the end / at the start (null when it starts at rest), ``enstrophy_end``,
 ``blow_up_step`` and ``unstable`` (the health check's message) of a blow-up, ``wall_s`` (the run alone, device
 synchronised, measurements subtracted), ``steps``, ``density_iterations`` / ``divergence_iterations`` (mean per
-solve, ``sim.statistics()``), ``dt_min`` (the smallest step: read back every step, asked for only).
+solve, ``sim.statistics()``), ``dt_min`` (the smallest step: read back every step, asked for only); per frame
+(lists, 5 significant digits): ``kinetic_energy``, ``rotational_energy`` (as the stats CSV: micropolar's
+spin, VR/Rankine's ζ/2; 0 for plain DFSPH/IISPH), ``enstrophy`` and ``frame_times``.
 
 Output folder: ``cells/CELL.json`` per cell (written atomically by the driver when the cell ends; ``status``
 "done", "unstable" (a blow-up: the health check's diagnostic in ``unstable``, a result) or "failed" (an
@@ -104,7 +106,7 @@ SCENE_MEASURES = ("particles", "ke_ratio", "ke_start", "ke_end", "ke_max", "ke_t
                   "enstrophy_end", "blow_up_step", "blow_up_time", "unstable", "instability", "steps", "frames",
                   "time_reached", "density_iterations", "divergence_iterations", "solver_density_error_pct",
                   "max_density_error_pct", "mean_density_error_pct", "dt_mean", "dt_min", "wall_s", "setup_s",
-                  "measure_s", "ms_per_step", "kinetic_energy", "frame_times")
+                  "measure_s", "ms_per_step", "kinetic_energy", "rotational_energy", "enstrophy", "frame_times")
 SCENE_DEFAULT_MEASURES = ("particles", "ke_ratio", "enstrophy_end", "blow_up_step", "steps", "density_iterations",
                           "wall_s")
 # differ from run to run: not compared between executors
@@ -636,7 +638,9 @@ def scene_row(cell, device):
         max_density_error_pct=100 * max(f["density_error_max"] for f in frames) if frames else None,
         mean_density_error_pct=100 * float(np.mean([f["density_error_mean"] for f in frames])) if frames else None,
         dt_mean=sim.time / max(sim.step_count, 1), ms_per_step=1e3 * row["wall_s"] / max(sim.step_count, 1),
-        kinetic_energy=[float(f"{e:.5g}") for e in ke], frame_times=[round(f["time"], 5) for f in frames])
+        kinetic_energy=[float(f"{e:.5g}") for e in ke], frame_times=[round(f["time"], 5) for f in frames],
+        rotational_energy=[float(f"{f['rotational_energy']:.5g}") for f in frames],
+        enstrophy=[float(f"{e:.5g}") for e in enstrophy])
     row.setdefault("blow_up_step", None)
     if dts:
         row["dt_min"] = min(dts)
