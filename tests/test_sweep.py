@@ -89,6 +89,17 @@ def test_ray_gives_the_same_table(local, tmp_path):
     assert comparable(table) == comparable(local[1])
 
 
+def test_a_yaml_sweep_file_is_the_same_sweep(tmp_path):
+    yaml = pytest.importorskip("yaml", reason="YAML sweep files need pyyaml")
+    as_json, as_yaml = tmp_path / "s.json", tmp_path / "s.yaml"
+    as_json.write_text(json.dumps(SWEEP))
+    as_yaml.write_text(yaml.safe_dump(SWEEP))
+    assert cells(load_sweep(as_yaml)) == cells(load_sweep(as_json))
+    as_yaml.write_text("axes: [unclosed")
+    with pytest.raises(SceneError, match="not valid YAML"):
+        load_sweep(as_yaml)
+
+
 def test_killed_driver_rerun_finishes_the_missing_cells(tmp_path):
     sweep = tmp_path / "sweep.json"
     sweep.write_text(json.dumps(SWEEP))
