@@ -230,10 +230,23 @@ def test_scene_sweep_cells_keep_the_energies_and_enstrophy_per_frame(scene_sweep
         assert len(row["kinetic_energy"]) == len(row["rotational_energy"]) == len(row["enstrophy"]) == n
         assert row["enstrophy"][-1] == pytest.approx(row["enstrophy_end"], rel=1e-4)
         assert row["enstrophy"][0] == pytest.approx(row["enstrophy_start"], rel=1e-4)
+        assert row["particles_end"] == row["particles"] == 360  # no emitter, no sink
         if cell["params"]["models"]:
             assert all(e > 0 for e in row["rotational_energy"][1:])
         else:
             assert row["rotational_energy"] == [0.0] * n
+
+
+def test_scene_sweep_counts_the_particles_an_emitter_added(tmp_path):
+    """An inflow scene starts with one layer (25 particles); particles_end counts what the emitter added."""
+    scene = {"name": "channel", "particle_radius": 0.02, "domain": {"min": [0, 0, 0], "max": [1.0, 0.4, 0.2]},
+             "emitters": [{"min": [0, 0, 0], "max": [0.04, 0.2, 0.2], "velocity": [1.0, 0, 0]}],
+             "output": {"fps": 20, "frames": 2}}
+    (tmp_path / "channel.json").write_text(json.dumps(scene))
+    sweep = {"scene": str(tmp_path / "channel.json"), "time": 0.1, "warm_up": False, "axes": {"models": [[]]},
+             "measures": ["particles", "particles_end"]}
+    [row] = run_sweep(sweep, tmp_path / "out", log=lambda line: None)["rows"]
+    assert row["status"] == "done" and row["particles"] == 25 and row["particles_end"] >= 25 * 3
 
 
 def test_scene_sweep_records_a_blow_up_with_its_step(tmp_path):

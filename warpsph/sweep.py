@@ -42,6 +42,7 @@ Every key and value is checked before anything runs: a bad one raises :class:`wa
 it (``axes.models[1]``, ``cells[2].time.cfl``).
 
 Scene-file measures (``SCENE_MEASURES``, every frame measured by :class:`warpsph.diagnostics.Diagnostics`):
+``particles`` (fluid particles at the start) and ``particles_end`` (at the end: emitters add, sinks remove),
 ``ke_ratio`` kinetic energy at the end / at the start (null when it starts at rest), ``enstrophy_end``,
 ``blow_up_step`` and ``unstable`` (the health check's message) of a blow-up, ``wall_s`` (the run alone, device
 synchronised, measurements subtracted), ``steps``, ``density_iterations`` / ``divergence_iterations`` (mean per
@@ -102,7 +103,7 @@ CASE_MEASURES = {
     "dam-front": ("front_rms_shifted", "front_rms_raw", "time_shift_T", "points", "depth", "T_end"),
 }
 # row keys of a scene-file cell
-SCENE_MEASURES = ("particles", "ke_ratio", "ke_start", "ke_end", "ke_max", "ke_tail_mean", "enstrophy_start",
+SCENE_MEASURES = ("particles", "particles_end", "ke_ratio", "ke_start", "ke_end", "ke_max", "ke_tail_mean", "enstrophy_start",
                   "enstrophy_end", "blow_up_step", "blow_up_time", "unstable", "instability", "steps", "frames",
                   "time_reached", "density_iterations", "divergence_iterations", "solver_density_error_pct",
                   "max_density_error_pct", "mean_density_error_pct", "dt_mean", "dt_min", "wall_s", "setup_s",
@@ -628,7 +629,7 @@ def scene_row(cell, device):
     ke = [f["kinetic_energy"] for f in frames]
     enstrophy = [f["enstrophy"] for f in frames]
     row.update(
-        steps=sim.step_count, frames=sim.frame, time_reached=sim.time,
+        steps=sim.step_count, frames=sim.frame, time_reached=sim.time, particles_end=sim.num_fluid,
         ke_start=ke[0] if ke else None, ke_end=ke[-1] if ke else None,
         ke_ratio=ke[-1] / ke[0] if ke and ke[0] > 0 else None, ke_max=max(ke, default=None),
         ke_tail_mean=float(np.mean(ke[-max(1, len(ke) // 4):])) if ke else None,
