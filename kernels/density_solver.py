@@ -17,7 +17,7 @@ def compute_density_source(
     density: wp.array(dtype=float),
     factor: wp.array(dtype=float),
     surface: wp.array(dtype=wp.int32),
-    surface_count: wp.array(dtype=wp.int32),
+    free_surface: wp.array(dtype=wp.int32),
     fluid_volume: float,
     rest_density: float,
     support_radius: float,
@@ -30,7 +30,7 @@ def compute_density_source(
     (:func:`pressure_source`), and k_i from :func:`relaxed_stiffness`."""
     i = wp.tid()
     h = dt[0]
-    is_clamped = clamped(surface[i], surface_count)
+    is_clamped = clamped(surface[i], free_surface)
     predicted = density[i] / rest_density + h * density_rate(i, x, v, nb, boundary, fluid_volume, support_radius)
     s = pressure_source(predicted - 1.0, is_clamped)
     error[i] = s

@@ -20,7 +20,7 @@ def compute_divergence_source(
     boundary: Boundary,
     factor: wp.array(dtype=float),
     surface: wp.array(dtype=wp.int32),
-    surface_count: wp.array(dtype=wp.int32),
+    free_surface: wp.array(dtype=wp.int32),
     fluid_volume: float,
     support_radius: float,
     dt: wp.array(dtype=float),
@@ -32,7 +32,7 @@ def compute_divergence_source(
     i = wp.tid()
     count = nb.fluid_offsets[i + 1] - nb.fluid_offsets[i] + nb.boundary_offsets[i + 1] - nb.boundary_offsets[i]
     s = float(0.0)
-    is_clamped = clamped(surface[i], surface_count)
+    is_clamped = clamped(surface[i], free_surface)
     if count >= MIN_NEIGHBOURS:
         s = pressure_source(density_rate(i, x, v, nb, boundary, fluid_volume, support_radius), is_clamped)
     error[i] = s

@@ -35,14 +35,17 @@ def classify_free_surface(
     density_threshold: float,
     surface: wp.array(dtype=wp.int32),
     surface_count: wp.array(dtype=wp.int32),
+    free_surface: wp.array(dtype=wp.int32),
 ):
     """surface_i = SURFACE where :func:`on_free_surface` (counted in ``surface_count[0]``), BAND where a fluid
-    neighbour is, WALL where boundary samples are in the support, else BULK."""
+    neighbour is, WALL where boundary samples are in the support, else BULK. A surface particle also sets
+    ``free_surface[0]`` (which the solver sets to 1 beforehand in a scene whose fluid does not fill its domain)."""
     i = wp.tid()
     flag = int(BULK)
     if on_free_surface(i, position_divergence, density, threshold, density_threshold):
         flag = SURFACE
         wp.atomic_add(surface_count, 0, 1)
+        free_surface[0] = 1
     else:
         for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
             if on_free_surface(nb.fluid[k], position_divergence, density, threshold, density_threshold):

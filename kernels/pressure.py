@@ -84,12 +84,12 @@ BULK_RELAXATION = wp.constant(0.5)
 
 
 @wp.func
-def clamped(surface: int, surface_count: wp.array(dtype=wp.int32)):
+def clamped(surface: int, free_surface: wp.array(dtype=wp.int32)):
     """Whether particle i keeps p >= 0: on the free surface and in its band, and everywhere in a scene that
     has a free surface at all. Signed bulk pressure in free-surface flow tripled the 1M dam break's density
     iterations (6.8 -> 20.8 a step, 5.7 -> 16.6 ms on the H100) with no gain in the front or the hydrostatic
     pressure (docs/notes/solver.md), so only boxes without free surface solve for signed pressure."""
-    return surface == BAND or surface == SURFACE or surface_count[0] > 0
+    return surface == BAND or surface == SURFACE or free_surface[0] > 0
 
 
 @wp.func
@@ -130,11 +130,11 @@ def reduce_error(error: wp.array(dtype=float), count: int, error_stats: wp.array
 
 
 @wp.kernel
-def reduce_source_sum(source: wp.array(dtype=float), count: int, surface_count: wp.array(dtype=wp.int32),
+def reduce_source_sum(source: wp.array(dtype=float), count: int, free_surface: wp.array(dtype=wp.int32),
                       error_stats: wp.array(dtype=float)):
-    """error_stats[2] += sum of the signed source, in a box without free surface (``surface_count[0]`` 0;
+    """error_stats[2] += sum of the signed source, in a box without free surface (``free_surface[0]`` 0;
     update_solver_status resets it). Grid-stride like :func:`reduce_error`; allocates nothing."""
-    if surface_count[0] != 0:
+    if free_surface[0] != 0:
         return
     t = wp.tid()
     threads = wp.min(count, REDUCE_THREADS)
@@ -148,18 +148,18 @@ def reduce_source_sum(source: wp.array(dtype=float), count: int, surface_count: 
 def remove_mean_source(
     error_stats: wp.array(dtype=float),
     count: int,
-    surface_count: wp.array(dtype=wp.int32),
+    free_surface: wp.array(dtype=wp.int32),
     factor: wp.array(dtype=float),
     dt: wp.array(dtype=float),
     per_unit_time: int,
     error: wp.array(dtype=float),
     stiffness: wp.array(dtype=float),
 ):
-    """Compatibility condition of a box without free surface (``surface_count[0]`` 0; periodic or walled
+    """Compatibility condition of a box without free surface (``free_surface[0]`` 0; periodic or walled
     all round): the pressure problem is pure Neumann, a constant pressure moves nothing, so a source with
     a non-zero sum has no solution and Jacobi drifts. s_i := s_i - mean(s) (mean = error_stats[2] / count,
     from :func:`reduce_source_sum`), and k_i again from :func:`relaxed_stiffness`."""
-    if surface_count[0] != 0:
+    if free_surface[0] != 0:
         return
     i = wp.tid()
     s = error[i] - error_stats[2] / float(wp.max(count, 1))

@@ -31,7 +31,7 @@ def limit_length(d: wp.vec3, max_length: float):
 def compute_shift(
     concentration_gradient: wp.array(dtype=wp.vec3),
     surface: wp.array(dtype=wp.int32),
-    surface_count: wp.array(dtype=wp.int32),
+    free_surface: wp.array(dtype=wp.int32),
     support_radius: float,
     dt: wp.array(dtype=float),
     max_speed_sq: wp.array(dtype=float),
@@ -43,12 +43,12 @@ def compute_shift(
     speed, h = H / 2), |shift_i| <= max_shift; grad C_i = sum_f V_j grad W_ij + sum_b V_b grad W_ib from
     the density pass at the step's start. In the surface band and beside walls only its part normal to
     grad C (which is the surface's or the wall's normal there), none on the free surface. Only in a box
-    without free surface (``surface_count[0]`` 0): with one, the shift from the step-start grad C
+    without free surface (``free_surface[0]`` 0): with one, the shift from the step-start grad C
     compressed a 16K dam break to 1.15 rho0 (docs/notes/solver.md)."""
     i = wp.tid()
     d = wp.vec3(0.0)
     flag = surface[i]
-    if flag != SURFACE and surface_count[0] == 0:
+    if flag != SURFACE and free_surface[0] == 0:
         grad_c = concentration_gradient[i]
         d = -coefficient * 0.5 * support_radius * wp.sqrt(max_speed_sq[0]) * dt[0] * grad_c
         if flag == BAND or flag == WALL:
