@@ -130,7 +130,7 @@ def on_a_terminal(argv, cwd):
 def test_progress_on_a_terminal(tmp_path, rich):
     """A terminal gets a rich bar when rich is installed, else the plain lines."""
     if rich == "with-rich":
-        pytest.importorskip("rich")
+        pytest.importorskip("rich", reason="the progress bar needs rich (warpsph[rich]; the test extra installs it)")
     scene = write_tank(tmp_path)
     code, err = on_a_terminal([sys.executable, "-c", TERMINAL, rich, "run", str(scene), "--device", "cpu",
                                "--out", str(tmp_path / "o.usdc")], tmp_path)

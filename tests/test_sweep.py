@@ -76,7 +76,7 @@ def test_rerun_skips_finished_cells(local, tmp_path):
 
 
 def test_ray_gives_the_same_table(local, tmp_path):
-    ray = pytest.importorskip("ray")
+    ray = pytest.importorskip("ray", reason="the Ray executor needs ray (warpsph[ray])")
     try:
         ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     except Exception as exc:  # noqa: BLE001
