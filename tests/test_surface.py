@@ -19,6 +19,12 @@ from warpsph.cli import main
 from warpsph.surface import SurfaceOptions, boundary_edges, mesh_volume
 
 
+def need_pysplashsurf():
+    """Skips the test where pysplashsurf is missing (warpsph[surface]; the test extra installs it)."""
+    pytest.importorskip("pysplashsurf", reason="surface meshes need pysplashsurf (warpsph[surface]; the test "
+                                               "extra installs it)")
+
+
 def lattice_sphere(radius, sphere):
     """Particles of radius ``radius`` on a cubic lattice 2 r apart inside a ball of radius ``sphere``."""
     g = np.arange(-sphere, sphere + 1e-9, 2 * radius)
@@ -51,7 +57,7 @@ def surface_frames(path):
 
 @pytest.mark.parametrize("cube", [0.5, 0.75])
 def test_a_sphere_of_particles_meshes_to_a_closed_surface_of_the_particles_volume(cube):
-    pytest.importorskip("pysplashsurf", reason="surface meshes need pysplashsurf (warpsph[surface]; the test extra installs it)")
+    need_pysplashsurf()
     from warpsph.surface import reconstruct
 
     r, sphere = 0.01, 0.2
@@ -77,7 +83,7 @@ def test_smoothing_length_and_cube_are_multiples_of_the_particle_radius():
     """pysplashsurf 0.14.1.0 reads them as multiples of the radius (its docstring of
     reconstruct_surface says absolute units): the mesh of a sphere scales with the sphere and the
     edges are about cube * r long."""
-    pytest.importorskip("pysplashsurf", reason="surface meshes need pysplashsurf (warpsph[surface]; the test extra installs it)")
+    need_pysplashsurf()
     from warpsph.surface import reconstruct
 
     r, sphere = 0.01, 0.2
@@ -93,7 +99,7 @@ def test_smoothing_length_and_cube_are_multiples_of_the_particle_radius():
 
 
 def test_no_particles_give_an_empty_mesh():
-    pytest.importorskip("pysplashsurf", reason="surface meshes need pysplashsurf (warpsph[surface]; the test extra installs it)")
+    need_pysplashsurf()
     from warpsph.surface import reconstruct
 
     mesh = reconstruct(np.zeros((0, 3)), 0.01, np.zeros((0, 3)))
@@ -102,7 +108,7 @@ def test_no_particles_give_an_empty_mesh():
 
 @pytest.mark.parametrize("clips", [False, True])
 def test_a_run_with_surface_has_a_mesh_at_every_frame(tmp_path, clips):
-    pytest.importorskip("pysplashsurf", reason="surface meshes need pysplashsurf (warpsph[surface]; the test extra installs it)")
+    need_pysplashsurf()
     scene = small_scene(tmp_path)
     out = tmp_path / ("run.usda" if clips else "run.usdc")
     assert run_cli("run", scene, "--out", out, "--surface", *(["--clips"] if clips else [])) == 0
@@ -129,7 +135,7 @@ def test_a_run_with_surface_has_a_mesh_at_every_frame(tmp_path, clips):
 
 
 def test_resume_keeps_meshing(tmp_path):
-    pytest.importorskip("pysplashsurf", reason="surface meshes need pysplashsurf (warpsph[surface]; the test extra installs it)")
+    need_pysplashsurf()
     scene = small_scene(tmp_path)
     out = tmp_path / "run.usdc"
     assert run_cli("run", scene, "--out", out, "--surface", "--checkpoint-every", "2", "--frames", "2") == 0
@@ -152,7 +158,7 @@ sys.exit(main(sys.argv[1:]))
 
 
 def test_sigint_leaves_a_readable_cache_with_the_meshes_of_the_frames_done(tmp_path):
-    pytest.importorskip("pysplashsurf", reason="surface meshes need pysplashsurf (warpsph[surface]; the test extra installs it)")
+    need_pysplashsurf()
     data = tank_scene(radius=0.03, domain=(0.6, 0.4, 0.2), block=(0.2, 0.3, 0.2), output={"fps": 50, "frames": 400})
     scene = write_scene(tmp_path, data)
     out = tmp_path / "long.usdc"
@@ -177,7 +183,7 @@ def test_sigint_leaves_a_readable_cache_with_the_meshes_of_the_frames_done(tmp_p
 
 @pytest.mark.parametrize("source", ["usdc", "clips", "h5"])
 def test_surface_command_meshes_a_finished_cache_into_a_new_layer(tmp_path, source, capsys):
-    pytest.importorskip("pysplashsurf", reason="surface meshes need pysplashsurf (warpsph[surface]; the test extra installs it)")
+    need_pysplashsurf()
     scene = small_scene(tmp_path)
     out = tmp_path / ("run.usda" if source == "clips" else "run.usdc")
     extra = {"usdc": [], "clips": ["--clips"], "h5": ["--particles-h5"]}[source]
@@ -300,7 +306,7 @@ def test_a_run_with_the_preview_surface_needs_no_pysplashsurf(tmp_path, clips, m
 
 @pytest.mark.parametrize("clips", [False, True])
 def test_surface_every_k_meshes_every_kth_frame_and_the_mesh_holds_between(tmp_path, clips, capsys):
-    pytest.importorskip("pysplashsurf", reason="surface meshes need pysplashsurf (warpsph[surface]; the test extra installs it)")
+    need_pysplashsurf()
     scene = small_scene(tmp_path, frames=5)
     out = tmp_path / ("run.usda" if clips else "run.usdc")
     assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "--surface", "--surface-every", "2",
@@ -323,7 +329,7 @@ SLOW = 0.6
 def test_a_mesher_behind_the_simulation_skips_frames_or_waits(tmp_path, monkeypatch, capsys, behind):
     """A mesher slower than the simulation: skip meshes what it can and never holds the run up
     (frames skipped are counted and listed in the metadata); wait meshes every frame."""
-    pytest.importorskip("pysplashsurf", reason="surface meshes need pysplashsurf (warpsph[surface]; the test extra installs it)")
+    need_pysplashsurf()
     from warpsph import cli, surface
 
     def slow_mesher(options, radius, device="cpu"):  # in this process, so that the sleep holds
@@ -361,7 +367,7 @@ def test_a_run_meshes_in_a_worker_process_of_its_own(method):
     """pysplashsurf holds the GIL while it meshes, and Warp's current device is process-wide: a run's
     meshes are made in a spawned worker process, and equal the meshes made here."""
     if method == "splashsurf":
-        pytest.importorskip("pysplashsurf", reason="surface meshes need pysplashsurf (warpsph[surface]; the test extra installs it)")
+        need_pysplashsurf()
     from warpsph.surface import mesh_frame, mesher_for
 
     r = 0.02
