@@ -57,3 +57,29 @@ def fail_frame_writes(monkeypatch, clips, frame, error):
 
     monkeypatch.setattr(cls, "write_frame", write_frame)
     return cls, original
+
+
+def interrupt_a_long_run(tmp_path, script, *options, pause):
+    """Runs ``python -c script run SCENE --out long.usdc --quiet OPTIONS`` on a 400-frame tank in a child process,
+    sends it SIGINT ``pause`` seconds after its stats CSV holds two frames, and returns (out, exit code, stderr)."""
+    import json
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps(tank_scene(radius=0.03, domain=(0.6, 0.4, 0.2), block=(0.2, 0.3, 0.2),
+                                           output={"fps": 50, "frames": 400})))
+    out = tmp_path / "long.usdc"
+    proc = subprocess.Popen([sys.executable, "-c", script, "run", str(scene), "--device", "cpu", "--out", str(out),
+                             "--quiet", *options], stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"}, cwd=tmp_path)
+    stats = out.with_suffix(".stats.csv")
+    deadline = time.time() + 120
+    while time.time() < deadline and (not stats.exists() or len(stats.read_text().splitlines()) < 3):
+        time.sleep(0.05)
+    time.sleep(pause)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    return out, proc.returncode, err

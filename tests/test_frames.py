@@ -3,18 +3,13 @@ simulation's thread, errors that stop the run cleanly, signals that leave a read
 lean caches (--fields, ids only when they change)."""
 
 import json
-import os
-import signal
-import subprocess
-import sys
 import textwrap
-import time
 
 import numpy as np
 import pytest
 from pxr import Usd, UsdGeom
 
-from conftest import tank_scene
+from conftest import interrupt_a_long_run, tank_scene
 from warpsph.cli import main
 
 
@@ -189,26 +184,14 @@ SLOW_WRITER = textwrap.dedent("""
 def test_sigint_during_a_write_leaves_a_readable_cache_and_a_matching_checkpoint(tmp_path):
     import h5py
 
-    data = tank_scene(radius=0.03, domain=(0.6, 0.4, 0.2), block=(0.2, 0.3, 0.2), output={"fps": 50, "frames": 400})
-    scene = write_scene(tmp_path, data)
-    out = tmp_path / "long.usdc"
-    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.Popen([sys.executable, "-c", SLOW_WRITER, "run", str(scene), "--device", "cpu", "--out", str(out),
-                             "--quiet"], stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
-    stats = out.with_suffix(".stats.csv")
-    deadline = time.time() + 120
-    while time.time() < deadline and (not stats.exists() or len(stats.read_text().splitlines()) < 3):
-        time.sleep(0.05)
-    time.sleep(0.15)  # mid-write
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 130, err
+    out, code, err = interrupt_a_long_run(tmp_path, SLOW_WRITER, pause=0.15)  # mid-write
+    assert code == 130, err
     done = time_samples(out)
     assert done == [float(f) for f in range(len(done))] and len(done) >= 2
     assert f"holds frames 0..{len(done) - 1}" in err
     with h5py.File(out.with_suffix(".checkpoint.h5"), "r") as f:
         assert f.attrs["frame"] == len(done) - 1
-    rows = stats.read_text().splitlines()
+    rows = out.with_suffix(".stats.csv").read_text().splitlines()
     assert len(rows) == len(done) + 1
     assert main(["resume", str(out.with_suffix(".checkpoint.h5")), "--device", "cpu", "--frames", str(len(done) + 1),
                  "--quiet"]) == 0

@@ -5,8 +5,6 @@ tests that mesh need pysplashsurf (``warpsph[surface]``); the refusals run witho
 
 import json
 import os
-import signal
-import subprocess
 import sys
 import time
 
@@ -14,7 +12,7 @@ import numpy as np
 import pytest
 from pxr import Usd
 
-from conftest import tank_scene
+from conftest import interrupt_a_long_run, tank_scene
 from warpsph.cli import main
 from warpsph.surface import SurfaceOptions, boundary_edges, mesh_volume
 
@@ -147,11 +145,12 @@ def test_resume_keeps_meshing(tmp_path):
 SLOW_MESHER = """
 import sys, time
 from warpsph import surface
-original = surface.reconstruct
-def slow(*args, **kwargs):
-    time.sleep(0.2)  # a slow mesher: the signal arrives while a frame is being meshed
-    return original(*args, **kwargs)
-surface.reconstruct = slow
+def slow_mesher(options, radius, device="cpu"):  # in the run's process, so that the sleep holds
+    def mesh(arrays):
+        time.sleep(0.2)  # a slow mesher: the signal arrives while a frame is being meshed
+        return surface.mesh_frame(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options, device)
+    return mesh
+surface.mesher_for = slow_mesher
 from warpsph.cli import main
 sys.exit(main(sys.argv[1:]))
 """
@@ -159,20 +158,8 @@ sys.exit(main(sys.argv[1:]))
 
 def test_sigint_leaves_a_readable_cache_with_the_meshes_of_the_frames_done(tmp_path):
     need_pysplashsurf()
-    data = tank_scene(radius=0.03, domain=(0.6, 0.4, 0.2), block=(0.2, 0.3, 0.2), output={"fps": 50, "frames": 400})
-    scene = write_scene(tmp_path, data)
-    out = tmp_path / "long.usdc"
-    proc = subprocess.Popen([sys.executable, "-c", SLOW_MESHER, "run", str(scene), "--device", "cpu", "--out", str(out),
-                             "--quiet", "--surface"], stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"}, cwd=tmp_path)
-    stats = out.with_suffix(".stats.csv")
-    deadline = time.time() + 120
-    while time.time() < deadline and (not stats.exists() or len(stats.read_text().splitlines()) < 3):
-        time.sleep(0.05)
-    time.sleep(0.1)  # mid-mesh
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 130, err
+    out, code, err = interrupt_a_long_run(tmp_path, SLOW_MESHER, "--surface", pause=0.1)  # mid-mesh
+    assert code == 130, err
     stage, prim = surface_frames(out)
     done = stage.GetPrimAtPath("/World/Fluid").GetAttribute("points").GetTimeSamples()
     assert len(done) >= 2 and done == [float(f) for f in range(len(done))]
