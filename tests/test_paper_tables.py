@@ -48,3 +48,48 @@ def test_thin_picks_the_frames_nearest_each_step():
     t = np.arange(0, 51) / 25 + 3e-5
     picked = pt.thin(t, t, step=0.2)
     assert [p[0] for p in picked] == pytest.approx([0.2 * k for k in range(11)], abs=1e-3)
+
+
+def test_vr_fig10_flowing_and_after_means_and_a_short_run():
+    meta = {**META, "time": 20.0}
+    base = _row("DFSPH", lambda t: 100 * np.exp(-t / 5) + 1, t_end=20.0)
+    vr = _row("VR", lambda t: 0.9 * (100 * np.exp(-t / 5) + 1), [{"type": "vorticity_refinement", "alpha": 1.0}],
+              t_end=20.0)
+    late = _row("late", lambda t: (100 * np.exp(-t / 5) + 1) * np.where(t > 15, 3.0, 1.0), t_end=20.0)
+    short = _row("short", lambda t: 100 * np.exp(-t / 5) + 1, t_end=12.0)
+    rows = pt.vr_fig10(meta, [base, vr, late, short])
+    assert rows[1]["E/E_DFSPH t=2.5"] == pytest.approx(0.9) and rows[1]["E/E_DFSPH t=15"] == pytest.approx(0.9)
+    assert rows[1]["mean E/E_DFSPH [0,15]"] == pytest.approx(0.9)
+    assert rows[1]["mean E/E_DFSPH [15,end]"] == pytest.approx(0.9)
+    assert rows[1]["settled"] is True
+    assert rows[2]["mean E/E_DFSPH [0,15]"] == pytest.approx(1)  # flowing: as DFSPH; after: 3x
+    assert rows[2]["mean E/E_DFSPH [15,end]"] == pytest.approx(3, rel=0.01)
+    assert rows[2]["E[19,20] / E_DFSPH[19,20]"] == pytest.approx(3) and rows[2]["settled"] is False
+    assert rows[3]["E/E_DFSPH t=10"] == pytest.approx(1) and rows[3]["E/E_DFSPH t=12.5"] is None
+    assert rows[3]["mean E/E_DFSPH [0,15]"] is None and rows[3]["mean E/E_DFSPH [15,end]"] is None
+    assert rows[3]["settled"] is None
+
+
+def test_table1_overheads_and_a_missing_file(tmp_path):
+    import json
+
+    def bench(scene, model, ms):
+        (tmp_path / f"table1_{scene}_{model}.json").write_text(json.dumps(
+            {"scene": scene, "model": model, "device": "GPU", "warp": "1.19.0", "commit": "abc1234",
+             "fluid_particles": 1000, "ms_per_step": ms}))
+
+    bench("dam_break_board", "none", 5.0)
+    bench("dam_break_board", "micropolar", 6.0)
+    bench("dam_break_board", "vorticity_refinement", 5.5)
+    bench("propeller", "none", 4.0)
+    pt.main(["table1", str(tmp_path), "--json", str(tmp_path / "t1.json")])
+    out = json.loads((tmp_path / "t1.json").read_text())
+    board, propeller = out["rows"][0], out["rows"][4]
+    assert (board["experiment"], board["figure"], board["particles"]) == ("Board", 3, 1000)
+    assert board["MP overhead %"] == pytest.approx(20) and board["VR overhead %"] == pytest.approx(10)
+    assert propeller["DFSPH ms/step"] == 4.0 and propeller["MP ms/step"] is None and propeller["VR overhead %"] is None
+    assert out["rows"][2]["experiment"] == "Sphere" and out["rows"][2]["particles"] is None
+    assert [r["paper VR overhead %"] for r in out["rows"]] == [6.8, 12.2, 10.2, 39.7, 31.2]
+    assert [r["paper MP overhead %"] for r in out["rows"]] == [6.9, 19.4, 3.5, 20.4, 29.6]
+    assert (out["device"], out["warp"], out["commit"]) == ("GPU", "1.19.0", "abc1234")
+    assert "| Board | 3 | 1000 | 5 | 6 | 5.5 | 20 | 10 |" in (tmp_path / "t1.md").read_text()

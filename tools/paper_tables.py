@@ -1,7 +1,9 @@
-"""The papers' energy figures as tables (#21), from a finished scene-file sweep's cell files.
+"""The papers' energy figures as tables (#21), from a finished scene-file sweep's cell files; and the VR paper's
+Table 1 (cost per scene) from `warpsph bench steps` files.
 
     python tools/paper_tables.py vr-fig7 sweeps/vr_fig7_cpu.json OUT_DIR --json tools/results/vr_fig7_cpu.json
     python tools/paper_tables.py blocks sweeps/rankine_fig11_cpu.json OUT_DIR --json tools/results/rankine_fig11_cpu.json
+    python tools/paper_tables.py table1 BENCH_DIR --json tools/results/vr_table1_h100.json
 
 Reads each cell's per-frame series (``kinetic_energy``, ``rotational_energy``, ``frame_times``; see
 warpsph/sweep.py) and writes a small JSON (no per-particle data; the energy series thinned to 0.2 s) and the
@@ -13,6 +15,12 @@ t = 2, 4, 6, 8, 10 s, E the fluid's kinetic energy averaged over a window of +-W
 [9, 10] s is at most SETTLE_FACTOR times DFSPH's over the same second (the paper's criterion: "the energy values
 after 10 s ... are very close to the DFSPH values", the methods that "have higher energy than DFSPH" do not
 settle); and that window's energy over the run's peak (how calm the fluid is in absolute terms).
+
+vr-fig10 (VR paper Fig 10, hemisphere): as vr-fig7 at t = 2.5, 5, ..., 15 s, the means over [0, 15] s (flowing)
+and [15, end] s (after), settled over the sweep's last second; times past a run's end give None.
+
+table1 (VR paper Table 1): ms/step of DFSPH, micropolar and VR per scene from BENCH_DIR/table1_<scene>_<model>.json,
+the models' overheads, and the paper's minutes and overheads beside them.
 
 blocks (Rankine paper Figs 11-12, falling blocks): per cell the kinetic energy's peak and its time, the energy
 at the end over the baseline's (the cell without a model on the same pressure solver), the rotational energy
@@ -30,9 +38,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 TIMES = (2.0, 4.0, 6.0, 8.0, 10.0)
+FIG10_TIMES = (2.5, 5.0, 7.5, 10.0, 12.5, 15.0)
 WINDOW = 0.2          # s either side of each time
-SETTLE_WINDOW = (9.0, 10.0)
-SETTLE_FACTOR = 1.5   # "very close to DFSPH": within 1.5x of its kinetic energy over [9, 10] s
+SETTLE_FACTOR = 1.5   # "very close to DFSPH": within 1.5x of its kinetic energy over the last second
 
 
 def label(models):
@@ -99,9 +107,13 @@ def ratio(a, b):
     return None if a is None or b is None or b <= 0 else a / b
 
 
-def vr_fig7(meta, rows):
+def energy_table(meta, rows, times, means):
+    """Each cell's kinetic energy against the first cell's (DFSPH): window ratios at ``times`` (None past either
+    run's end), per-frame ratio means over ``means`` ((lo, hi), hi None: to the end), and the sweep's last second
+    against DFSPH's ("settled") and the run's peak."""
     base = rows[0]  # DFSPH as the scene file has it
-    t_end = meta["time"]
+    lo_s, hi_s = meta["time"] - 1.0, meta["time"]
+    tail_key = f"E[{lo_s:g},{hi_s:g}]"
     out = []
     for r in rows:
         if r["status"] == "missing":
@@ -109,25 +121,39 @@ def vr_fig7(meta, rows):
             continue
         row = {"method": r["label"], "status": r["status"], "particles": r["particles"], "steps": r["steps"],
                "wall_s": r["wall_s"]}
-        for T in TIMES:
-            lo, hi = (T - WINDOW, T + WINDOW) if T < t_end - 1e-9 else (T - 2 * WINDOW, T)
-            row[f"E/E_DFSPH t={T:g}"] = ratio(window_mean(r["t"], r["ke"], lo, hi),
-                                             window_mean(base["t"], base["ke"], lo, hi))
+        end = min(meta["time"], r["t"][-1], base["t"][-1])
+        for T in times:
+            lo, hi = (T - WINDOW, T + WINDOW) if T + WINDOW < end - 1e-9 else (T - 2 * WINDOW, T)
+            row[f"E/E_DFSPH t={T:g}"] = None if T > end + 1e-6 else \
+                ratio(window_mean(r["t"], r["ke"], lo, hi), window_mean(base["t"], base["ke"], lo, hi))
         n = min(len(r["t"]), len(base["t"]))
         t = r["t"][:n]
-        sel = (t >= 2.0 - 1e-9) & (t <= 8.0 + 1e-9) & (base["ke"][:n] > 0)
-        row["mean E/E_DFSPH [2,8]"] = float(np.mean(r["ke"][:n][sel] / base["ke"][:n][sel])) if sel.any() else None
-        tail = window_mean(r["t"], r["ke"], *SETTLE_WINDOW)
-        row["E[9,10] / E_DFSPH[9,10]"] = ratio(tail, window_mean(base["t"], base["ke"], *SETTLE_WINDOW))
-        row["E[9,10] / E_max"] = ratio(tail, float(r["ke"].max()))
+        for lo, hi in means:
+            key = f"mean E/E_DFSPH [{lo:g},{'end' if hi is None else f'{hi:g}'}]"
+            hi = end if hi is None else hi
+            sel = (t >= lo - 1e-9) & (t <= hi + 1e-9) & (base["ke"][:n] > 0)
+            row[key] = float(np.mean(r["ke"][:n][sel] / base["ke"][:n][sel])) \
+                if sel.any() and lo < end - 1e-6 and hi <= end + 1e-6 else None
+        tail = window_mean(r["t"], r["ke"], lo_s, hi_s)
+        row[f"{tail_key} / E_DFSPH[{lo_s:g},{hi_s:g}]"] = settle = \
+            ratio(tail, window_mean(base["t"], base["ke"], lo_s, hi_s))
+        row[f"{tail_key} / E_max"] = ratio(tail, float(r["ke"].max()))
         row["E_max (J)"] = float(r["ke"].max())
-        row["settled"] = None if row["E[9,10] / E_DFSPH[9,10]"] is None else \
-            bool(row["E[9,10] / E_DFSPH[9,10]"] <= SETTLE_FACTOR)
+        row["settled"] = None if settle is None else bool(settle <= SETTLE_FACTOR)
         if r["status"] == "unstable":
             row["settled"], row["unstable"] = False, r["unstable"]
         row["kinetic_energy_every_0.2s"] = thin(r["t"], r["ke"])
         out.append(row)
     return out
+
+
+def vr_fig7(meta, rows):
+    return energy_table(meta, rows, TIMES, [(2.0, 8.0)])
+
+
+def vr_fig10(meta, rows):
+    """VR Fig 10 (hemisphere): the paper's "more energy than DFSPH when the fluid is flowing (t in [0, 15])"."""
+    return energy_table(meta, rows, FIG10_TIMES, [(0.0, 15.0), (15.0, None)])
 
 
 def _solver(r):
@@ -191,26 +217,71 @@ def river(meta, rows):
     return out
 
 
+# VR paper Table 1: scene file, experiment, figure, fluid particles, total minutes with DFSPH / micropolar / VR
+TABLE1 = [("dam_break_board", "Board", 3, 1_180_000, (2401.2, 2565.9, 2565.1)),
+          ("stirring_rod", "Stirring", 5, 1_390_000, (2399.9, 2864.4, 2693.4)),
+          ("hemisphere", "Sphere", 9, 899_800, (1657.4, 1715.2, 1827.2)),
+          ("dam_break_pillars", "Pillars", 11, 457_000, (156.4, 188.3, 218.5)),
+          ("propeller", "Propeller", 12, 1_290_000, (1782.1, 2309.1, 2338.9))]
+TABLE1_MODELS = (("DFSPH", "none"), ("MP", "micropolar"), ("VR", "vorticity_refinement"))
+
+
+def overhead(t, base):
+    return None if t is None or not base else round(100 * (t / base - 1), 1)
+
+
+def table1(folder):
+    """VR Table 1 from ``table1_<scene>_<model>.json`` (``warpsph bench steps``): ms/step per model, the models'
+    overhead over DFSPH, the paper's minutes and overheads beside them. A missing file leaves its column None."""
+    rows, benches = [], []
+    for scene, name, fig, paper_n, minutes in TABLE1:
+        row, ms = {"experiment": name, "figure": fig, "particles": None}, {}
+        for short, model in TABLE1_MODELS:
+            f = Path(folder) / f"table1_{scene}_{model}.json"
+            b = json.loads(f.read_text()) if f.is_file() else None
+            b = b[0] if isinstance(b, list) else b
+            if b:
+                benches.append(b)
+                row["particles"] = row["particles"] or b.get("fluid_particles")
+            ms[short] = row[f"{short} ms/step"] = round(b["ms_per_step"], 3) if b else None
+        paper = dict(zip(ms, minutes))
+        for short in ("MP", "VR"):
+            row[f"{short} overhead %"] = overhead(ms[short], ms["DFSPH"])
+        row["paper particles"] = paper_n
+        for short in ms:
+            row[f"paper {short} min"] = paper[short]
+        for short in ("MP", "VR"):
+            row[f"paper {short} overhead %"] = overhead(paper[short], paper["DFSPH"])
+        rows.append(row)
+    meta = {k: ", ".join(sorted({str(b.get(k)) for b in benches})) or None for k in ("device", "warp", "commit")}
+    return {"folder": str(folder), **meta}, rows
+
+
 def fmt(v):
     if v is None:
         return "—"
     if isinstance(v, bool):
         return "yes" if v else "no"
     if isinstance(v, float):
-        return f"{v:.3g}" if abs(v) < 1e4 else f"{v:.4g}"
+        return f"{v:.3g}" if abs(v) < 100 else f"{v:.1f}" if abs(v) < 1e6 else f"{v:.4g}"
     return str(v)
+
+
+def header(meta):
+    if "scene" not in meta:
+        return f"Benchmarks in {meta['folder']}; device {meta['device']}, Warp {meta['warp']}, commit {meta['commit']}."
+    return (f"Scene {meta['scene']} at scale {meta['scale']}, {meta['time']} s simulated; device {meta['device']}, "
+            f"Warp {meta['warp']}, commit {meta.get('commit')}."
+            + (f" Every cell: {', '.join(f'{k} = {v}' for k, v in meta['fixed'].items())}." if meta["fixed"] else ""))
 
 
 def markdown(title, meta, rows, note):
     cols = [k for k in rows[0] if not k.endswith("_every_0.2s") and k not in ("status", "unstable")]
-    lines = [f"# {title}", "", note, "",
-             f"Scene {meta['scene']} at scale {meta['scale']}, {meta['time']} s simulated; device {meta['device']}, "
-             f"Warp {meta['warp']}, commit {meta.get('commit')}."
-             + (f" Every cell: {', '.join(f'{k} = {v}' for k, v in meta['fixed'].items())}." if meta["fixed"] else ""), "",
+    lines = [f"# {title}", "", note, "", header(meta), "",
              "| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
     for r in rows:
         lines.append("| " + " | ".join(fmt(r.get(k)) for k in cols) + " |")
-    bad = [r for r in rows if r.get("status") != "done"]
+    bad = [r for r in rows if r.get("status", "done") != "done"]
     for r in bad:
         lines.append(f"\n{r['method']}: {r['status']}" + (f" ({r['unstable']})" if r.get("unstable") else ""))
     return "\n".join(lines) + "\n"
@@ -223,6 +294,12 @@ NOTES = {
     "blocks": ("E: the fluid's kinetic energy (linear); E_rot: the model's rotational energy (micropolar: "
                "1/2 m I omega^2; Rankine: the spin zeta/2 of a sphere of the particle radius; 0 without a model); "
                f"E_end: the mean over the last 0.4 s; E/E_base: window means of +-{WINDOW} s."),
+    "vr-fig10": (f"E: the fluid's kinetic energy, averaged over +-{WINDOW} s around each time (the last before the "
+                 f"run's end: [t - {2 * WINDOW:g}, t]; past the end: —); mean [0,15] (flowing) and [15,end] (after): "
+                 f"the per-frame ratio's mean; settled: E over the last second at most {SETTLE_FACTOR}x DFSPH's."),
+    "table1": ("ms/step: `warpsph bench steps` (ms_per_step, the production stepper) per model at the scene's paper "
+               "particle count; overhead: over DFSPH's ms/step. The paper's columns: its total minutes and the "
+               "overheads they give."),
     "river": ("enstrophy: 1/2 sum V |zeta|^2 over every fluid particle in the tunnel (not the wake alone), "
               "averaged over the last simulated second; per particle: over the fluid count at the end."),
 }
@@ -230,22 +307,33 @@ NOTES = {
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("kind", choices=["vr-fig7", "blocks", "river"])
-    p.add_argument("sweep")
-    p.add_argument("out", help="the sweep's --out folder")
+    p.add_argument("kind", choices=["vr-fig7", "vr-fig10", "blocks", "river", "table1"])
+    p.add_argument("sweep", help="the sweep file (table1: the folder of table1_<scene>_<model>.json)")
+    p.add_argument("out", nargs="?", help="the sweep's --out folder (not for table1)")
     p.add_argument("--json", required=True, help="result JSON (the .md goes beside it)")
     p.add_argument("--title", default=None)
     a = p.parse_args(argv)
-    meta, rows = load(a.sweep, a.out)
-    done = [r for r in rows if r["status"] != "missing"]
-    meta.update(device=done[0]["device"] if done else None, warp=done[0]["warp"] if done else None)
-    table = {"vr-fig7": vr_fig7, "blocks": blocks, "river": river}[a.kind](meta, rows)
+    if (a.kind == "table1") != (a.out is None):
+        p.error("table1 takes the benchmarks' folder alone; the other kinds a sweep file and its --out folder")
+    if a.kind == "table1":
+        meta, table = table1(a.sweep)
+        command = (f"for sn in {' '.join(f'{t[0]}:{t[3]}' for t in TABLE1)}; do s=${{sn%:*}}; "
+                   f"for m in none micropolar vorticity_refinement; do warpsph bench steps --device cuda --scene "
+                   f"scenes/$s.json --particles ${{sn#*:}} --model $m --out {a.sweep}/table1_${{s}}_$m.json; done; "
+                   f"done && python tools/paper_tables.py table1 {a.sweep} --json {a.json}")
+    else:
+        meta, rows = load(a.sweep, a.out)
+        done = [r for r in rows if r["status"] != "missing"]
+        meta.update(device=done[0]["device"] if done else None, warp=done[0]["warp"] if done else None)
+        table = {"vr-fig7": vr_fig7, "vr-fig10": vr_fig10, "blocks": blocks, "river": river}[a.kind](meta, rows)
+        command = (f"warpsph sweep {a.sweep} --out OUT --workers 2 && python tools/paper_tables.py {a.kind} "
+                   f"{a.sweep} OUT --json {a.json}")
     title = a.title or {"vr-fig7": "VR paper Fig 7: kinetic energy against DFSPH",
+                        "vr-fig10": "VR paper Fig 10: hemisphere, kinetic energy against DFSPH",
                         "blocks": "Rankine paper Figs 11-12: falling blocks",
-                        "river": "Rankine paper Fig 7: river tunnel, beta against nu_t"}[a.kind]
-    result = {"title": title, "note": NOTES[a.kind], **meta,
-              "command": f"warpsph sweep {a.sweep} --out OUT --workers 2 && python tools/paper_tables.py {a.kind} "
-                         f"{a.sweep} OUT --json {a.json}", "rows": table}
+                        "river": "Rankine paper Fig 7: river tunnel, beta against nu_t",
+                        "table1": "VR paper Table 1: cost per scene"}[a.kind]
+    result = {"title": title, "note": NOTES[a.kind], **meta, "command": command, "rows": table}
     path = Path(a.json)
     path.write_text(json.dumps(result, indent=1) + "\n")
     path.with_suffix(".md").write_text(markdown(title, meta, table, NOTES[a.kind]))
