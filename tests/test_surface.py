@@ -352,23 +352,53 @@ def test_a_mesher_behind_the_simulation_skips_frames_or_waits(tmp_path, monkeypa
 @pytest.mark.parametrize("method", ["splashsurf", "preview"])
 def test_a_run_meshes_in_a_worker_process_of_its_own(method):
     """pysplashsurf holds the GIL while it meshes, and Warp's current device is process-wide: a run's
-    meshes are made in a spawned worker process, and equal the meshes made here."""
+    meshes are made in a spawned worker process, and equal the meshes made here. The arrays go both ways
+    through files in the mesher's folder (in /dev/shm where there is one), removed after each frame and
+    with the mesher: the preview's mesh (deterministic) comes back bit for bit."""
     if method == "splashsurf":
         need_pysplashsurf()
-    from warpsph.surface import mesh_frame, mesher_for
+    from warpsph.surface import _exchange_root, mesh_frame, mesher_for
 
     r = 0.02
     x = lattice_sphere(r, 0.3).astype(np.float32)
+    v = np.random.default_rng(0).normal(size=x.shape).astype(np.float32)
+    vorticity = np.random.default_rng(1).normal(size=x.shape).astype(np.float32)
     options = SurfaceOptions(method=method)
     mesher = mesher_for(options, r, workers=2)
     try:
-        mesh = mesher({"x": x, "v": np.zeros_like(x)})
+        assert os.path.dirname(mesher.folder) == (_exchange_root() or __import__("tempfile").gettempdir())
+        mesh = mesher({"x": x, "v": v, "vorticity": vorticity})
+        assert os.listdir(mesher.folder) == []  # the frame's files are gone
     finally:
         mesher.close()
+    assert not os.path.exists(mesher.folder)
     assert mesher.worker_pid is not None and mesher.worker_pid != os.getpid()
-    here = mesh_frame(x, r, np.zeros_like(x), None, options)
+    here = mesh_frame(x, r, v, vorticity, options)
     assert len(mesh.faces) > 100 and np.array_equal(mesh.faces, here.faces)
+    if method == "preview":  # splashsurf's sums depend on its thread count (the worker's share of the cores)
+        for name in ("points", "faces", "normals", "velocities"):
+            got, want = getattr(mesh, name), getattr(here, name)
+            assert got.dtype == want.dtype and got.shape == want.shape and got.tobytes() == want.tobytes(), name
+        assert mesh.primvars.keys() == here.primvars.keys() == {"vorticity_magnitude"}
+        assert mesh.primvars["vorticity_magnitude"].tobytes() == here.primvars["vorticity_magnitude"].tobytes()
     np.testing.assert_allclose(mesh.points, here.points, atol=1e-6)
+    np.testing.assert_allclose(mesh.velocities, here.velocities, atol=1e-5)
+
+
+def test_a_mesh_that_fails_in_the_worker_raises_here_and_leaves_no_files():
+    """The worker's exception comes back (BackgroundMesher then stops the run naming the frame) and the
+    frame's files in the mesher's folder are removed; closing removes the folder."""
+    from warpsph.surface import ProcessMesher
+
+    mesher = ProcessMesher(SurfaceOptions(method="preview"), "not a radius")
+    x = lattice_sphere(0.02, 0.1).astype(np.float32)
+    try:
+        with pytest.raises(ValueError, match="could not convert string to float"):
+            mesher({"x": x, "v": np.zeros_like(x)})
+        assert os.listdir(mesher.folder) == []
+    finally:
+        mesher.close()
+    assert not os.path.exists(mesher.folder)
 
 
 def test_mesher_workers_run_below_the_simulation_s_cpu_priority():

@@ -367,12 +367,25 @@ class ProcessMesher:
     while it meshed: the 1M dam break ran 2.8x slower with --surface although it never waited for the
     writer. A spawned process has its own GIL and, for the preview, its own Warp device state (Warp's
     current device and stream are process-wide, not per thread). ``workers`` processes mesh frames at
-    once (default: one per 8 cores), each on its share of the cores; arrays go by pickle."""
+    once (default: one per 8 cores), each on its share of the cores.
+
+    The arrays go through files in a folder of its own (``folder``, in /dev/shm where there is one).
+    By pickle the main process pickled a 1M-particle frame's 36 MB and unpickled its ~100 MB mesh, read
+    off the pipe in 64 KB pieces, holding the GIL that the simulation's host thread needs: 190-310 ms
+    of that thread's time a frame on a 2-core VM, next to ~0.5 s of GPU work a frame on an H100
+    (tools/bench_surface_host.py). A file is written or read in one system call, outside the GIL (0 ms).
+    Each frame's files are removed when its mesh is back or its worker failed; :meth:`close` (or the
+    end of the process) removes the folder. An array whose file cannot be written (a full /dev/shm)
+    goes by pickle."""
 
     def __init__(self, options, radius, device="cpu", workers=None):
         import multiprocessing
         import os
+        import shutil
+        import tempfile
+        import weakref
         from concurrent.futures import ProcessPoolExecutor
+        from itertools import count
 
         self.options, self.radius, self.device = options, radius, str(device)
         cores = os.cpu_count() or 1
@@ -382,18 +395,34 @@ class ProcessMesher:
             workers = 1 if options.method == "preview" else max(1, min(4, cores // 8))
         self.workers = max(1, int(workers))
         spare = 2 if cores > 4 else 0  # the simulation's host thread and the writer keep a core each
+        self.folder = tempfile.mkdtemp(prefix=f"warpsph-mesh-{os.getpid()}-", dir=_exchange_root())
+        self._remove_folder = weakref.finalize(self, shutil.rmtree, self.folder, True)  # also at exit
+        self._jobs = count()
         self.pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
                                         initializer=_init_worker, initargs=(max(1, (cores - spare) // self.workers),))
         self.worker_pid = None
 
     def __call__(self, arrays):
-        future = self.pool.submit(_mesh_in_worker, arrays["x"], self.radius, arrays.get("v"), arrays.get("vorticity"),
-                                  self.options, self.device)
-        mesh, self.worker_pid = future.result()
-        return mesh
+        import os
+        import shutil
+
+        job = os.path.join(self.folder, str(next(self._jobs)))  # a frame's files: its arrays, then its mesh
+        os.mkdir(job)
+        try:
+            points, velocities, vorticity = (_store(os.path.join(job, name), arrays.get(name))
+                                             for name in ("x", "v", "vorticity"))
+            future = self.pool.submit(_mesh_in_worker, points, self.radius, velocities, vorticity, self.options,
+                                      self.device, job)
+            mesh, self.worker_pid = future.result()
+            return _load_mesh(mesh)
+        finally:  # done, failed in the worker, or the worker died: nothing of the frame stays
+            shutil.rmtree(job, ignore_errors=True)
 
     def close(self):
-        self.pool.shutdown(wait=True)
+        try:
+            self.pool.shutdown(wait=True)
+        finally:
+            self._remove_folder()
 
 
 WORKER_NICENESS = 10  # the simulation's host thread launches the GPU's work: it goes first on a busy CPU
@@ -409,10 +438,86 @@ def _init_worker(threads):
         os.nice(WORKER_NICENESS)
 
 
-def _mesh_in_worker(points, radius, velocities, vorticity, options, device):
+def _mesh_in_worker(points, radius, velocities, vorticity, options, device, folder=None):
+    """A frame's mesh in a worker: arrays as :func:`_store` left them; the mesh stored in ``folder`` (None: by
+    pickle)."""
     import os
 
-    return mesh_frame(points, radius, velocities, vorticity, options, device), os.getpid()
+    mesh = mesh_frame(_load(points), radius, _load(velocities), _load(vorticity), options, device)
+    return (mesh if folder is None else _store_mesh(mesh, folder)), os.getpid()
+
+
+def _exchange_root():
+    """Where :class:`ProcessMesher` puts its folder: /dev/shm (memory) where there is one, else the temp folder."""
+    import os
+
+    shm = "/dev/shm"
+    return shm if os.path.isdir(shm) and os.access(shm, os.W_OK | os.X_OK) else None
+
+
+@dataclass(frozen=True)
+class _Stored:
+    """An array in a file of its own (raw bytes in C order): what goes between processes instead of it."""
+
+    path: str
+    dtype: str
+    shape: tuple
+
+
+def _store(path, array):
+    """``array`` written to ``path`` (one write, outside the GIL) as a :class:`_Stored`; None stays None. Where the
+    file cannot be written (no space: /dev/shm is small in some containers), the array itself (goes by pickle)."""
+    import os
+
+    if array is None:
+        return None
+    array = np.ascontiguousarray(array)
+    try:
+        with open(path, "wb", buffering=0) as f:
+            view = memoryview(array.reshape(-1).view(np.uint8))
+            while len(view):
+                view = view[f.write(view):]
+    except OSError:
+        try:
+            os.unlink(path)
+        except OSError:
+            pass
+        return array
+    return _Stored(path, array.dtype.str, array.shape)
+
+
+def _load(item):
+    """The array of a :class:`_Stored` (read in one call, outside the GIL); anything else as it is."""
+    if not isinstance(item, _Stored):
+        return item
+    array = np.empty(item.shape, np.dtype(item.dtype))
+    with open(item.path, "rb", buffering=0) as f:
+        view = memoryview(array.reshape(-1).view(np.uint8))
+        while len(view):
+            n = f.readinto(view)
+            if not n:
+                raise EOFError(f"{item.path}: {len(view)} bytes short")
+            view = view[n:]
+    return array
+
+
+def _store_mesh(mesh, folder):
+    """``mesh`` with its arrays stored in ``folder`` (:func:`_store`)."""
+    import os
+
+    def store(name, array):
+        return _store(os.path.join(folder, name), array)
+
+    return SurfaceMesh(store("points", mesh.points), store("faces", mesh.faces), store("normals", mesh.normals),
+                       store("velocities", mesh.velocities),
+                       {name: store(f"primvar{n}", values) for n, (name, values) in enumerate(mesh.primvars.items())},
+                       mesh.seconds)
+
+
+def _load_mesh(mesh):
+    """A mesh from :func:`_store_mesh` with its arrays read back (the files stay: the caller removes them)."""
+    return SurfaceMesh(_load(mesh.points), _load(mesh.faces), _load(mesh.normals), _load(mesh.velocities),
+                       {name: _load(values) for name, values in mesh.primvars.items()}, mesh.seconds)
 
 
 def mesher_for(options, radius, device="cpu", workers=None):

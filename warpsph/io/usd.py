@@ -140,24 +140,50 @@ def write_surface(stage, frame, mesh):
     points = np.ascontiguousarray(mesh.points, np.float32)
     faces = np.ascontiguousarray(mesh.faces, np.int32)
     normals = np.ascontiguousarray(mesh.normals, np.float32)
-    prim.CreatePointsAttr().Set(Vt.Vec3fArray.FromNumpy(points), t)
-    prim.CreateFaceVertexCountsAttr().Set(Vt.IntArray.FromNumpy(np.full(len(faces), 3, np.int32)), t)
-    prim.CreateFaceVertexIndicesAttr().Set(Vt.IntArray.FromNumpy(faces.ravel()), t)
-    prim.CreateNormalsAttr().Set(Vt.Vec3fArray.FromNumpy(normals), t)
+    prim.CreatePointsAttr().Set(_vt_array(Vt.Vec3fArray, points), t)
+    prim.CreateFaceVertexCountsAttr().Set(Vt.IntArray(len(faces), 3), t)
+    prim.CreateFaceVertexIndicesAttr().Set(_vt_array(Vt.IntArray, faces.reshape(-1)), t)
+    prim.CreateNormalsAttr().Set(_vt_array(Vt.Vec3fArray, normals), t)
     prim.CreateExtentAttr().Set(_extent(points), t)
     written = points.nbytes + faces.nbytes + 4 * len(faces) + normals.nbytes
     if mesh.velocities is not None:
         velocities = np.ascontiguousarray(mesh.velocities, np.float32)
-        prim.CreateVelocitiesAttr().Set(Vt.Vec3fArray.FromNumpy(velocities), t)
+        prim.CreateVelocitiesAttr().Set(_vt_array(Vt.Vec3fArray, velocities), t)
         written += velocities.nbytes
     api = UsdGeom.PrimvarsAPI(prim.GetPrim())
     for name, values in mesh.primvars.items():
         values = np.ascontiguousarray(values, np.float32)
         width = 1 if values.ndim == 1 else values.shape[1]
         primvar = api.GetPrimvar(name) or api.CreatePrimvar(name, _PRIMVAR_TYPES[width], UsdGeom.Tokens.vertex)
-        primvar.Set(Vt.FloatArray.FromNumpy(values) if width == 1 else Vt.Vec3fArray.FromNumpy(values), t)
+        primvar.Set(_vt_array(Vt.FloatArray if width == 1 else Vt.Vec3fArray, values), t)
         written += values.nbytes
     return written
+
+
+_VT_ELEMENTS = {"Vec3fArray": (np.float32, 3), "FloatArray": (np.float32, None), "IntArray": (np.int32, None)}
+
+
+def _vt_array(kind, values):
+    """``values`` (C-contiguous, of ``kind``'s element type) as a new ``kind`` (Vt.Vec3fArray, FloatArray or
+    IntArray), the same as ``kind.FromNumpy(values)``, which converts element by element holding the GIL
+    (about 1.5 GB/s: 20 ms a 1.5M-vertex array of a 1M-particle frame's mesh, 50 ms its faces) while the
+    simulation's host thread waits for it. Here numpy copies into the new array's storage with the GIL
+    released: a Vt array's buffer is read-only to Python (arrays share storage until written), but a
+    new array owns its storage alone. Falls back to FromNumpy where the buffer is not the storage itself."""
+    import ctypes
+
+    dtype, width = _VT_ELEMENTS[kind.__name__]
+    shape = (len(values),) if width is None else (len(values), width)
+    if values.dtype != dtype or values.shape != shape or not values.flags.c_contiguous or not len(values):
+        return kind.FromNumpy(values)
+    array = kind(len(values))
+    view = np.asarray(array)
+    address = view.ctypes.data
+    if view.dtype != dtype or view.shape != shape or np.asarray(array).ctypes.data != address:
+        return kind.FromNumpy(values)  # not a view of the array's own storage
+    storage = np.frombuffer((ctypes.c_byte * view.nbytes).from_address(address), dtype).reshape(shape)
+    np.copyto(storage, values)
+    return array
 
 
 def _write_points(points_prim, frame, points, velocities, ids, radius, fields, widths=True):
@@ -406,8 +432,9 @@ def _check_directory(path):
 def _extent(points, pad=0.0):
     if len(points) == 0:
         return Vt.Vec3fArray([Gf.Vec3f(0.0), Gf.Vec3f(0.0)])
-    lo = np.asarray(points).min(axis=0) - pad
-    hi = np.asarray(points).max(axis=0) + pad
+    p = np.asarray(points)  # column by column: min(axis=0) of an (N, 3) array is 20x slower
+    lo = np.array([p[:, k].min() for k in range(3)]) - pad
+    hi = np.array([p[:, k].max() for k in range(3)]) + pad
     return Vt.Vec3fArray([Gf.Vec3f(*map(float, lo)), Gf.Vec3f(*map(float, hi))])
 
 
