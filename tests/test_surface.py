@@ -401,6 +401,37 @@ def test_a_mesh_that_fails_in_the_worker_raises_here_and_leaves_no_files():
     assert not os.path.exists(mesher.folder)
 
 
+def test_the_worker_writes_a_clips_frame_s_mesh_into_its_layer_as_the_run_s_process_would(tmp_path):
+    """With --clips the worker writes the mesh into the frame's layer itself (the run's process neither reads
+    the mesh nor writes it): the layer is the one the run's process would write, and the cache takes the
+    mesh that comes back (without arrays) as written."""
+    from pxr import Sdf
+
+    from warpsph.io.usd import UsdClipCache, write_surface_layer
+    from warpsph.surface import mesh_frame, mesher_for
+
+    r = 0.02
+    x = lattice_sphere(r, 0.3).astype(np.float32)
+    v = np.random.default_rng(0).normal(size=x.shape).astype(np.float32)
+    options = SurfaceOptions(method="preview")  # deterministic: the same mesh in both processes
+    caches = {name: UsdClipCache(tmp_path / name / "run.usda", 25) for name in ("worker", "here")}
+    for cache in caches.values():
+        cache.write_frame(3, x, v, None, r)
+    layer = caches["worker"].surface_layer(3)
+    mesher = mesher_for(options, r)
+    try:
+        mesh = mesher({"x": x, "v": v, "layer": (layer, 3)})
+    finally:
+        mesher.close()
+    assert mesh.layer == layer and len(mesh.points) == 0 and mesh.seconds > 0
+    written = os.stat(layer).st_mtime_ns
+    caches["worker"].write_surface(3, mesh)  # there already: not written again
+    assert os.stat(layer).st_mtime_ns == written
+    write_surface_layer(caches["here"].surface_layer(3), 3, mesh_frame(x, r, v, None, options))
+    text = {name: Sdf.Layer.FindOrOpen(cache.surface_layer(3)).ExportToString() for name, cache in caches.items()}
+    assert text["worker"] == text["here"] and "FluidSurface" in text["here"]
+
+
 def test_mesher_workers_run_below_the_simulation_s_cpu_priority():
     """The simulation's host thread feeds the GPU: on a busy CPU the meshing workers yield to it."""
     from warpsph.surface import WORKER_NICENESS, ProcessMesher

@@ -343,7 +343,11 @@ def _simulate(sim, outputs, frames, args, options, append):
         payload["bytes"] += write_host_frame(cache, item, radius, fields)
         if mesher is not None and mesher.wants(item.frame):
             a = item.arrays
-            mesher.submit(item.frame, {k: a[k] for k in ("x", "v", "vorticity") if k in a})
+            job = {k: a[k] for k in ("x", "v", "vorticity") if k in a}
+            layer = cache.surface_layer(item.frame)
+            if layer is not None:  # --clips: the mesher's worker writes the mesh into the frame's layer itself
+                job["layer"] = (layer, item.frame)
+            mesher.submit(item.frame, job)
         payload["particle_frames"] += item.count
         if particles is not None:
             particles.write(item.frame, item.time, item.step, item.arrays)

@@ -73,7 +73,8 @@ class SurfaceOptions:
 class SurfaceMesh:
     """A triangle mesh: ``points`` (V, 3) float32, ``faces`` (F, 3) int32, ``normals`` and
     ``velocities`` (V, 3) float32 (velocities None when not asked), ``primvars`` {name: (V,) or
-    (V, 3) float32}; ``seconds`` the reconstruction's wall time."""
+    (V, 3) float32}; ``seconds`` the reconstruction's wall time. ``layer``: the USD layer the mesh was
+    written into where it was made (a --clips frame layer, by the mesher's worker), its arrays then empty."""
 
     points: np.ndarray
     faces: np.ndarray
@@ -81,6 +82,7 @@ class SurfaceMesh:
     velocities: np.ndarray | None = None
     primvars: dict = field(default_factory=dict)
     seconds: float = 0.0
+    layer: str | None = None
 
     @staticmethod
     def empty(velocities=True):
@@ -300,8 +302,10 @@ class BackgroundMesher:
             raise RuntimeError(f"surface mesh of frame {frame}: {exc}") from exc
 
     def submit(self, frame, arrays):
-        """Queues frame ``frame`` (``arrays``: x, v, vorticity, not reused by the caller); False
-        when it is skipped (``behind="skip"`` and the mesher busy)."""
+        """Queues frame ``frame`` (``arrays``: x, v, vorticity, not reused by the caller, and where the
+        cache has one the frame's own layer, ``layer`` (path, frame), which a mesh function may write the
+        mesh into itself, as :class:`ProcessMesher` does); False when it is skipped (``behind="skip"``
+        and the mesher busy)."""
         import queue
 
         self.check()
@@ -376,7 +380,9 @@ class ProcessMesher:
     (tools/bench_surface_host.py). A file is written or read in one system call, outside the GIL (0 ms).
     Each frame's files are removed when its mesh is back or its worker failed; :meth:`close` (or the
     end of the process) removes the folder. An array whose file cannot be written (a full /dev/shm)
-    goes by pickle."""
+    goes by pickle. With ``arrays["layer"]`` (a --clips frame layer and its frame) the worker writes the
+    mesh into that layer itself and returns it without its arrays (``layer`` set): the main process then
+    neither reads the mesh nor writes it into USD."""
 
     def __init__(self, options, radius, device="cpu", workers=None):
         import multiprocessing
@@ -412,7 +418,7 @@ class ProcessMesher:
             points, velocities, vorticity = (_store(os.path.join(job, name), arrays.get(name))
                                              for name in ("x", "v", "vorticity"))
             future = self.pool.submit(_mesh_in_worker, points, self.radius, velocities, vorticity, self.options,
-                                      self.device, job)
+                                      self.device, job, arrays.get("layer"))
             mesh, self.worker_pid = future.result()
             return _load_mesh(mesh)
         finally:  # done, failed in the worker, or the worker died: nothing of the frame stays
@@ -438,12 +444,20 @@ def _init_worker(threads):
         os.nice(WORKER_NICENESS)
 
 
-def _mesh_in_worker(points, radius, velocities, vorticity, options, device, folder=None):
+def _mesh_in_worker(points, radius, velocities, vorticity, options, device, folder=None, layer=None):
     """A frame's mesh in a worker: arrays as :func:`_store` left them; the mesh stored in ``folder`` (None: by
-    pickle)."""
+    pickle), or, with ``layer`` (path, frame), written into that USD layer and returned without its arrays."""
     import os
 
     mesh = mesh_frame(_load(points), radius, _load(velocities), _load(vorticity), options, device)
+    if layer is not None:
+        from .io.usd import write_surface_layer
+
+        path, frame = layer
+        write_surface_layer(path, frame, mesh)
+        written = SurfaceMesh.empty(mesh.velocities is not None)
+        written.seconds, written.layer = mesh.seconds, str(path)
+        return written, os.getpid()
     return (mesh if folder is None else _store_mesh(mesh, folder)), os.getpid()
 
 
@@ -511,13 +525,13 @@ def _store_mesh(mesh, folder):
     return SurfaceMesh(store("points", mesh.points), store("faces", mesh.faces), store("normals", mesh.normals),
                        store("velocities", mesh.velocities),
                        {name: store(f"primvar{n}", values) for n, (name, values) in enumerate(mesh.primvars.items())},
-                       mesh.seconds)
+                       mesh.seconds, mesh.layer)
 
 
 def _load_mesh(mesh):
     """A mesh from :func:`_store_mesh` with its arrays read back (the files stay: the caller removes them)."""
     return SurfaceMesh(_load(mesh.points), _load(mesh.faces), _load(mesh.normals), _load(mesh.velocities),
-                       {name: _load(values) for name, values in mesh.primvars.items()}, mesh.seconds)
+                       {name: _load(values) for name, values in mesh.primvars.items()}, mesh.seconds, mesh.layer)
 
 
 def mesher_for(options, radius, device="cpu", workers=None):
