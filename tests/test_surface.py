@@ -487,3 +487,20 @@ def test_bad_surface_every_is_refused_before_anything_is_written(tmp_path, capsy
     err = capsys.readouterr().err
     assert f"warpsph: error: {option}:" in err and "Traceback" not in err
     assert _files(tmp_path) == before
+
+
+def test_vt_arrays_filled_outside_the_gil_equal_from_numpy():
+    """write_surface fills new Vt arrays through their storage's address (FromNumpy holds the GIL); should a
+    usd-core export a copy instead of the storage, the arrays would come out unfilled: they equal FromNumpy's."""
+    from pxr import Vt
+
+    from warpsph.io.usd import _vt_array
+
+    rng = np.random.default_rng(0)
+    for kind, values in ((Vt.Vec3fArray, rng.random((1001, 3), dtype=np.float32)),
+                         (Vt.FloatArray, rng.random(1002, dtype=np.float32)),
+                         (Vt.IntArray, rng.integers(-2**31, 2**31 - 1, 3003, dtype=np.int32)),
+                         (Vt.Vec3fArray, np.zeros((0, 3), np.float32))):
+        array = _vt_array(kind, values)
+        assert type(array) is kind and array == kind.FromNumpy(values)
+        assert np.asarray(array).tobytes() == values.tobytes()
