@@ -41,6 +41,20 @@ def test_bench_steps_writes_ms_per_step_and_the_table(steps):
     assert table.count("\n| ") == 3 and "ms/step" in table  # header + a row per size
 
 
+def test_bench_steps_model_none_drops_the_scenes_own_models(tmp_path):
+    """The papers' scenes run VR: --model none benchmarks plain DFSPH, no option keeps the scene's models."""
+    scene = ROOT / "scenes" / "dam_break_pillars.json"
+    assert json.loads(scene.read_text())["models"], "the scene runs a model of its own"
+    models = {}
+    for option in (["--model", "none"], []):
+        out = tmp_path / f"steps{len(option)}.json"
+        assert main(["bench", "steps", "--scene", str(scene), "--device", "cpu", "--particles", "800", "--warmup", "1",
+                     "--steps", "1", "--out", str(out)] + option) == 0
+        run = json.loads(out.read_text())
+        models[tuple(option)] = (run[0] if isinstance(run, list) else run)["model"]
+    assert models == {("--model", "none"): "none", (): "vorticity_refinement"}
+
+
 @pytest.mark.skipif(importlib.util.find_spec("pxr") is None, reason="the job writes USD (usd-core)")
 def test_bench_job_times_the_start_up_the_solver_and_the_job(tmp_path):
     out, keep = tmp_path / "job.json", tmp_path / "caches"

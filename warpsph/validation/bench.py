@@ -43,8 +43,9 @@ def add_arguments(parser):
     parser.add_argument("--steps", type=int, default=50, help="timed steps, per timer (default 50)")
     parser.add_argument("--density-error", type=float, help="override solver.density_max_error [%%]")
     parser.add_argument("--method", choices=["dfsph", "iisph"], help="override solver.method (the pressure solver)")
-    parser.add_argument("--model", choices=MODELS, default="none",
-                        help="turbulence model to enable with its default parameters (all: the three at once)")
+    parser.add_argument("--model", choices=MODELS,
+                        help="turbulence model to run with its default parameters instead of the scene's models "
+                             "(none: plain DFSPH/IISPH; all: the three at once); default: the scene's own")
     parser.add_argument("--sort-interval", type=int, help="override solver.sort_interval (0: never re-sort)")
     parser.add_argument("--out", help="JSON file to write")
 
@@ -157,9 +158,9 @@ def make_scene(args, particles):
     if getattr(args, "method", None):
         solver = dataclasses.replace(solver, method=args.method)
     scene = dataclasses.replace(scene, solver=solver)
-    if args.model != "none":
+    if args.model is not None:
         types = model_types()
-        names = list(types) if args.model == "all" else [args.model]
+        names = [] if args.model == "none" else list(types) if args.model == "all" else [args.model]
         scene = dataclasses.replace(scene, models=tuple(types[name]() for name in names))
     return scene
 
