@@ -82,12 +82,17 @@ def test_table1_overheads_and_a_missing_file(tmp_path):
     bench("dam_break_board", "micropolar", 6.0)
     bench("dam_break_board", "vorticity_refinement", 5.5)
     bench("propeller", "none", 4.0)
+    bench("stirring_rod", "vorticity_refinement", 7.0)
+    (tmp_path / "table1_stirring_rod_none.json").write_text(  # a "DFSPH" bench that ran the scene's VR
+        (tmp_path / "table1_stirring_rod_vorticity_refinement.json").read_text())
     pt.main(["table1", str(tmp_path), "--json", str(tmp_path / "t1.json")])
     out = json.loads((tmp_path / "t1.json").read_text())
     board, propeller = out["rows"][0], out["rows"][4]
     assert (board["experiment"], board["figure"], board["particles"]) == ("Board", 3, 1000)
     assert board["MP overhead %"] == pytest.approx(20) and board["VR overhead %"] == pytest.approx(10)
     assert propeller["DFSPH ms/step"] == 4.0 and propeller["MP ms/step"] is None and propeller["VR overhead %"] is None
+    assert out["rows"][1]["DFSPH ms/step"] is None and out["rows"][1]["VR ms/step"] == 7.0
+    assert out["not used"] == ["table1_stirring_rod_none.json ran vorticity_refinement"]
     assert out["rows"][2]["experiment"] == "Sphere" and out["rows"][2]["particles"] is None
     assert [r["paper VR overhead %"] for r in out["rows"]] == [6.8, 12.2, 10.2, 39.7, 31.2]
     assert [r["paper MP overhead %"] for r in out["rows"]] == [6.9, 19.4, 3.5, 20.4, 29.6]

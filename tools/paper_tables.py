@@ -232,14 +232,18 @@ def overhead(t, base):
 
 def table1(folder):
     """VR Table 1 from ``table1_<scene>_<model>.json`` (``warpsph bench steps``): ms/step per model, the models'
-    overhead over DFSPH, the paper's minutes and overheads beside them. A missing file leaves its column None."""
-    rows, benches = [], []
+    overhead over DFSPH, the paper's minutes and overheads beside them. A missing file, or one whose ``model`` is
+    not its name's, leaves its column None (listed under "not used")."""
+    rows, benches, skipped = [], [], []
     for scene, name, fig, paper_n, minutes in TABLE1:
         row, ms = {"experiment": name, "figure": fig, "particles": None}, {}
         for short, model in TABLE1_MODELS:
             f = Path(folder) / f"table1_{scene}_{model}.json"
             b = json.loads(f.read_text()) if f.is_file() else None
             b = b[0] if isinstance(b, list) else b
+            if b and b.get("model", model) != model:  # a bench that ran another model (e.g. the scene's own)
+                skipped.append(f"{f.name} ran {b['model']}")
+                b = None
             if b:
                 benches.append(b)
                 row["particles"] = row["particles"] or b.get("fluid_particles")
@@ -254,7 +258,7 @@ def table1(folder):
             row[f"paper {short} overhead %"] = overhead(paper[short], paper["DFSPH"])
         rows.append(row)
     meta = {k: ", ".join(sorted({str(b.get(k)) for b in benches})) or None for k in ("device", "warp", "commit")}
-    return {"folder": str(folder), **meta}, rows
+    return {"folder": str(folder), **meta, "not used": skipped}, rows
 
 
 def fmt(v):
@@ -269,7 +273,9 @@ def fmt(v):
 
 def header(meta):
     if "scene" not in meta:
-        return f"Benchmarks in {meta['folder']}; device {meta['device']}, Warp {meta['warp']}, commit {meta['commit']}."
+        unused = f" Not used (another model than the name's): {'; '.join(meta['not used'])}." if meta.get("not used") else ""
+        return (f"Benchmarks in {meta['folder']}; device {meta['device']}, Warp {meta['warp']}, "
+                f"commit {meta['commit']}.{unused}")
     return (f"Scene {meta['scene']} at scale {meta['scale']}, {meta['time']} s simulated; device {meta['device']}, "
             f"Warp {meta['warp']}, commit {meta.get('commit')}."
             + (f" Every cell: {', '.join(f'{k} = {v}' for k, v in meta['fixed'].items())}." if meta["fixed"] else ""))
