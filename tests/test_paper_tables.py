@@ -98,3 +98,81 @@ def test_table1_overheads_and_a_missing_file(tmp_path):
     assert [r["paper MP overhead %"] for r in out["rows"]] == [6.9, 19.4, 3.5, 20.4, 29.6]
     assert (out["device"], out["warp"], out["commit"]) == ("GPU", "1.19.0", "abc1234")
     assert "| Board | 3 | 1000 | 5 | 6 | 5.5 | 20 | 10 |" in (tmp_path / "t1.md").read_text()
+
+
+def test_calm_times_of_an_exponential_decay_against_the_baseline():
+    t_s, tau = 5.0, 0.5
+    decay = lambda tau: lambda t: 50 * np.exp(-np.clip(t - t_s, 0, None) / tau)  # noqa: E731
+    rows = [_row("DFSPH", decay(tau)),
+            _row("Rankine", lambda t: 2 * decay(2 * tau)(t), [{"type": "rankine", "beta": 0.6}],
+                 rot=lambda t: 0.01 * decay(tau)(t)),  # twice the energy at the stop: 10 % of DFSPH's later
+            _row("slow", decay(1.5)),  # 1 % after 6.9 s, past the run's end
+            _row("blew up", decay(tau), t_end=4.0)]
+    rows[3]["status"], rows[3]["unstable"] = "unstable", "NaN at step 9"
+    out = pt.calm({**META, "stop_time": t_s}, rows)
+    frame = 1 / 25
+    assert out[0]["E_s (J)"] == pytest.approx(50, rel=1e-3)
+    assert out[0]["calm 10% (s)"] == pytest.approx(tau * np.log(10), abs=frame)
+    assert out[0]["calm 1% (s)"] == pytest.approx(tau * np.log(100), abs=frame)
+    assert out[0]["calm 10% (s)"] >= tau * np.log(10)  # the first frame below, not one before
+    assert out[1]["calm 1% (s)"] == pytest.approx(2 * tau * np.log(100), abs=frame)
+    assert out[1]["calm 10% / DFSPH"] == pytest.approx(2, abs=2 * frame / (tau * np.log(10)))
+    assert out[1]["E_s (J)"] == pytest.approx(100, rel=1e-3) and out[1]["E_rot,s (J)"] == pytest.approx(0.5, rel=1e-3)
+    assert out[0]["E_end / E_s"] == pytest.approx(np.exp(-4.8 / tau), rel=0.2)
+    assert out[1]["calm 10% of DFSPH's E_s (s)"] == pytest.approx(2 * tau * np.log(20), abs=frame)  # 100 -> 5 J
+    assert out[1]["E stirring (J)"] == pytest.approx(100)
+    assert out[2]["calm 10% (s)"] == pytest.approx(1.5 * np.log(10), abs=frame)
+    assert out[2]["calm 1% (s)"] is None and out[2]["calm 1% / DFSPH"] is None
+    assert out[3]["E_s (J)"] is None and out[3]["calm 10% (s)"] is None and out[3]["unstable"] == "NaN at step 9"
+
+
+def test_calm_stop_time_from_the_scene_and_the_table(tmp_path):
+    import json
+
+    sweep = Path(__file__).resolve().parent.parent / "sweeps" / "rankine_fig3_cpu.json"
+    assert pt.stop_time(sweep) == pytest.approx(5.0)  # the rod's last keyframe: pulled out by 5 s
+    spin = {"scene": str(Path(__file__).resolve().parent.parent / "scenes" / "propeller_rankine.json"),
+            "scale": 0.001, "time": 1.0, "cells": [{"models": []}]}
+    assert pt.stop_time(spin) is None  # spins to the end: --stop needed
+    rows = [_row("DFSPH", lambda t: np.exp(-np.clip(t - 2.0, 0, None)))]
+    md = pt.markdown("calm", {**META, "device": "cpu", "warp": "1.19.0"}, pt.calm({**META, "stop_time": 2.0}, rows),
+                     pt.NOTES["calm"])
+    assert "| DFSPH | 100 | 10 | 1 | 1 | 1 | 0 | 2.32 | 4.64 | 1 | 1 | 2.32 | 0.000413 | 10 |" in md
+    json.dumps(pt.calm({**META, "stop_time": 2.0}, rows))  # the JSON result takes it
+
+
+def test_calm_from_cell_files_with_the_scene_stop_and_with_stop(tmp_path):
+    """The calm kind end to end on made-up cell files of a stirring-rod sweep: t_s from the rod's keyframes (5 s),
+    then --stop 6; an unstable cell is listed as such."""
+    import json
+
+    from warpsph.sweep import _cell_path, cells, load_sweep
+
+    sweep = tmp_path / "fig3.json"
+    sweep.write_text(json.dumps({
+        "name": "fig3", "scene": str(Path(__file__).resolve().parent.parent / "scenes" / "stirring_rod_rankine.json"),
+        "scale": 0.001, "time": 10.0, "device": "cpu",
+        "cells": [{"models": []}, {"models": [{"type": "rankine", "beta": 0.6}]}]}))
+    t = np.arange(0, 251) / 25 + 1e-4
+    for cell, tau, status in zip(cells(load_sweep(sweep)), (0.5, 1.0), ("done", "unstable")):
+        ke = 10 * np.exp(-np.clip(t - 5.0, 0, None) / tau)
+        row = {"particles": 1000, "steps": 500, "time_reached": 10.0, "wall_s": 3.0, "frame_times": t.tolist(),
+               "kinetic_energy": ke.tolist(), "rotational_energy": (0.1 * ke).tolist(),
+               "unstable": "NaN at 9.9 s" if status == "unstable" else None}
+        path = _cell_path(tmp_path / "out", cell)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({"params": cell["params"], "case": cell["case"], "status": status, "row": row,
+                                    "device": "cpu", "warp": "1.19.0"}))
+    pt.main(["calm", str(sweep), str(tmp_path / "out"), "--json", str(tmp_path / "calm.json")])
+    out = json.loads((tmp_path / "calm.json").read_text())
+    assert out["stop_time"] == 5.0 and out["stop_from"] == "the scene's last keyframe"
+    dfsph, rankine = out["rows"]
+    assert dfsph["calm 10% (s)"] == pytest.approx(0.5 * np.log(10), abs=0.04)
+    assert rankine["calm 1% / DFSPH"] == pytest.approx(2, abs=0.04) and rankine["status"] == "unstable"
+    assert rankine["E_rot,s (J)"] == pytest.approx(1, rel=1e-3)
+    assert "Rankine beta = 0.6: unstable (NaN at 9.9 s)" in (tmp_path / "calm.md").read_text()
+    pt.main(["calm", str(sweep), str(tmp_path / "out"), "--json", str(tmp_path / "calm6.json"), "--stop", "6"])
+    out = json.loads((tmp_path / "calm6.json").read_text())
+    assert out["stop_time"] == 6.0 and out["command"].endswith("--stop 6")
+    assert out["rows"][0]["E_s (J)"] == pytest.approx(10 * np.exp(-2), rel=1e-3)  # one tau of 0.5 s later
+    assert out["rows"][0]["calm 10% (s)"] == pytest.approx(0.5 * np.log(10), abs=0.04)

@@ -4,6 +4,7 @@ Table 1 (cost per scene) from `warpsph bench steps` files.
     python tools/paper_tables.py vr-fig7 sweeps/vr_fig7_cpu.json OUT_DIR --json tools/results/vr_fig7_cpu.json
     python tools/paper_tables.py blocks sweeps/rankine_fig11_cpu.json OUT_DIR --json tools/results/rankine_fig11_cpu.json
     python tools/paper_tables.py table1 BENCH_DIR --json tools/results/vr_table1_h100.json
+    python tools/paper_tables.py calm sweeps/rankine_fig3_cpu.json OUT_DIR --json tools/results/rankine_fig3_cpu.json
 
 Reads each cell's per-frame series (``kinetic_energy``, ``rotational_energy``, ``frame_times``; see
 warpsph/sweep.py) and writes a small JSON (no per-particle data; the energy series thinned to 0.2 s) and the
@@ -25,6 +26,16 @@ the models' overheads, and the paper's minutes and overheads beside them.
 blocks (Rankine paper Figs 11-12, falling blocks): per cell the kinetic energy's peak and its time, the energy
 at the end over the baseline's (the cell without a model on the same pressure solver), the rotational energy
 (Fig 12's second curve) at the peak and at the end, and the rotational/linear ratio.
+
+calm (Rankine paper Figs 3 and 13: how fast the fluid calms down once the stirring body stops): t_s, the stop, is
+the last keyframe time of the scene's moving bodies (the first cell's scene; ``--stop T`` overrides it, and is
+needed where a body spins or drifts without end). Per cell: E_s, the kinetic energy of the frame nearest t_s (one
+frame, not a window mean: a window would mix the stirring before t_s with the decay after it); the calm-down
+times, the first frame after t_s whose energy is below 10 % and below 1 % of E_s, as time after t_s (None: not
+within the run, or the cell blew up first); those times over the baseline's (the first cell, DFSPH); the 10 % time
+against the baseline's E_s (one threshold for every cell: a cell with more energy at the stop has a higher own
+threshold); E_end (the mean over the last 0.4 s) over E_s; the stirring's energy (the mean over the second before
+t_s) and the model's rotational energy at t_s (not part of E).
 """
 
 import argparse
@@ -38,6 +49,8 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 TIMES = (2.0, 4.0, 6.0, 8.0, 10.0)
+CALM_LEVELS = (0.1, 0.01)   # calm: E below 10 % and 1 % of the energy at the stop
+END_WINDOW = 0.4      # s: E_end, the mean over the run's last END_WINDOW seconds (blocks, calm)
 FIG10_TIMES = (2.5, 5.0, 7.5, 10.0, 12.5, 15.0)
 WINDOW = 0.2          # s either side of each time
 SETTLE_FACTOR = 1.5   # "very close to DFSPH": within 1.5x of its kinetic energy over the last second
@@ -107,6 +120,17 @@ def ratio(a, b):
     return None if a is None or b is None or b <= 0 else a / b
 
 
+def head(r):
+    """The columns every figure table starts with: the method, its status, size and cost."""
+    return {"method": r["label"], "status": r["status"], "particles": r["particles"], "steps": r["steps"],
+            "wall_s": r["wall_s"]}
+
+
+def end_mean(t, e):
+    """The mean over the run's last END_WINDOW seconds."""
+    return window_mean(t, e, t[-1] - END_WINDOW, t[-1])
+
+
 def energy_table(meta, rows, times, means):
     """Each cell's kinetic energy against the first cell's (DFSPH): window ratios at ``times`` (None past either
     run's end), per-frame ratio means over ``means`` ((lo, hi), hi None: to the end), and the sweep's last second
@@ -119,8 +143,7 @@ def energy_table(meta, rows, times, means):
         if r["status"] == "missing":
             out.append({"method": r["label"], "status": "missing"})
             continue
-        row = {"method": r["label"], "status": r["status"], "particles": r["particles"], "steps": r["steps"],
-               "wall_s": r["wall_s"]}
+        row = head(r)
         end = min(meta["time"], r["t"][-1], base["t"][-1])
         for T in times:
             lo, hi = (T - WINDOW, T + WINDOW) if T + WINDOW < end - 1e-9 else (T - 2 * WINDOW, T)
@@ -170,14 +193,11 @@ def blocks(meta, rows):
             continue
         base = bases[_solver(r)]
         k = int(np.argmax(r["ke"]))
-        end = window_mean(r["t"], r["ke"], r["t"][-1] - 0.4, r["t"][-1])
-        end_rot = window_mean(r["t"], r["rot"], r["t"][-1] - 0.4, r["t"][-1])
-        row = {"method": r["label"], "status": r["status"], "particles": r["particles"], "steps": r["steps"],
-               "wall_s": r["wall_s"], "peak E (J)": float(r["ke"][k]), "peak time (s)": float(r["t"][k]),
+        end, end_rot = end_mean(r["t"], r["ke"]), end_mean(r["t"], r["rot"])
+        row = {**head(r), "peak E (J)": float(r["ke"][k]), "peak time (s)": float(r["t"][k]),
                "peak / baseline peak": ratio(float(r["ke"][k]), float(base["ke"].max())),
                "E_end (J)": end,
-               "E_end / baseline E_end": ratio(end, window_mean(base["t"], base["ke"], base["t"][-1] - 0.4,
-                                                                 base["t"][-1])),
+               "E_end / baseline E_end": ratio(end, end_mean(base["t"], base["ke"])),
                "E_end / peak E": ratio(end, float(r["ke"][k])),
                "E_rot at peak (J)": float(r["rot"][k]), "E_rot peak (J)": float(r["rot"].max()),
                "E_rot end (J)": end_rot, "E_rot/E end": ratio(end_rot, end)}
@@ -185,6 +205,68 @@ def blocks(meta, rows):
             if T <= r["t"][-1] + 1e-9:
                 row[f"E/E_base t={T:g}"] = ratio(window_mean(r["t"], r["ke"], T - WINDOW, min(T + WINDOW, r["t"][-1])),
                                                 window_mean(base["t"], base["ke"], T - WINDOW, min(T + WINDOW, base["t"][-1])))
+        if r["status"] == "unstable":
+            row["unstable"] = r["unstable"]
+        row["kinetic_energy_every_0.2s"] = thin(r["t"], r["ke"])
+        row["rotational_energy_every_0.2s"] = thin(r["t"], r["rot"])
+        out.append(row)
+    return out
+
+
+def stop_time(sweep):
+    """calm's t_s: the last keyframe time of the moving bodies of the sweep's first cell's scene (a drift's end
+    too); None when no body has keyframes, or one spins or drifts to the run's end (give --stop)."""
+    from warpsph.sweep import cells, load_sweep, scene_of
+
+    times = []
+    for body in scene_of(cells(load_sweep(sweep))[0]).obstacles:
+        m = body.motion
+        if m is None:
+            continue
+        drifts = any(m.velocity) or any(m.acceleration)
+        if m.angular_velocity or (drifts and m.end is None):
+            return None
+        times += ([m.keyframes[-1].time] if m.keyframes else []) + ([m.end] if drifts else [])
+    return max(times, default=None)
+
+
+def calm_times(t, e, t_s, e_ref=None):
+    """(E_s, {level: time after t_s of the first frame after t_s with E < level E_ref, None if none}) for
+    CALM_LEVELS; E_s the energy of the frame nearest t_s, E_ref E_s unless given (None, and no times, when the
+    run ended before t_s)."""
+    if t[-1] < t_s - WINDOW:
+        return None, dict.fromkeys(CALM_LEVELS)
+    k = int(np.argmin(np.abs(t - t_s)))
+    e_s = float(e[k])
+    times = {}
+    for level in CALM_LEVELS:
+        below = np.nonzero(e[k + 1:] < level * (e_s if e_ref is None else e_ref))[0]
+        times[level] = float(t[k + 1 + below[0]] - t_s) if below.size else None
+    return e_s, times
+
+
+def calm(meta, rows):
+    """Rankine Figs 3 and 13: per cell the calm-down times after the stop meta["stop_time"], against the first
+    cell's (DFSPH)."""
+    t_s = meta["stop_time"]
+    base = rows[0] if rows[0]["status"] != "missing" else None
+    base_e, base_times = calm_times(base["t"], base["ke"], t_s) if base else (None, dict.fromkeys(CALM_LEVELS))
+    out = []
+    for r in rows:
+        if r["status"] == "missing":
+            out.append({"method": r["label"], "status": "missing"})
+            continue
+        e_s, times = calm_times(r["t"], r["ke"], t_s)
+        row = {**head(r), "E stirring (J)": window_mean(r["t"], r["ke"], t_s - 1.0, t_s), "E_s (J)": e_s,
+               "E_rot,s (J)": calm_times(r["t"], r["rot"], t_s)[0]}
+        for level in CALM_LEVELS:
+            row[f"calm {level:.0%} (s)"] = times[level]
+        for level in CALM_LEVELS:
+            row[f"calm {level:.0%} / DFSPH"] = ratio(times[level], base_times[level])
+        common = calm_times(r["t"], r["ke"], t_s, base_e)[1][CALM_LEVELS[0]] if base_e else None
+        row[f"calm {CALM_LEVELS[0]:.0%} of DFSPH's E_s (s)"] = common
+        row["E_end / E_s"] = ratio(end_mean(r["t"], r["ke"]), e_s)
+        row["run end (s)"] = float(r["t"][-1])
         if r["status"] == "unstable":
             row["unstable"] = r["unstable"]
         row["kinetic_energy_every_0.2s"] = thin(r["t"], r["ke"])
@@ -306,6 +388,13 @@ NOTES = {
     "table1": ("ms/step: `warpsph bench steps` (ms_per_step, the production stepper) per model at the scene's paper "
                "particle count; overhead: over DFSPH's ms/step. The paper's columns: its total minutes and the "
                "overheads they give."),
+    "calm": (f"t_s: the stop (the last keyframe time of the scene's moving bodies, or --stop); E_s: the fluid's "
+             f"kinetic energy at the frame nearest t_s; calm 10 % / 1 %: the time after t_s of the first frame "
+             f"whose energy is below 10 % / 1 % of E_s (—: not within the run, whose end less t_s bounds it from "
+             f"below); / DFSPH: over the first cell's; calm {CALM_LEVELS[0]:.0%} of DFSPH's E_s: the same against one "
+             f"threshold for every cell, the first cell's; E_end: the mean over the last {END_WINDOW:g} s; E stirring: "
+             f"the mean over [t_s - 1, t_s]; E_rot,s: the model's rotational energy at the frame nearest t_s "
+             f"(micropolar: its spin field's; Rankine: zeta/2 as a sphere's spin; 0 for DFSPH), not in E."),
     "river": ("enstrophy: 1/2 sum V |zeta|^2 over every fluid particle in the tunnel (not the wake alone), "
               "averaged over the last simulated second; per particle: over the fluid count at the end."),
 }
@@ -313,11 +402,13 @@ NOTES = {
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("kind", choices=["vr-fig7", "vr-fig10", "blocks", "river", "table1"])
+    p.add_argument("kind", choices=["vr-fig7", "vr-fig10", "blocks", "river", "calm", "table1"])
     p.add_argument("sweep", help="the sweep file (table1: the folder of table1_<scene>_<model>.json)")
     p.add_argument("out", nargs="?", help="the sweep's --out folder (not for table1)")
     p.add_argument("--json", required=True, help="result JSON (the .md goes beside it)")
     p.add_argument("--title", default=None)
+    p.add_argument("--stop", type=float, default=None,
+                   help="calm: the stop time t_s (s); default the last keyframe time of the scene's moving bodies")
     a = p.parse_args(argv)
     if (a.kind == "table1") != (a.out is None):
         p.error("table1 takes the benchmarks' folder alone; the other kinds a sweep file and its --out folder")
@@ -331,18 +422,27 @@ def main(argv=None):
         meta, rows = load(a.sweep, a.out)
         done = [r for r in rows if r["status"] != "missing"]
         meta.update(device=done[0]["device"] if done else None, warp=done[0]["warp"] if done else None)
-        table = {"vr-fig7": vr_fig7, "vr-fig10": vr_fig10, "blocks": blocks, "river": river}[a.kind](meta, rows)
+        if a.kind == "calm":
+            meta["stop_time"] = a.stop if a.stop is not None else stop_time(a.sweep)
+            if meta["stop_time"] is None:
+                p.error("the scene's moving bodies do not stop (no keyframes, or a spin or drift without end): "
+                        "give --stop T")
+            meta["stop_from"] = "--stop" if a.stop is not None else "the scene's last keyframe"
+        table = {"vr-fig7": vr_fig7, "vr-fig10": vr_fig10, "blocks": blocks, "river": river,
+                 "calm": calm}[a.kind](meta, rows)
         command = (f"warpsph sweep {a.sweep} --out OUT --workers 2 && python tools/paper_tables.py {a.kind} "
-                   f"{a.sweep} OUT --json {a.json}")
+                   f"{a.sweep} OUT --json {a.json}" + (f" --stop {a.stop:g}" if a.stop is not None else ""))
     title = a.title or {"vr-fig7": "VR paper Fig 7: kinetic energy against DFSPH",
                         "vr-fig10": "VR paper Fig 10: hemisphere, kinetic energy against DFSPH",
                         "blocks": "Rankine paper Figs 11-12: falling blocks",
                         "river": "Rankine paper Fig 7: river tunnel, beta against nu_t",
+                        "calm": "Rankine paper Figs 3 and 13: calm-down time after the stirring body stops",
                         "table1": "VR paper Table 1: cost per scene"}[a.kind]
-    result = {"title": title, "note": NOTES[a.kind], **meta, "command": command, "rows": table}
+    note = NOTES[a.kind] + (f" Here t_s = {meta['stop_time']:g} s ({meta['stop_from']})." if a.kind == "calm" else "")
+    result = {"title": title, "note": note, **meta, "command": command, "rows": table}
     path = Path(a.json)
     path.write_text(json.dumps(result, indent=1) + "\n")
-    path.with_suffix(".md").write_text(markdown(title, meta, table, NOTES[a.kind]))
+    path.with_suffix(".md").write_text(markdown(title, meta, table, note))
     print(path.with_suffix(".md").read_text())
 
 
