@@ -176,3 +176,126 @@ def test_calm_from_cell_files_with_the_scene_stop_and_with_stop(tmp_path):
     assert out["stop_time"] == 6.0 and out["command"].endswith("--stop 6")
     assert out["rows"][0]["E_s (J)"] == pytest.approx(10 * np.exp(-2), rel=1e-3)  # one tau of 0.5 s later
     assert out["rows"][0]["calm 10% (s)"] == pytest.approx(0.5 * np.log(10), abs=0.04)
+
+
+def test_vr_fig4_statistics_of_known_magnitudes():
+    """|zeta| 1..100 on unit volumes: the mean, numpy's percentiles, the maximum and 1/2 sum V |zeta|^2."""
+    mag = np.arange(1.0, 101.0)
+    s = pt.vorticity_stats(mag, np.full(100, 2.0))
+    assert s["particles"] == 100 and s["mean |zeta| (1/s)"] == pytest.approx(50.5)
+    assert s["p90 |zeta|"] == pytest.approx(90.1) and s["p99 |zeta|"] == pytest.approx(99.01)
+    assert s["max |zeta|"] == 100 and s["enstrophy"] == pytest.approx(np.sum(mag ** 2))
+    assert pt.vorticity_stats([], [])["mean |zeta| (1/s)"] is None
+
+
+def _rotating_lattice(omega, d=0.02, n=20, centre=0.2):
+    """A cubic lattice with the vorticity of solid-body rotation v = Omega x r: zeta = 2 Omega everywhere."""
+    g = (np.arange(n) + 0.5) * d
+    x = np.stack(np.meshgrid(g, g, g, indexing="ij"), -1).reshape(-1, 3)
+    return x, np.tile(2 * np.asarray(omega, float), (len(x), 1)), np.full(len(x), d ** 3)
+
+
+def test_vr_fig4_table_on_solid_body_rotation():
+    """Three 'methods' spinning at Omega, 1.5 Omega and 3 Omega: in the mid-plane slab (one layer of the lattice)
+    and in all the fluid |zeta| = 2 Omega at every particle, so mean = p90 = p99, and the ratios to the first
+    are 1.5 and 3 (9 for the enstrophy)."""
+    from types import SimpleNamespace
+
+    omega = np.array([0.0, 0.0, 1.5])
+    scene = SimpleNamespace(domain=SimpleNamespace(min=(0, 0, 0), max=(0.4, 0.4, 0.4)), particle_radius=0.01)
+    regions = pt.slab_regions([pt.parse_slab("z=mid"), pt.parse_slab("x=0.05:0.03")], scene)
+    assert [r[0] for r in regions] == ["|z - 0.2| < 0.01", "|x - 0.05| < 0.03", "all fluid"]
+    results = []
+    for name, k in (("DFSPH", 1.0), ("VR", 1.5), ("MP", 3.0)):
+        x, zeta, volume = _rotating_lattice(k * omega)
+        x = x + [0, 0, 0.01]  # a layer on the mid-plane z = 0.2
+        results.append((name, {"status": "done"}, {"1": (x, zeta, volume)}))
+    rows = pt.vr_fig4(results, regions, [1.0])
+    assert len(rows) == 9 and [r["region"] for r in rows[::3]] == [r[0] for r in regions]
+    slab, band, fluid = rows[0:3], rows[3:6], rows[6:9]
+    assert [r["particles"] for r in (slab[0], band[0], fluid[0])] == [400, 1200, 8000]  # one layer, three
+    for group in (slab, band, fluid):
+        for r, k in zip(group, (1.0, 1.5, 3.0)):
+            assert r["mean |zeta| (1/s)"] == pytest.approx(2 * 1.5 * k)
+            assert r["p90 |zeta|"] == pytest.approx(3 * k) and r["p99 |zeta|"] == pytest.approx(3 * k)
+            assert r["mean / DFSPH"] == pytest.approx(k) and r["p99 / DFSPH"] == pytest.approx(k)
+            assert r["enstrophy / DFSPH"] == pytest.approx(k ** 2)
+            assert r["enstrophy"] == pytest.approx(0.5 * r["particles"] * 0.02 ** 3 * (3 * k) ** 2)
+    with pytest.raises(ValueError):
+        pt.parse_slab("w=1")
+
+
+def test_vorticity_now_of_solid_body_rotation_without_a_model():
+    """warpsph.diagnostics.vorticity_now on plain DFSPH (no model, no vorticity field): the curl of v = Omega x r
+    is 2 Omega inside the bulk; the volumes are m / rho."""
+    import warp as wp
+    from conftest import make_sim, tank_scene
+
+    from warpsph.diagnostics import vorticity_now
+
+    wp.init()
+    sim = make_sim(tank_scene(radius=0.02, domain=(0.4, 0.4, 0.4), block=(0.4, 0.4, 0.4), gravity=[0, 0, 0]))
+    assert sim.vorticity_field is None
+    omega = np.array([0.3, -1.2, 2.0])
+    x0 = sim.fluid.x.numpy()[: sim.num_fluid]
+    sim.fluid.v.assign(np.pad(np.cross(omega, x0 - 0.2), ((0, sim.capacity - sim.num_fluid), (0, 0))).astype(np.float32))
+    x, zeta, volume = vorticity_now(sim)
+    interior = np.all((x > sim.support_radius) & (x < 0.4 - sim.support_radius), axis=1)
+    assert interior.sum() > 100 and len(x) == sim.num_fluid
+    np.testing.assert_allclose(zeta[interior], np.tile(2 * omega, (interior.sum(), 1)), atol=0.02 * np.linalg.norm(2 * omega))
+    np.testing.assert_allclose(volume, sim.particle_mass / sim.fluid.density.numpy()[: sim.num_fluid], rtol=1e-6)
+    stats = pt.vorticity_stats(np.linalg.norm(zeta[interior], axis=1), volume[interior])
+    # the SPH curl on the lattice reads 2 % high, the same at every interior particle
+    assert stats["mean |zeta| (1/s)"] == pytest.approx(2 * np.linalg.norm(omega), rel=0.03)
+    assert stats["p99 |zeta|"] == pytest.approx(stats["mean |zeta| (1/s)"], rel=1e-3)
+
+
+def test_measuring_vorticity_leaves_the_run_unchanged():
+    """vorticity_now between frames rebuilds lists and densities that the next step rebuilds anyway: a run
+    measured half-way ends bit for bit where an unmeasured one does (CPU)."""
+    from conftest import make_sim, tank_scene
+
+    from warpsph.diagnostics import vorticity_now
+
+    data = tank_scene(radius=0.025, domain=(0.6, 0.5, 0.3), block=(0.25, 0.4, 0.3))
+    plain, measured = make_sim(data), make_sim(data)
+    for k in range(20):
+        plain.step()
+        measured.step()
+        if k % 5 == 4:
+            vorticity_now(measured)
+    assert np.array_equal(plain.fluid.x.numpy(), measured.fluid.x.numpy())
+    assert np.array_equal(plain.fluid.v.numpy(), measured.fluid.v.numpy())
+
+
+def test_vr_fig4_end_to_end_runs_then_reads_the_cells(tmp_path, monkeypatch):
+    """The vr-fig4 kind on a tiny dam break (DFSPH and VR, two times): the JSON has a row per time, region and
+    method, DFSPH's ratios are 1, and a second call reads the cell files instead of running."""
+    import json
+
+    from conftest import tank_scene
+
+    scene = tmp_path / "dam.json"
+    scene.write_text(json.dumps(tank_scene(radius=0.03, domain=(0.6, 0.4, 0.3), block=(0.2, 0.3, 0.3))))
+    sweep = tmp_path / "fig4.json"
+    sweep.write_text(json.dumps({"name": "fig4", "scene": str(scene), "scale": 1.0, "time": 0.08, "device": "cpu",
+                                 "cells": [{"models": []}, {"models": [{"type": "vorticity_refinement", "alpha": 1.0}]}]}))
+    args = ["vr-fig4", str(sweep), str(tmp_path / "out"), "--times", "0.04,0.08", "--json", str(tmp_path / "f4.json")]
+    pt.main(args)
+    out = json.loads((tmp_path / "f4.json").read_text())
+    assert out["regions"] == ["|z - 0.15| < 0.03", "all fluid"] and out["times"] == [0.04, 0.08]
+    assert len(out["rows"]) == 2 * 2 * 2 and out["device"] and out["warp"]
+    assert [r["method"] for r in out["rows"][:2]] == ["DFSPH", "VR alpha = 1"]
+    for r in out["rows"]:
+        assert 0 < r["particles"] and r["mean |zeta| (1/s)"] > 0 and r["p99 |zeta|"] >= r["p90 |zeta|"]
+        if r["method"] == "DFSPH":
+            assert r["mean / DFSPH"] == pytest.approx(1) and r["enstrophy / DFSPH"] == pytest.approx(1)
+    assert [r["time reached (s)"] >= 0.08 for r in out["runs"]] == [True, True]
+    assert "| 0.08 | all fluid | VR alpha = 1 |" in (tmp_path / "f4.md").read_text()
+
+    def no_run(*a, **k):
+        raise AssertionError("ran again")
+    monkeypatch.setattr(pt, "fig4_cell", no_run)
+    pt.main(args[:4] + ["0.08"] + args[5:])  # a subset of the stored times
+    again = json.loads((tmp_path / "f4.json").read_text())
+    assert again["rows"] == [r for r in out["rows"] if r["t (s)"] == 0.08]

@@ -5,6 +5,7 @@ Table 1 (cost per scene) from `warpsph bench steps` files.
     python tools/paper_tables.py blocks sweeps/rankine_fig11_cpu.json OUT_DIR --json tools/results/rankine_fig11_cpu.json
     python tools/paper_tables.py table1 BENCH_DIR --json tools/results/vr_table1_h100.json
     python tools/paper_tables.py calm sweeps/rankine_fig3_cpu.json OUT_DIR --json tools/results/rankine_fig3_cpu.json
+    python tools/paper_tables.py vr-fig4 sweeps/vr_fig4_cpu.json OUT_DIR --times 1,2 --json tools/results/vr_fig4_cpu.json
 
 Reads each cell's per-frame series (``kinetic_energy``, ``rotational_energy``, ``frame_times``; see
 warpsph/sweep.py) and writes a small JSON (no per-particle data; the energy series thinned to 0.2 s) and the
@@ -36,6 +37,18 @@ within the run, or the cell blew up first); those times over the baseline's (the
 against the baseline's E_s (one threshold for every cell: a cell with more energy at the stop has a higher own
 threshold); E_end (the mean over the last 0.4 s) over E_s; the stirring's energy (the mean over the second before
 t_s) and the model's rotational energy at t_s (not part of E).
+
+vr-fig4 (VR paper Fig 4: the vorticity magnitude of the particles of a 2D slice of the Fig 3 board scene, DFSPH
+against MP and VR): runs the sweep's cells itself (a scene-file sweep; not `warpsph sweep`, whose cell files keep
+no per-particle data), one worker, to each of --times, and keeps each cell's particles (x, zeta, volume) at those
+times in OUT_DIR/cells/<id>.npz (a later call with the same cells and times reads them instead of running). zeta
+is the SPH curl of v at the frame for every method (warpsph.diagnostics.vorticity_now: fresh lists, the curl the
+models use; not the models' own field, the curl of v~ inside the step). Per time, region and cell: the particles
+in the region, |zeta|'s mean, 90th and 99th percentiles and maximum, the enstrophy 1/2 sum V |zeta|^2 (V = m / rho,
+the stats CSV's definition, over the region's particles), and mean, p90, p99 and enstrophy over the first cell's
+(DFSPH) in the same region at the same time. Regions: each --slab AXIS=CENTRE[:HALF] (|x_AXIS - CENTRE| < HALF;
+CENTRE "mid": the domain's mid-plane; HALF default the particle radius: one layer of particles, the paper's 2D
+slice), then all the fluid.
 """
 
 import argparse
@@ -343,6 +356,171 @@ def table1(folder):
     return {"folder": str(folder), **meta, "not used": skipped}, rows
 
 
+# --- VR paper Fig 4: vorticity magnitude in a slice -------------------------------------------------------------
+
+AXES = "xyz"
+
+
+def parse_slab(text):
+    """--slab AXIS=CENTRE[:HALF] -> (axis index, centre or None (the domain's mid-plane), half or None (the
+    particle radius))."""
+    axis, _, rest = text.partition("=")
+    centre, _, half = rest.partition(":")
+    if axis not in AXES or not centre:
+        raise ValueError(f"expected AXIS=CENTRE[:HALF] (AXIS x, y or z; CENTRE metres or mid), got {text!r}")
+    return AXES.index(axis), None if centre == "mid" else float(centre), float(half) if half else None
+
+
+def slab_regions(slabs, scene):
+    """[(name, axis, centre, half)] of the parsed slabs on ``scene`` (mid-plane and radius filled in), then all
+    the fluid (axis None)."""
+    out = []
+    for axis, centre, half in slabs:
+        d = scene.domain
+        centre = 0.5 * (d.min[axis] + d.max[axis]) if centre is None else centre
+        half = scene.particle_radius if half is None else half
+        out.append((f"|{AXES[axis]} - {centre:g}| < {half:.3g}", axis, centre, half))
+    return out + [("all fluid", None, None, None)]
+
+
+def vorticity_stats(magnitude, volume):
+    """|zeta|'s mean, 90th and 99th percentiles and maximum, and the enstrophy 1/2 sum V |zeta|^2, of the given
+    particles (None for none)."""
+    n = len(magnitude)
+    if n == 0:
+        return {"particles": 0, "mean |zeta| (1/s)": None, "p90 |zeta|": None, "p99 |zeta|": None,
+                "max |zeta|": None, "enstrophy": None}
+    p90, p99 = np.percentile(magnitude, [90, 99])
+    return {"particles": n, "mean |zeta| (1/s)": float(np.mean(magnitude)), "p90 |zeta|": float(p90),
+            "p99 |zeta|": float(p99), "max |zeta|": float(np.max(magnitude)),
+            "enstrophy": float(0.5 * np.sum(volume * magnitude ** 2))}
+
+
+def region_mask(x, axis, centre, half):
+    return np.ones(len(x), bool) if axis is None else np.abs(x[:, axis] - centre) < half
+
+
+def _fig4_key(t):
+    return f"{t:g}"
+
+
+def fig4_cell(cell, times, device):
+    """Runs one scene cell to each of ``times``; returns (record, {time key: (x, zeta, volume)})."""
+    import time as clock
+
+    from warpsph.diagnostics import vorticity_now
+    from warpsph.simulation import InstabilityError, Simulation
+    from warpsph.sweep import scene_of
+
+    t0 = clock.perf_counter()
+    sim = Simulation(scene_of(cell), device=device)
+    record = {"id": cell["id"], "params": cell["params"], "status": "done", "particles": sim.num_fluid,
+              "setup_s": round(clock.perf_counter() - t0, 1), "times": {}}
+    arrays, t0 = {}, clock.perf_counter()
+    try:
+        for t in sorted(times):
+            sim.run(until_time=t)
+            x, zeta, volume = vorticity_now(sim)
+            arrays[_fig4_key(t)] = (x, zeta, volume)
+            record["times"][_fig4_key(t)] = {"time_reached": sim.time, "steps": sim.step_count,
+                                             "wall_s": round(clock.perf_counter() - t0, 1)}
+    except InstabilityError as exc:
+        record.update(status="unstable", unstable=str(exc))
+    record.update(steps=sim.step_count, time_reached=sim.time, wall_s=round(clock.perf_counter() - t0, 1))
+    return record, arrays
+
+
+def fig4_records(sweep, out, times, device=None):
+    """(meta, [(label, record, arrays)]) for the sweep's cells, each run (or read from OUT/cells) to ``times``."""
+    from warpsph.cli import _init_warp
+    from warpsph.sweep import cells, load_sweep
+    from warpsph.validation.cases import commit_info, device_info
+
+    spec = load_sweep(sweep)
+    if spec.get("kind") != "scene":
+        raise ValueError("vr-fig4 takes a scene-file sweep (scene, scale, cells)")
+    device = device or spec.get("device") or "cpu"
+    _init_warp()
+    folder = Path(out) / "cells"
+    folder.mkdir(parents=True, exist_ok=True)
+    keys = [_fig4_key(t) for t in times]
+    results = []
+    for cell in cells(spec):
+        path = folder / f"{cell['id']}.json"
+        record = json.loads(path.read_text()) if path.is_file() else None
+        if record and record["params"] == cell["params"] and (
+                record["status"] == "unstable" or all(k in record["times"] for k in keys)):
+            with np.load(path.with_suffix(".npz")) as f:
+                arrays = {k: (f[f"x_{k}"], f[f"zeta_{k}"], f[f"volume_{k}"]) for k in record["times"]}
+        else:
+            print(f"running {cell_label(cell['params'], spec['fixed'])} to t = {', '.join(keys)} s", flush=True)
+            record, arrays = fig4_cell(cell, times, device)
+            record.update(device_info(device))
+            np.savez_compressed(path.with_suffix(".npz"), **{f"{name}_{k}": a for k, v in arrays.items()
+                                                             for name, a in zip(("x", "zeta", "volume"), v)})
+            path.write_text(json.dumps(record, indent=1) + "\n")
+        results.append((cell_label(cell["params"], spec["fixed"]), record, arrays))
+    done = [r for _, r, _ in results]
+    meta = {"sweep": str(sweep), "scene": spec["scene"], "scale": spec["scale"], "time": max(times),
+            "fixed": spec["fixed"], **commit_info(), "device": done[0].get("device"), "warp": done[0].get("warp"),
+            "times": list(times)}
+    return meta, results, cells(spec)[0]
+
+
+def vr_fig4(results, regions, times):
+    """The table: per time, region and cell the vorticity statistics, and the ratios to the first cell's (DFSPH)
+    in the same region at the same time. ``results``: [(label, record, {time key: (x, zeta, volume)})]."""
+    rows = []
+    for t in times:
+        k = _fig4_key(t)
+        for name, axis, centre, half in regions:
+            base = None
+            for n, (label_, record, arrays) in enumerate(results):
+                row = {"t (s)": t, "region": name, "method": label_}
+                if k not in arrays:
+                    row.update(vorticity_stats([], []))
+                    row["status"] = record["status"]
+                else:
+                    x, zeta, volume = arrays[k]
+                    sel = region_mask(x, axis, centre, half)
+                    row.update(vorticity_stats(np.linalg.norm(zeta[sel], axis=1), volume[sel]))
+                if n == 0:
+                    base = row
+                for key, short in (("mean |zeta| (1/s)", "mean"), ("p90 |zeta|", "p90"), ("p99 |zeta|", "p99"),
+                                   ("enstrophy", "enstrophy")):
+                    row[f"{short} / DFSPH"] = ratio(row[key], base[key])
+                rows.append(row)
+    return rows
+
+
+def fig4_runs(results, times):
+    """Per cell: its run (status, particles, steps, wall time) and where the fluid is at each time (the front,
+    the 99th percentile of x)."""
+    out = []
+    for label_, record, arrays in results:
+        row = {"method": label_, "status": record["status"], "particles": record["particles"],
+               "steps": record["steps"], "time reached (s)": round(record["time_reached"], 4),
+               "wall_s": record["wall_s"]}
+        for t in times:
+            k = _fig4_key(t)
+            row[f"front x at t={k} (m)"] = float(np.percentile(arrays[k][0][:, 0], 99)) if k in arrays else None
+        if record.get("unstable"):
+            row["unstable"] = record["unstable"]
+        out.append(row)
+    return out
+
+
+def fig4_markdown(title, meta, runs, rows, note):
+    text = markdown(title, meta, rows, note)
+    cols = [k for k in runs[0] if k not in ("status", "unstable")]
+    lines = ["", "Runs (front: the 99th percentile of the fluid's x):", "",
+             "| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
+    lines += ["| " + " | ".join(fmt(r.get(k)) for k in cols) + " |" for r in runs]
+    lines += [f"\n{r['method']}: {r['status']}" + (f" ({r['unstable']})" if r.get("unstable") else "")
+              for r in runs if r["status"] != "done"]
+    return text + "\n".join(lines) + "\n"
+
+
 def fmt(v):
     if v is None:
         return "—"
@@ -395,6 +573,10 @@ NOTES = {
              f"threshold for every cell, the first cell's; E_end: the mean over the last {END_WINDOW:g} s; E stirring: "
              f"the mean over [t_s - 1, t_s]; E_rot,s: the model's rotational energy at the frame nearest t_s "
              f"(micropolar: its spin field's; Rankine: zeta/2 as a sphere's spin; 0 for DFSPH), not in E."),
+    "vr-fig4": ("zeta: the SPH curl of v (eq 6, fluid neighbours, fresh lists) at each time, the same for every "
+                "method (not a model's own field); |zeta| mean, p90, p99, max over the region's particles; enstrophy: "
+                "1/2 sum V |zeta|^2, V = m / rho, over the region (as the stats CSV's, there over all the fluid); "
+                "/ DFSPH: over the first cell's in the same region at the same time."),
     "river": ("enstrophy: 1/2 sum V |zeta|^2 over every fluid particle in the tunnel (not the wake alone), "
               "averaged over the last simulated second; per particle: over the fluid count at the end."),
 }
@@ -402,17 +584,37 @@ NOTES = {
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("kind", choices=["vr-fig7", "vr-fig10", "blocks", "river", "calm", "table1"])
+    p.add_argument("kind", choices=["vr-fig7", "vr-fig10", "blocks", "river", "calm", "table1", "vr-fig4"])
     p.add_argument("sweep", help="the sweep file (table1: the folder of table1_<scene>_<model>.json)")
     p.add_argument("out", nargs="?", help="the sweep's --out folder (not for table1)")
     p.add_argument("--json", required=True, help="result JSON (the .md goes beside it)")
     p.add_argument("--title", default=None)
     p.add_argument("--stop", type=float, default=None,
                    help="calm: the stop time t_s (s); default the last keyframe time of the scene's moving bodies")
+    p.add_argument("--times", default=None,
+                   help="vr-fig4: comma-separated times (s) to measure at; default the sweep's time")
+    p.add_argument("--slab", action="append", default=None, metavar="AXIS=CENTRE[:HALF]",
+                   help="vr-fig4: a slab |x_AXIS - CENTRE| < HALF (metres; CENTRE mid: the domain's mid-plane; HALF "
+                        "default the particle radius), repeatable; default z=mid. All the fluid is always added")
+    p.add_argument("--device", default=None, help="vr-fig4: the device (default the sweep's, else cpu)")
     a = p.parse_args(argv)
     if (a.kind == "table1") != (a.out is None):
         p.error("table1 takes the benchmarks' folder alone; the other kinds a sweep file and its --out folder")
-    if a.kind == "table1":
+    if a.kind == "vr-fig4":
+        from warpsph.sweep import load_sweep, scene_of
+
+        try:
+            slabs = [parse_slab(x) for x in (a.slab or ["z=mid"])]
+        except ValueError as exc:
+            p.error(str(exc))
+        times = [float(t) for t in a.times.split(",")] if a.times else [float(load_sweep(a.sweep)["time"])]
+        meta, results, first = fig4_records(a.sweep, a.out, times, a.device)
+        regions = slab_regions(slabs, scene_of(first))
+        meta["regions"] = [r[0] for r in regions]
+        table, runs = vr_fig4(results, regions, times), fig4_runs(results, times)
+        command = (f"python tools/paper_tables.py vr-fig4 {a.sweep} OUT --times {','.join(f'{t:g}' for t in times)}"
+                   + "".join(f" --slab {x}" for x in (a.slab or [])) + f" --json {a.json}")
+    elif a.kind == "table1":
         meta, table = table1(a.sweep)
         command = (f"for sn in {' '.join(f'{t[0]}:{t[3]}' for t in TABLE1)}; do s=${{sn%:*}}; "
                    f"for m in none micropolar vorticity_refinement; do warpsph bench steps --device cuda --scene "
@@ -437,12 +639,16 @@ def main(argv=None):
                         "blocks": "Rankine paper Figs 11-12: falling blocks",
                         "river": "Rankine paper Fig 7: river tunnel, beta against nu_t",
                         "calm": "Rankine paper Figs 3 and 13: calm-down time after the stirring body stops",
-                        "table1": "VR paper Table 1: cost per scene"}[a.kind]
+                        "table1": "VR paper Table 1: cost per scene",
+                        "vr-fig4": "VR paper Fig 4: vorticity magnitude in a slice of the board scene"}[a.kind]
     note = NOTES[a.kind] + (f" Here t_s = {meta['stop_time']:g} s ({meta['stop_from']})." if a.kind == "calm" else "")
     result = {"title": title, "note": note, **meta, "command": command, "rows": table}
+    if a.kind == "vr-fig4":
+        result["runs"] = runs
     path = Path(a.json)
     path.write_text(json.dumps(result, indent=1) + "\n")
-    path.with_suffix(".md").write_text(markdown(title, meta, table, note))
+    path.with_suffix(".md").write_text(fig4_markdown(title, meta, runs, table, note) if a.kind == "vr-fig4"
+                                       else markdown(title, meta, table, note))
     print(path.with_suffix(".md").read_text())
 
 

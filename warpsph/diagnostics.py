@@ -101,6 +101,23 @@ class Diagnostics:
         }
 
 
+def vorticity_now(sim):
+    """The fluid's vorticity at the current state, for any run (plain DFSPH too): fresh neighbour lists and
+    densities for the current positions (``sim.update_densities``), then the SPH curl of v (``curl_of``, eq 6).
+    For measurements between frames (VR paper Fig 4's slices, #21): the velocity at the frame, not a model's
+    field (the curl of v~ inside the step). The next step rebuilds the lists and densities itself, so the run
+    goes on as it would have. Returns host float64 arrays (x, zeta, volume m / max(rho, 1e-9)) of the fluid
+    particles, as :class:`Diagnostics` weighs the enstrophy."""
+    n = sim.num_fluid
+    with wp.ScopedDevice(sim.device):
+        sim.update_densities()
+        zeta = curl_of(sim, sim.fluid.v, wp.zeros(max(n, 1), dtype=wp.vec3, device=sim.device))
+        x = sim.fluid.x.numpy()[:n].astype(np.float64)
+        rho = sim.fluid.density.numpy()[:n].astype(np.float64)
+        zeta = zeta.numpy()[:n].astype(np.float64)
+    return x, zeta, sim.particle_mass / np.maximum(rho, 1e-9)
+
+
 class DiagnosticsWriter:
     """An ``on_frame`` callback that appends one CSV row per frame (flushed, so a stopped run keeps its rows).
     ``append``: continue the file after frame ``append`` (rows of later frames, from a run resumed
