@@ -425,7 +425,8 @@ def fig4_cell(cell, times, device):
             d = sim.scene.domain  # particles past the domain's faces (not yet the health check's margin)
             outside = int(np.sum(np.any((x < np.asarray(d.min)) | (x > np.asarray(d.max)), axis=1)))
             record["times"][_fig4_key(t)] = {"time_reached": sim.time, "steps": sim.step_count,
-                                             "wall_s": round(clock.perf_counter() - t0, 1), "outside_domain": outside}
+                                             "wall_s": round(clock.perf_counter() - t0, 1), "outside_domain": outside,
+                                             "removed": sim.inflow.removed_in_sinks if sim.inflow is not None else 0}
     except InstabilityError as exc:
         record.update(status="unstable", unstable=str(exc))
     record.update(steps=sim.step_count, time_reached=sim.time, wall_s=round(clock.perf_counter() - t0, 1))
@@ -509,6 +510,9 @@ def fig4_runs(results, times):
             row[f"front x at t={k} (m)"] = float(np.percentile(arrays[k][0][:, 0], 99)) if k in arrays else None
         for t in times:
             row[f"past the walls at t={_fig4_key(t)}"] = record["times"].get(_fig4_key(t), {}).get("outside_domain")
+        if any(m.get("removed") for m in record["times"].values()):  # a sweep with sinks (fixed "sinks")
+            for t in times:
+                row[f"removed by t={_fig4_key(t)}"] = record["times"].get(_fig4_key(t), {}).get("removed")
         if record.get("unstable"):
             row["unstable"] = record["unstable"]
         out.append(row)
