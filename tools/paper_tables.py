@@ -501,6 +501,7 @@ def fig4_runs(results, times):
     """Per cell: its run (status, particles, steps, wall time), where the fluid is at each time (the front, the
     99th percentile of x) and how many particles are past the domain's faces (into the walls' stand-off)."""
     out = []
+    sinks = any(m.get("removed") for _, record, _ in results for m in record["times"].values())
     for label_, record, arrays in results:
         row = {"method": label_, "status": record["status"], "particles": record["particles"],
                "steps": record["steps"], "time reached (s)": round(record["time_reached"], 4),
@@ -510,7 +511,7 @@ def fig4_runs(results, times):
             row[f"front x at t={k} (m)"] = float(np.percentile(arrays[k][0][:, 0], 99)) if k in arrays else None
         for t in times:
             row[f"past the walls at t={_fig4_key(t)}"] = record["times"].get(_fig4_key(t), {}).get("outside_domain")
-        if any(m.get("removed") for m in record["times"].values()):  # a sweep with sinks (fixed "sinks")
+        if sinks:  # a sweep with sinks (fixed "sinks") that removed fluid
             for t in times:
                 row[f"removed by t={_fig4_key(t)}"] = record["times"].get(_fig4_key(t), {}).get("removed")
         if record.get("unstable"):
