@@ -600,6 +600,7 @@ def main(argv=None):
     p.add_argument("out", nargs="?", help="the sweep's --out folder (not for table1)")
     p.add_argument("--json", required=True, help="result JSON (the .md goes beside it)")
     p.add_argument("--title", default=None)
+    p.add_argument("--note", default="", help="a sentence appended to the table's note (what the run changed, why)")
     p.add_argument("--stop", type=float, default=None,
                    help="calm: the stop time t_s (s); default the last keyframe time of the scene's moving bodies")
     p.add_argument("--times", default=None,
@@ -652,7 +653,8 @@ def main(argv=None):
                         "calm": "Rankine paper Figs 3 and 13: calm-down time after the stirring body stops",
                         "table1": "VR paper Table 1: cost per scene",
                         "vr-fig4": "VR paper Fig 4: vorticity magnitude in a slice of the board scene"}[a.kind]
-    note = NOTES[a.kind] + (f" Here t_s = {meta['stop_time']:g} s ({meta['stop_from']})." if a.kind == "calm" else "")
+    note = NOTES[a.kind] + (f" Here t_s = {meta['stop_time']:g} s ({meta['stop_from']})." if a.kind == "calm" else "") \
+        + (f" {a.note}" if a.note else "")
     result = {"title": title, "note": note, **meta, "command": command, "rows": table}
     if a.kind == "vr-fig4":
         result["runs"] = runs
