@@ -218,12 +218,17 @@ def blocks(meta, rows):
             if T <= r["t"][-1] + 1e-9:
                 row[f"E/E_base t={T:g}"] = ratio(window_mean(r["t"], r["ke"], T - WINDOW, min(T + WINDOW, r["t"][-1])),
                                                 window_mean(base["t"], base["ke"], T - WINDOW, min(T + WINDOW, base["t"][-1])))
-        if r["status"] == "unstable":
-            row["unstable"] = r["unstable"]
-        row["kinetic_energy_every_0.2s"] = thin(r["t"], r["ke"])
-        row["rotational_energy_every_0.2s"] = thin(r["t"], r["rot"])
-        out.append(row)
+        out.append(with_series(row, r))
     return out
+
+
+def with_series(row, r):
+    """``row`` with the cell's instability note and its energies every 0.2 s (the blocks and calm tables)."""
+    if r["status"] == "unstable":
+        row["unstable"] = r["unstable"]
+    row["kinetic_energy_every_0.2s"] = thin(r["t"], r["ke"])
+    row["rotational_energy_every_0.2s"] = thin(r["t"], r["rot"])
+    return row
 
 
 def stop_time(sweep):
@@ -280,11 +285,7 @@ def calm(meta, rows):
         row[f"calm {CALM_LEVELS[0]:.0%} of DFSPH's E_s (s)"] = common
         row["E_end / E_s"] = ratio(end_mean(r["t"], r["ke"]), e_s)
         row["run end (s)"] = float(r["t"][-1])
-        if r["status"] == "unstable":
-            row["unstable"] = r["unstable"]
-        row["kinetic_energy_every_0.2s"] = thin(r["t"], r["ke"])
-        row["rotational_energy_every_0.2s"] = thin(r["t"], r["rot"])
-        out.append(row)
+        out.append(with_series(row, r))
     return out
 
 
