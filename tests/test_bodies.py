@@ -56,6 +56,19 @@ def test_keyframed_and_accelerating_motion():
     p, _, v, _ = kinematic_pose(m, ref, 5.0)  # held at the last keyframe, then falling for 1 s
     np.testing.assert_allclose(p, ref + [0.4, -0.2 - 0.5 * 9.81, 0])
     np.testing.assert_allclose(v, [0, -9.81, 0])
+    m = parse_dataclass(Motion, {"angular_velocity": 2.0, "spin_start": 1.0, "spin_up": 0.5, "spin_end": 3.0,
+                                 "spin_down": 1.0})
+    for t, angle, rate in ((3.5, 2.0 * 1.75 + 0.75, 1.0), (9.0, 2.0 * 1.75 + 1.0, 0.0)):  # slowing, then at rest
+        _, R, _, w = kinematic_pose(m, ref, t)
+        np.testing.assert_allclose(w, [0, rate, 0])
+        np.testing.assert_allclose([R[0, 0], R[0, 2]], [np.cos(angle), np.sin(angle)], atol=1e-12)
+    m = parse_dataclass(Motion, {"angular_velocity": 2.0, "spin_end": 3.0})  # stops at once
+    _, R0, _, _ = kinematic_pose(m, ref, 3.0)
+    _, R1, _, w = kinematic_pose(m, ref, 4.0)
+    np.testing.assert_allclose(w, 0.0)
+    np.testing.assert_allclose(R1, R0, atol=1e-12)
+    with pytest.raises(SceneError, match="spin_end"):
+        parse_dataclass(Motion, {"angular_velocity": 2.0, "spin_start": 2.0, "spin_end": 1.0}).validate("s.json", "motion")
     m = parse_dataclass(Motion, {"acceleration": [0, -9.81, 0], "start": 1.0, "end": 1.5})
     p, _, v, _ = kinematic_pose(m, ref, 9.0)  # stopped after 0.5 s of fall
     np.testing.assert_allclose(p, ref + [0, -0.5 * 9.81 * 0.25, 0])

@@ -134,6 +134,8 @@ def test_calm_stop_time_from_the_scene_and_the_table(tmp_path):
     spin = {"scene": str(Path(__file__).resolve().parent.parent / "scenes" / "propeller_rankine.json"),
             "scale": 0.001, "time": 1.0, "cells": [{"models": []}]}
     assert pt.stop_time(spin) is None  # spins to the end: --stop needed
+    spin["cells"] = [{"models": [], "obstacles[0].motion.spin_end": 6.0, "obstacles[0].motion.spin_down": 0.5}]
+    assert pt.stop_time(spin) == pytest.approx(6.5)  # the spin stops by spin_end + spin_down
     rows = [_row("DFSPH", lambda t: np.exp(-np.clip(t - 2.0, 0, None)))]
     md = pt.markdown("calm", {**META, "device": "cpu", "warp": "1.19.0"}, pt.calm({**META, "stop_time": 2.0}, rows),
                      pt.NOTES["calm"])

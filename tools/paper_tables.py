@@ -233,7 +233,8 @@ def with_series(row, r):
 
 def stop_time(sweep):
     """calm's t_s: the last keyframe time of the moving bodies of the sweep's first cell's scene (a drift's end
-    too); None when no body has keyframes, or one spins or drifts to the run's end (give --stop)."""
+    too, and a spin's spin_end + spin_down); None when no body has keyframes, or one spins or drifts to the run's end
+    (give --stop)."""
     from warpsph.sweep import cells, load_sweep, scene_of
 
     times = []
@@ -241,10 +242,11 @@ def stop_time(sweep):
         m = body.motion
         if m is None:
             continue
-        drifts = any(m.velocity) or any(m.acceleration)
-        if m.angular_velocity or (drifts and m.end is None):
+        drifts, spins = any(m.velocity) or any(m.acceleration), m.angular_velocity != 0.0
+        if (spins and m.spin_end is None) or (drifts and m.end is None):
             return None
-        times += ([m.keyframes[-1].time] if m.keyframes else []) + ([m.end] if drifts else [])
+        times += (([m.keyframes[-1].time] if m.keyframes else []) + ([m.end] if drifts else [])
+                  + ([m.spin_end + m.spin_down] if spins else []))
     return max(times, default=None)
 
 

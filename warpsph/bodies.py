@@ -103,7 +103,18 @@ def load_body(obstacle: Obstacle, path, spacing, domain_size, default_name, flui
 
 
 def _spin(m: Motion, t):
-    """Spin angle and rate at time t: zero before spin_start, ramped linearly over spin_up."""
+    """Spin angle and rate at time t: zero before spin_start, ramped linearly up over spin_up and, from
+    spin_end on, down to rest over spin_down."""
+    if m.spin_end is not None and t > m.spin_end:
+        angle, rate = _spin_up(m, m.spin_end)
+        tau = min(t - m.spin_end, m.spin_down)
+        slowed = rate * (1.0 - tau / m.spin_down) if t - m.spin_end < m.spin_down else 0.0
+        return angle + 0.5 * (rate + slowed) * tau, slowed
+    return _spin_up(m, t)
+
+
+def _spin_up(m: Motion, t):
+    """Spin angle and rate at time t of a spin that never stops."""
     tau = t - m.spin_start
     if tau <= 0.0 or m.angular_velocity == 0.0:
         return 0.0, 0.0

@@ -131,6 +131,9 @@ class Motion:
     center: Optional[Vec3] = key(None, doc="a point on the spin axis at the placement; null: the mesh's centre", unit="m")
     spin_start: float = key(0.0, doc="when the spin starts", unit="s", ge=0)
     spin_up: float = key(0.0, doc="ramp to full spin speed", unit="s", ge=0)
+    spin_end: Optional[float] = key(None, doc="when the spin starts to stop (the propeller of the Rankine paper's "
+                                              "Fig 13); null: never", unit="s", ge=0)
+    spin_down: float = key(0.0, doc="ramp from the rate at spin_end to rest", unit="s", ge=0)
 
     def validate(self, file, key):
         times = [k.time for k in self.keyframes]
@@ -138,6 +141,9 @@ class Motion:
             raise SceneError(file, f"{key}.keyframes", f"times must increase, got {times}")
         if self.end is not None and self.end <= self.start:
             raise SceneError(file, f"{key}.end", f"must be after start ({self.start:g} s), got {self.end:g}")
+        if self.spin_end is not None and self.spin_end <= self.spin_start:
+            raise SceneError(file, f"{key}.spin_end", f"must be after spin_start ({self.spin_start:g} s), "
+                                                       f"got {self.spin_end:g}")
         if self.angular_velocity != 0.0 and not any(self.axis):
             raise SceneError(file, f"{key}.axis", "the spin axis is zero")
 
