@@ -139,6 +139,11 @@ def head(r):
             "wall_s": r["wall_s"]}
 
 
+def missing(r):
+    """The row of a cell whose file is not there."""
+    return {"method": r["label"], "status": "missing"}
+
+
 def end_mean(t, e):
     """The mean over the run's last END_WINDOW seconds."""
     return window_mean(t, e, t[-1] - END_WINDOW, t[-1])
@@ -154,7 +159,7 @@ def energy_table(meta, rows, times, means):
     out = []
     for r in rows:
         if r["status"] == "missing":
-            out.append({"method": r["label"], "status": "missing"})
+            out.append(missing(r))
             continue
         row = head(r)
         end = min(meta["time"], r["t"][-1], base["t"][-1])
@@ -175,11 +180,8 @@ def energy_table(meta, rows, times, means):
             ratio(tail, window_mean(base["t"], base["ke"], lo_s, hi_s))
         row[f"{tail_key} / E_max"] = ratio(tail, float(r["ke"].max()))
         row["E_max (J)"] = float(r["ke"].max())
-        row["settled"] = None if settle is None else bool(settle <= SETTLE_FACTOR)
-        if r["status"] == "unstable":
-            row["settled"], row["unstable"] = False, r["unstable"]
-        row["kinetic_energy_every_0.2s"] = thin(r["t"], r["ke"])
-        out.append(row)
+        row["settled"] = False if r["status"] == "unstable" else None if settle is None else bool(settle <= SETTLE_FACTOR)
+        out.append(with_series(row, r, {"kinetic_energy": "ke"}))
     return out
 
 
@@ -202,7 +204,7 @@ def blocks(meta, rows):
     out = []
     for r in rows:
         if r["status"] == "missing" or _solver(r) not in bases:
-            out.append({"method": r["label"], "status": "missing"})
+            out.append(missing(r))
             continue
         base = bases[_solver(r)]
         k = int(np.argmax(r["ke"]))
@@ -222,12 +224,15 @@ def blocks(meta, rows):
     return out
 
 
-def with_series(row, r):
-    """``row`` with the cell's instability note and its energies every 0.2 s (the blocks and calm tables)."""
+ENERGIES = {"kinetic_energy": "ke", "rotational_energy": "rot"}
+
+
+def with_series(row, r, series=ENERGIES):
+    """``row`` with the cell's instability note and its ``series`` ({name: the cell's key}) every 0.2 s."""
     if r["status"] == "unstable":
         row["unstable"] = r["unstable"]
-    row["kinetic_energy_every_0.2s"] = thin(r["t"], r["ke"])
-    row["rotational_energy_every_0.2s"] = thin(r["t"], r["rot"])
+    for name, key in series.items():
+        row[f"{name}_every_0.2s"] = thin(r["t"], r[key])
     return row
 
 
@@ -274,7 +279,7 @@ def calm(meta, rows):
     out = []
     for r in rows:
         if r["status"] == "missing":
-            out.append({"method": r["label"], "status": "missing"})
+            out.append(missing(r))
             continue
         e_s, times = calm_times(r["t"], r["ke"], t_s)
         row = {**head(r), "E stirring (J)": window_mean(r["t"], r["ke"], t_s - 1.0, t_s), "E_s (J)": e_s,
@@ -296,7 +301,7 @@ def river(meta, rows):
     out = []
     for r in rows:
         if r["status"] == "missing":
-            out.append({"method": r["label"], "status": "missing"})
+            out.append(missing(r))
             continue
         t_end = r["t"][-1]
         row = {"method": r["label"], "status": r["status"], "particles (end)": r["particles_end"],
@@ -304,10 +309,7 @@ def river(meta, rows):
                "enstrophy, last 1 s": window_mean(r["t"], r["ens"], t_end - 1.0, t_end),
                "KE (J), last 1 s": window_mean(r["t"], r["ke"], t_end - 1.0, t_end)}
         row["enstrophy per particle"] = ratio(row["enstrophy, last 1 s"], float(r["particles_end"] or 0))
-        if r["status"] == "unstable":
-            row["unstable"] = r["unstable"]
-        row["enstrophy_every_0.2s"] = thin(r["t"], r["ens"])
-        out.append(row)
+        out.append(with_series(row, r, {"enstrophy": "ens"}))
     base = next((x for x in out if x["method"] in ("DFSPH", "IISPH")), None)
     for x in out:
         if base and x.get("enstrophy, last 1 s") is not None:
@@ -524,15 +526,9 @@ def fig4_runs(results, times):
 
 
 def fig4_markdown(title, meta, runs, rows, note):
-    text = markdown(title, meta, rows, note)
-    cols = [k for k in runs[0] if k not in ("status", "unstable")]
     lines = ["", "Runs (front: the 99th percentile of the fluid's x; past the walls: fluid particles beyond the "
-                 "domain's faces, the health check stops a run one radius past the wall layer):", "",
-             "| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
-    lines += ["| " + " | ".join(fmt(r.get(k)) for k in cols) + " |" for r in runs]
-    lines += [f"\n{r['method']}: {r['status']}" + (f" ({r['unstable']})" if r.get("unstable") else "")
-              for r in runs if r["status"] != "done"]
-    return text + "\n".join(lines) + "\n"
+                 "domain's faces, the health check stops a run one radius past the wall layer):", ""]
+    return markdown(title, meta, rows, note) + "\n".join(lines + table_lines(runs)) + "\n"
 
 
 def fmt(v):
@@ -555,16 +551,18 @@ def header(meta):
             + (f" Every cell: {', '.join(f'{k} = {v}' for k, v in meta['fixed'].items())}." if meta["fixed"] else ""))
 
 
-def markdown(title, meta, rows, note):
+def table_lines(rows):
+    """A markdown table of ``rows`` (the first row's columns, less the series, status and instability note),
+    then a line for each row that did not finish."""
     cols = [k for k in rows[0] if not k.endswith("_every_0.2s") and k not in ("status", "unstable")]
-    lines = [f"# {title}", "", note, "", header(meta), "",
-             "| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
-    for r in rows:
-        lines.append("| " + " | ".join(fmt(r.get(k)) for k in cols) + " |")
-    bad = [r for r in rows if r.get("status", "done") != "done"]
-    for r in bad:
-        lines.append(f"\n{r['method']}: {r['status']}" + (f" ({r['unstable']})" if r.get("unstable") else ""))
-    return "\n".join(lines) + "\n"
+    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
+    lines += ["| " + " | ".join(fmt(r.get(k)) for k in cols) + " |" for r in rows]
+    return lines + [f"\n{r['method']}: {r['status']}" + (f" ({r['unstable']})" if r.get("unstable") else "")
+                    for r in rows if r.get("status", "done") != "done"]
+
+
+def markdown(title, meta, rows, note):
+    return "\n".join([f"# {title}", "", note, "", header(meta), ""] + table_lines(rows)) + "\n"
 
 
 NOTES = {
