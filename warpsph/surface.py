@@ -515,23 +515,24 @@ def _load(item):
     return array
 
 
+def _with_arrays(mesh, convert):
+    """``mesh`` with ``convert(name, array)`` of each of its arrays (primvars named primvar0, primvar1, ...)."""
+    return SurfaceMesh(convert("points", mesh.points), convert("faces", mesh.faces), convert("normals", mesh.normals),
+                       convert("velocities", mesh.velocities),
+                       {name: convert(f"primvar{n}", values) for n, (name, values) in enumerate(mesh.primvars.items())},
+                       mesh.seconds, mesh.layer)
+
+
 def _store_mesh(mesh, folder):
     """``mesh`` with its arrays stored in ``folder`` (:func:`_store`)."""
     import os
 
-    def store(name, array):
-        return _store(os.path.join(folder, name), array)
-
-    return SurfaceMesh(store("points", mesh.points), store("faces", mesh.faces), store("normals", mesh.normals),
-                       store("velocities", mesh.velocities),
-                       {name: store(f"primvar{n}", values) for n, (name, values) in enumerate(mesh.primvars.items())},
-                       mesh.seconds, mesh.layer)
+    return _with_arrays(mesh, lambda name, array: _store(os.path.join(folder, name), array))
 
 
 def _load_mesh(mesh):
     """A mesh from :func:`_store_mesh` with its arrays read back (the files stay: the caller removes them)."""
-    return SurfaceMesh(_load(mesh.points), _load(mesh.faces), _load(mesh.normals), _load(mesh.velocities),
-                       {name: _load(values) for name, values in mesh.primvars.items()}, mesh.seconds, mesh.layer)
+    return _with_arrays(mesh, lambda name, array: _load(array))
 
 
 def mesher_for(options, radius, device="cpu", workers=None):
