@@ -62,7 +62,8 @@ class NeighbourSearch:
         self.support_radius = sim.support_radius
         self.lower = wp.vec3(*np.asarray(sim.scene.domain.min, dtype=np.float32))
         self.period = wp.vec3(*sim.scene.domain.period)
-        self.cell_size, dims = grid_geometry(sim.scene.domain, self.support_radius, n + boundary_x.shape[0])
+        points = n if sim.halo is None else sim.halo.grid_points  # a subdomain: the whole simulation's grid
+        self.cell_size, dims = grid_geometry(sim.scene.domain, self.support_radius, points + boundary_x.shape[0])
         self.fluid_grid = PointGrid(sim, self.lower, self.cell_size, dims, sim.scratch(wp.int32, 0))
         self.boundary_x = boundary_x
         self.boundary_grid = None
@@ -86,7 +87,7 @@ class NeighbourSearch:
         """Rebuilds the fluid grid and both neighbour lists for positions ``x``."""
         sim = self.sim
         n = sim.num_fluid
-        self.fluid_grid.build(x, n)
+        self.fluid_grid.build(x, n + (sim.halo.ghosts if sim.halo is not None else 0))  # ghost rows: found, not queried
         self.fluid_neighbours = self._build_list(self.fluid_grid, x, x, 1, self.fluid_offsets, self.fluid_neighbours)
         if self.boundary_grid is not None:
             self.boundary_neighbours = self._build_list(self.boundary_grid, x, self.boundary_x, 0,

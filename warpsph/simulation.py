@@ -93,8 +93,12 @@ class Simulation:
     >>> sim.run(frames=10)
     """
 
-    def __init__(self, scene: Scene, device=None, profile=False, use_graph=None):
+    def __init__(self, scene: Scene, device=None, profile=False, use_graph=None, particles=None, halo=None):
+        """``particles`` (x, v, ids) and ``halo`` are for one subdomain of a
+        :class:`~warpsph.decomposition.DecomposedSimulation`: its fluid particles instead of the scene's
+        sampled (and packed) ones, and the link to the other subdomains (ghost rows, exchanges, reductions)."""
         self.scene = scene
+        self.halo = halo
         self.device = wp.get_device(device)
         self.timer = StageTimer(profile)
         self.launches = Counter()  # kernel name -> launches (capture counts once)
@@ -110,7 +114,11 @@ class Simulation:
         self.viscous_dt = 0.125 * (0.5 * self.support_radius) ** 2 / nu if nu > 0 else 1.0e30
 
         fluid_x, fluid_v, boundary_x, body, self.bodies = sample_scene(scene)
-        fluid_x, fluid_v = remove_fluid_inside_bodies(scene, self.bodies, fluid_x, fluid_v, self.device, self.launch)
+        ids = None
+        if particles is None:
+            fluid_x, fluid_v = remove_fluid_inside_bodies(scene, self.bodies, fluid_x, fluid_v, self.device, self.launch)
+        else:
+            fluid_x, fluid_v, ids = particles
         # moving bodies' samples follow the static ones: kinematic, then dynamic
         moving = sorted((b for b in self.bodies if b.kind != "static"), key=lambda b: b.kind == "dynamic")
         first_moving = len(boundary_x)
@@ -123,6 +131,8 @@ class Simulation:
         self.inflow = Inflow(scene, len(fluid_x)) if scene.emitters or scene.sinks or scene.domain.is_open else None
         # per-particle arrays hold the fluid at its largest: the initial particles and what emitters add
         capacity = len(fluid_x) + (self.inflow.room if self.inflow is not None else 0)
+        if halo is not None:  # owned particles, those that arrive, and ghost rows
+            capacity = halo.capacity
         self.state = State(self.device, capacity, len(fluid_x))
         self._scratch = None
         model_classes = [plugin_of(p) for p in scene.models]
@@ -131,7 +141,7 @@ class Simulation:
         check_fits(scene, self.capacity, self.num_boundary, self.device)  # refuse before allocating
         with wp.ScopedDevice(self.device):
             z = self.zeros
-            self.state.allocate_fluid(fluid_x, fluid_v, factor=solver_class.needs_factor)
+            self.state.allocate_fluid(fluid_x, fluid_v, factor=solver_class.needs_factor, ids=ids)
             self.state.allocate_clock(scene.time_step_bounds[1])
             has_dynamic = any(b.kind == "dynamic" for b in moving)
             first_dynamic = first_moving + sum(len(b.samples) for b in moving if b.kind == "kinematic")
@@ -164,17 +174,20 @@ class Simulation:
             self.max_speed_sq = z("clock", 1)
             self.health_counts = z("health", 4, dtype=wp.int32)
             self.health_first = z("health", 4, dtype=wp.int32)
-            if scene.initial_packing is not None:  # the blocks' particles relaxed before t = 0
+            if scene.initial_packing is not None and particles is None:  # the blocks' particles relaxed before t = 0
                 from warpsph.packing import packed_positions
 
                 packed = packed_positions(scene, self.device)
                 wp.copy(self.fluid.x, wp.array(packed, dtype=wp.vec3, device=self.device), count=len(packed))
             if self.inflow is not None:  # the layers due at t = 0
                 self.inflow.emit(self, 0.0)
-            self.update_densities()  # so that frame 0 has them
+            if halo is None:  # a subdomain's need its ghosts first (DecomposedSimulation)
+                self.update_densities()  # so that frame 0 has them
         self.on_instability = "stop"  # or "reduce-dt": retry the step with a smaller dt
         self._dt_scale = 1.0
         self.use_graph = self.device.is_cuda and wp.is_conditional_graph_supported() if use_graph is None else use_graph
+        if halo is not None:
+            self.use_graph = False  # exchanges wait on the other subdomains
         self._graph = None
         self._graph_generation = None
 
@@ -195,6 +208,23 @@ class Simulation:
     @num_fluid.setter
     def num_fluid(self, value):
         self.state.num_fluid = value
+
+    @property
+    def global_count(self) -> int:
+        """Fluid particles in the whole simulation: ``num_fluid``, or the sum over the subdomains."""
+        return self.num_fluid if self.halo is None else self.halo.global_count
+
+    def exchange(self, *arrays):
+        """Gives the ghost rows of per-particle ``arrays`` their owners' values before a neighbour pass
+        reads them (a no-op without subdomains)."""
+        if self.halo is not None:
+            self.halo.exchange(arrays)
+
+    def allreduce(self, array, ops):
+        """Combines a small device array over the subdomains, element by element: ``ops[k]`` is "s"
+        (sum), "m" (max) or "-" (leave). A no-op without subdomains."""
+        if self.halo is not None:
+            self.halo.allreduce(array, ops)
 
     @property
     def step_count(self) -> int:
@@ -337,6 +367,9 @@ class Simulation:
                 with self.timer("bodies"):  # boundary samples at the bodies' poses at t^n
                     self.moving_bodies.place(now)
                     self.neighbours.rebuild_boundary_grid()
+            if self.halo is not None:
+                with self.timer("halo"):  # particles cross to their subdomain; ghost rows from the others
+                    self.halo.refresh(self)
             with self.timer("neighbours"):
                 self.neighbours.update(self.fluid.x)
             if self.use_graph and not self.timer.enabled and self._dt_scale == 1.0:
@@ -370,6 +403,7 @@ class Simulation:
         with t("time_step"):  # CFL condition on |v^n|
             self.max_speed_sq.zero_()
             self.launch(compute_max_speed, min(n, REDUCE_THREADS), [f.v, n, self.max_speed_sq])
+            self.allreduce(self.max_speed_sq, "m")
             tm = self.scene.time
             self.launch(compute_time_step, 1,
                         [self.max_speed_sq, self.scene.particle_diameter, tm.cfl, *self.scene.time_step_bounds,
@@ -385,6 +419,7 @@ class Simulation:
                 model.step(self.model_context)
         with t("advection"):  # v_adv = v~ + dt (a_adv + g)
             self.launch(predict_velocity, n, [f.acceleration, self.gravity, self.dt, f.v])
+            self.exchange(f.v)
         with t("density_solve"):  # projection: rho*(x + dt v_adv) -> rho0 (IISPH: its whole pressure solve)
             self.pressure_solver.correct_density()
         with t("integration"):  # x^{n+1} = x^n + dt v
@@ -414,6 +449,7 @@ class Simulation:
         self.launch(compute_density_and_factor, self.num_fluid,
                     [f.x, self.neighbours.lists, self.boundary.samples, self.fluid_volume, self.rest_density,
                      self.support_radius, f.density, f.factor, *self.pressure_solver.density_pass_outputs()])
+        self.exchange(f.density)
 
     # -- host views -------------------------------------------------------------------------------------
     @property

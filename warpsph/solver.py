@@ -88,7 +88,7 @@ class DFSPHSolver:
         self.surface_count = z("pressure", 1, dtype=wp.int32)  # surface particles this step (statistics)
         # the regime: 1 = p >= 0 everywhere (a free surface), 0 = signed in the bulk (a confined box this step)
         self.free_surface = z("pressure", 1, dtype=wp.int32)
-        self.fills_domain = fluid_fills_domain(sim.scene, sim.num_fluid)
+        self.fills_domain = fluid_fills_domain(sim.scene, sim.global_count)
         # accumulated stiffness of the last solve of each kind, for the warm start
         self.pressure_sum = [sim.per_particle("pressure"), sim.per_particle("pressure")]
         self.error_stats = z("pressure", 3)  # sum |error|, max |error|, sum of the signed source
@@ -118,9 +118,12 @@ class DFSPHSolver:
         sim = self.sim
         self.surface_count.zero_()
         self.free_surface.fill_(0 if self.fills_domain else 1)
+        sim.exchange(self.position_divergence)  # read at the neighbours (the band)
         sim.launch(classify_free_surface, sim.num_fluid,
                    [self.position_divergence, sim.fluid.density, sim.neighbours.lists, FREE_SURFACE_THRESHOLD,
                     FREE_SURFACE_DENSITY * sim.rest_density, self.surface, self.surface_count, self.free_surface])
+        sim.allreduce(self.surface_count, "s")
+        sim.allreduce(self.free_surface, "m")
 
     # -- Algorithm 1: the two projection loops -------------------------------------------
     def correct_divergence(self):
@@ -166,16 +169,18 @@ class DFSPHSolver:
         # a box without free surface: the source less its mean (no-ops otherwise)
         sim.launch(reduce_source_sum, min(sim.num_fluid, REDUCE_THREADS),
                    [self.error, sim.num_fluid, self.free_surface, self.error_stats])
+        sim.allreduce(self.error_stats, "--s")
         sim.launch(remove_mean_source, sim.num_fluid,
-                   [self.error_stats, sim.num_fluid, self.free_surface, sim.fluid.factor, sim.dt,
+                   [self.error_stats, sim.global_count, self.free_surface, sim.fluid.factor, sim.dt,
                     int(kind == DIVERGENCE), self.error, self.stiffness])
         if first and sim.scene.solver.warm_start:  # last step's pressure where this step's source still asks for it
             sim.launch(warm_start_pressure, sim.num_fluid,
                        [self.error, sim.fluid.factor, sim.dt, sim.dt_previous, int(kind == DIVERGENCE),
                         self.pressure_sum[kind], self.stiffness])
         sim.launch(reduce_error, min(sim.num_fluid, REDUCE_THREADS), [self.error, sim.num_fluid, self.error_stats])
+        sim.allreduce(self.error_stats, "sm-")
         sim.launch(update_solver_status, 1,
-                   [self.error_stats, sim.num_fluid, max_error, max_error * PEAK_ERROR_RATIO, int(kind == DIVERGENCE), sim.dt, min_it, max_it,
+                   [self.error_stats, sim.global_count, max_error, max_error * PEAK_ERROR_RATIO, int(kind == DIVERGENCE), sim.dt, min_it, max_it,
                     int(first), kind, self.average_error[kind], self.condition,
                     self.iterations, self.totals, self.max_iteration_streak])
 
@@ -185,7 +190,9 @@ class DFSPHSolver:
         self._measure(kind, source_kernel, inputs, max_error, min_it, max_it, True)
 
         def iteration():
+            self.sim.exchange(self.stiffness)  # k_j of the apply
             self._apply(kind, 1)
+            self.sim.exchange(self.sim.fluid.v)  # v_j of the next source
             self._measure(kind, source_kernel, inputs, max_error, min_it, max_it, False)
 
         wp.capture_while(self.condition, iteration)

@@ -69,13 +69,13 @@ class State:
         self.carried[name] = array
         return array
 
-    def allocate_fluid(self, x, v, factor=True):
-        """The fluid's arrays, with positions ``x`` and velocities ``v`` in the first rows; ``factor`` False:
-        an empty DFSPH factor (a solver without one)."""
+    def allocate_fluid(self, x, v, factor=True, ids=None):
+        """The fluid's arrays, with positions ``x``, velocities ``v`` and ``ids`` (default 0, 1, ...) in the
+        first rows; ``factor`` False: an empty DFSPH factor (a solver without one)."""
         p = self.per_particle
         self.fluid = FluidParticles(
             x=p("fluid", wp.vec3, x), v=p("fluid", wp.vec3, v),
-            ids=p("fluid", wp.int32, np.arange(len(x), dtype=np.int32)),
+            ids=p("fluid", wp.int32, np.arange(len(x), dtype=np.int32) if ids is None else ids),
             density=p("fluid"), factor=p("fluid") if factor else self.zeros("fluid", 0),
             acceleration=p("fluid", wp.vec3))
         for name in ("x", "v", "ids"):
@@ -87,6 +87,11 @@ class State:
         self.dt_previous = self.carry("clock/dt_previous", self.array("clock", np.array([dt_max], np.float32), float))
         self.time_device = self.carry("clock/time", self.zeros("clock", 1, dtype=wp.float64))
         self.steps_device = self.carry("clock/steps", self.zeros("clock", 1, dtype=wp.int64))
+
+    def carried_rows(self):
+        """The carried arrays that hold a row per particle (what moves with a particle to another subdomain)."""
+        rows = {id(a) for a in self._per_particle}
+        return [a for a in self.carried.values() if id(a) in rows]
 
     # -- rows ------------------------------------------------------------------------------------
     def zero_rows(self, first, count):

@@ -98,6 +98,11 @@ class ModelContext:
     def launch(self, kernel, dim, inputs):
         self._sim.launch(kernel, dim, inputs)
 
+    def exchange(self, *arrays):
+        """After a pass that wrote per-particle ``arrays`` which a later pass reads at the neighbours: the
+        ghost rows of a decomposed simulation get their owners' values (a no-op on one domain)."""
+        self._sim.exchange(*arrays)
+
     def per_particle(self, owner, dtype=float):
         """A zeroed per-particle array of ``capacity`` rows, counted under ``owner``."""
         return self._sim.per_particle(owner, dtype)

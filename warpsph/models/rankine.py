@@ -48,6 +48,7 @@ class RankineModel(Model):
         n = ctx.num_fluid
         ctx.launch(compute_vorticity_change, n,
                    [ctx.vorticity, self.has_previous, self.previous, self.change])
+        ctx.exchange(self.change)
         ctx.launch(apply_rankine_feedback, n,
                    [ctx.fluid.x, ctx.neighbour_lists, self.change, self.params.beta, self.viscosity,
                     ctx.particle_radius, ctx.dt,

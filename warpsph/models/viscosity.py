@@ -24,3 +24,5 @@ class Viscosity(Model):
                    [f.x, f.v, f.density, ctx.neighbour_lists, ctx.particle_mass, ctx.scene.fluid.viscosity,
                     ctx.support_radius, ctx.boundary_samples, ctx.scene.fluid.boundary_viscosity, ctx.dt,
                     int(with_vorticity), f.acceleration, vorticity if with_vorticity else self._empty_vec3])
+        if with_vorticity:
+            ctx.exchange(vorticity)

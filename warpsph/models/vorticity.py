@@ -16,6 +16,7 @@ class VorticityField:
 
     def update(self, sim):
         curl_of(sim, sim.fluid.v, self.vorticity)
+        sim.exchange(self.vorticity)
 
 
 def curl_of(sim, v, out):

@@ -49,9 +49,12 @@ class VorticityRefinementModel(Model):
         f, n, vorticity = ctx.fluid, ctx.num_fluid, ctx.vorticity
         nb, mass, H = ctx.neighbour_lists, ctx.particle_mass, ctx.support_radius
         ctx.launch(compute_vorticity_loss, n, [vorticity, f.density, mass, self.has_target, self.target])
+        ctx.exchange(self.target)
         ctx.launch(compute_stream_function, n, [f.x, nb, self.target, H, self.stream_function])
+        ctx.exchange(self.stream_function)
         ctx.launch(apply_vorticity_refinement, n,
                    [f.x, f.density, nb, self.stream_function, mass, self.params.alpha, H, f.v])
+        ctx.exchange(f.v)
         ctx.launch(compute_target_vorticity, n,
                    [f.x, f.v, f.density, nb, vorticity, mass, self.viscosity, H, ctx.dt, self.target])
         self.has_target = 1

@@ -1,0 +1,367 @@
+"""One simulation over several subdomains: slabs along one axis, on one device or one GPU each (issue #22).
+
+Each subdomain is a :class:`~warpsph.simulation.Simulation` of its own particles (rows ``0 .. num_fluid - 1``)
+followed by **ghost rows**: copies of the other subdomains' particles within one support radius of its slab,
+which its neighbour lists find but its kernels never update. The subdomains step in lockstep, one thread
+each; they meet at three kinds of points, all in :class:`Subdomain`:
+
+- ``refresh`` at the start of a step: particles that crossed a cut move to their new subdomain (every array
+  the step carries: positions, velocities, ids, warm starts, the models' state), then each subdomain
+  takes its ghost rows (the same arrays);
+- ``exchange(arrays)`` after a pass that wrote a field which a later pass reads at the neighbours (densities,
+  the free-surface test's divergence of position, the solvers' stiffness each iteration and the velocities
+  after each apply, the shared vorticity, the models' fields): the ghost rows get their owners' values;
+- ``allreduce`` where the step reduces over all particles (the CFL speed, the solvers' error sums and
+  maxima, the free-surface flag): every subdomain gets the same totals, so all take the same dt and the
+  same number of iterations.
+
+So a subdomain computes, for its own particles, what one simulation of the whole scene computes, up to the
+order of floating-point sums. Cuts start at the quantiles of the fluid along the axis and move back to them
+every ``rebalance_interval`` steps (load balance).
+
+Communication is Warp's: ``wp.copy`` of rows (a peer copy between GPUs) and a gather kernel on the owner's
+device; the threads meet at a :class:`threading.Barrier`, so every exchange waits on the host (no captured
+graph). Not supported yet (a clear error): emitters, sinks and open domains, dynamic bodies, IISPH,
+``on_instability = "reduce-dt"``.
+"""
+
+from __future__ import annotations
+
+import threading
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import warp as wp
+
+from warpsph.errors import SceneError
+from warpsph.kernels.decomposition import assign_subdomains, compact_marked, gather_rows, mark_ghosts
+from warpsph.scene_setup import remove_fluid_inside_bodies, sample_scene
+from warpsph.simulation import Simulation
+
+# room per subdomain over its initial share, for particles that arrive and for ghost rows
+CAPACITY_FACTOR = 1.6
+# a particle within this many support radii of a slab is a ghost there (1 + a margin for float rounding)
+GHOST_WIDTH = 1.001
+
+
+class DecompositionError(RuntimeError):
+    """A subdomain outgrew its rows (raise ``capacity_factor`` or rebalance more often)."""
+
+
+class Subdomain:
+    """What one subdomain's Simulation sees of the others (its ``halo``)."""
+
+    def __init__(self, group, index, device, capacity):
+        self.group, self.index, self.device, self.capacity = group, index, device, capacity
+        self.ghosts = 0  # ghost rows after the subdomain's own particles
+        self.cuts = wp.array(group.cuts, dtype=float, device=device)
+        k = group.count
+        self.leave_start, self.leave_count = np.zeros(k, np.int64), np.zeros(k, np.int64)
+        self.send_index = [None] * k  # rows of this subdomain that subdomain j holds as ghosts (on this device)
+        self.send_count = np.zeros(k, np.int64)
+        self.ghost_first = np.zeros(k, np.int64)  # where subdomain j's ghosts start in this one's rows
+        self.ghost_count = np.zeros(k, np.int64)
+        self.posted = ()  # what an exchange or a reduction put up for the others
+        self._staging = {}
+
+    global_count = property(lambda self: self.group.global_count)
+    grid_points = property(lambda self: self.group.global_count)  # cells as fine as one simulation's
+
+    # -- meeting the others --------------------------------------------------------------------------
+    def _meet(self):
+        """Waits until this device's work is done and every subdomain has reached the same point."""
+        wp.synchronize_device(self.device)
+        self.group.barrier.wait()
+
+    def _peers(self):
+        return [s for s in self.group.subdomains if s is not self]
+
+    def _pull_ghosts(self, mine, theirs_of):
+        """Ghost rows of each array in ``mine`` from the matching array of every other subdomain."""
+        for peer in self._peers():
+            count = int(self.ghost_count[peer.index])
+            if count == 0:
+                continue
+            index = peer.send_index[self.index]
+            for dst, src in zip(mine, theirs_of(peer)):
+                first = int(self.ghost_first[peer.index])
+                if src.device == dst.device:
+                    wp.launch(gather_rows, count, [src, index, first, dst], device=src.device)
+                else:  # gathered on the owner's device, then one peer copy
+                    staging = self._staging_for(peer, src, count)
+                    wp.launch(gather_rows, count, [src, index, 0, staging], device=src.device)
+                    wp.copy(dst, staging, dest_offset=first, count=count)
+
+    def _staging_for(self, peer, src, count):
+        key = (peer.index, src.dtype)
+        a = self._staging.get(key)
+        if a is None or a.shape[0] < count:
+            a = self._staging[key] = wp.empty(int(count * 1.25) + 16, dtype=src.dtype, device=src.device)
+        return a
+
+    # -- the three meeting points ------------------------------------------------------------------------
+    def refresh(self, sim):
+        """Start of a step: migration across the cuts, then the ghost rows."""
+        self._migrate(sim)
+        self._collect_ghosts(sim)
+
+    def exchange(self, arrays):
+        arrays = [a for a in arrays if a.shape[0]]
+        self.posted = arrays
+        self._meet()
+        self._pull_ghosts(arrays, lambda peer: peer.posted)
+        self._meet()
+
+    def allreduce(self, array, ops):
+        self.posted = array.numpy().copy()  # waits for the device (on the CPU numpy() is a view: copied)
+        self.group.barrier.wait()
+        values = [s.posted for s in self.group.subdomains]
+        out = values[0].copy()
+        for n, op in enumerate(ops):
+            column = [v[n] for v in values]
+            if op == "s":
+                out[n] = sum(column[1:], column[0])
+            elif op == "m":
+                out[n] = max(column)
+        array.assign(out)
+        self.group.barrier.wait()  # the posted values are read by all before the next reduction
+
+    # -- refresh ----------------------------------------------------------------------------------------
+    def _migrate(self, sim):
+        group, k, n = self.group, self.index, sim.num_fluid
+        keys = wp.empty(2 * max(n, 1), dtype=wp.int32, device=self.device)  # radix sort needs 2n
+        order = wp.empty(2 * max(n, 1), dtype=wp.int32, device=self.device)
+        leaving = wp.zeros(group.count, dtype=wp.int32, device=self.device)
+        sim.launch(assign_subdomains, n, [sim.fluid.x, group.axis, self.cuts, k, keys, order, leaving])
+        counts = leaving.numpy().astype(np.int64)
+        leave = int(counts.sum())
+        if leave:  # stayers first, then the leavers by destination (a stable sort)
+            wp.utils.radix_sort_pairs(keys, order, n)
+            sim.reorder_particles(order)
+        stay = n - leave
+        self.leave_count = counts
+        self.leave_start = stay + np.cumsum(counts) - counts
+        self._meet()
+        rows = sim.state.carried_rows()
+        arriving = [int(p.leave_count[k]) for p in group.subdomains]
+        total_in = sum(arriving)
+        if n + total_in > self.capacity:
+            raise DecompositionError(f"subdomain {k} needs {n + total_in:,} rows of its {self.capacity:,} "
+                                     "(raise capacity_factor or rebalance more often)")
+        first = n  # arrivals behind the old rows: the leavers' rows are still being read
+        for peer in self._peers():
+            count = arriving[peer.index]
+            if count:
+                start = int(peer.leave_start[k])
+                for dst, src in zip(rows, peer.sim.state.carried_rows()):
+                    wp.copy(dst, src, dest_offset=first, src_offset=start, count=count)
+                first += count
+        wp.synchronize()  # peer copies run on either device's stream
+        self.group.barrier.wait()
+        moved = min(total_in, leave)  # the last arrivals fill the leavers' rows
+        if moved:
+            for a in rows:
+                wp.copy(a, a, dest_offset=stay, src_offset=n + total_in - moved, count=moved)
+        sim.num_fluid = stay + total_in
+
+    def _collect_ghosts(self, sim):
+        group, n = self.group, sim.num_fluid
+        flags = wp.zeros(n + 1, dtype=wp.int32, device=self.device)
+        offsets = wp.empty(n + 1, dtype=wp.int32, device=self.device)
+        width = GHOST_WIDTH * sim.support_radius
+        for peer in self._peers():
+            lower, upper = group.slab_bounds(peer.index)
+            sim.launch(mark_ghosts, n, [sim.fluid.x, group.axis, lower, upper, group.period, width, flags])
+            wp.utils.array_scan(flags, offsets, inclusive=False)
+            count = int(offsets[n:].numpy()[0])
+            index = wp.empty(max(count, 1), dtype=wp.int32, device=self.device)
+            sim.launch(compact_marked, n, [flags, offsets, index])
+            self.send_index[peer.index], self.send_count[peer.index] = index, count
+        self._meet()
+        first = n
+        for peer in self._peers():
+            count = int(peer.send_count[self.index])
+            self.ghost_first[peer.index], self.ghost_count[peer.index] = first, count
+            first += count
+        if first > self.capacity:
+            raise DecompositionError(f"subdomain {self.index} needs {first:,} rows with its ghosts, of its "
+                                     f"{self.capacity:,} (raise capacity_factor)")
+        self.ghosts = first - n
+        self._pull_ghosts(sim.state.carried_rows(), lambda peer: peer.sim.state.carried_rows())
+        self._meet()
+
+
+class DecomposedSimulation:
+    """A scene split into ``subdomains`` slabs along ``axis`` (default: the domain's longest), subdomain k on
+    ``devices[k % len(devices)]``. Steps, frames and the accessors of :class:`Simulation`; the particle
+    accessors gather every subdomain's particles, ordered by id.
+
+    >>> sim = DecomposedSimulation(load_scene("scenes/dam_break.json", scale=0.05), ["cpu"], subdomains=2)
+    >>> sim.run(frames=10)
+    """
+
+    def __init__(self, scene, devices, subdomains=None, axis=None, capacity_factor=CAPACITY_FACTOR,
+                 rebalance_interval=100):
+        devices = [wp.get_device(d) for d in devices]
+        self.count = subdomains or len(devices)
+        self.scene = scene
+        self.rebalance_interval = rebalance_interval
+        self._refuse_unsupported(scene)
+        extent = np.subtract(scene.domain.max, scene.domain.min)
+        self.axis = int(np.argmax(extent)) if axis is None else int(axis)
+        self.period = float(scene.domain.period[self.axis])
+        self.lower, self.upper = float(scene.domain.min[self.axis]), float(scene.domain.max[self.axis])
+        x, v, _, _, bodies = sample_scene(scene)
+        x, v = remove_fluid_inside_bodies(scene, bodies, x, v, devices[0], lambda k, d, a: wp.launch(k, d, a, device=devices[0]))
+        if scene.initial_packing is not None:
+            from warpsph.packing import packed_positions
+
+            x = np.array(x)
+            packed = packed_positions(scene, devices[0])
+            x[: len(packed)] = packed
+        ids = np.arange(len(x), dtype=np.int32)
+        self.global_count = len(x)
+        self.cuts = self._balanced_cuts(x[:, self.axis])
+        slab = np.searchsorted(self.cuts, x[:, self.axis], side="right")
+        capacity = self._capacity(x[:, self.axis], slab, scene.support_radius, capacity_factor)
+        self.barrier = threading.Barrier(self.count)
+        self.subdomains, self.sims = [], []
+        for k in range(self.count):
+            device = devices[k % len(devices)]
+            halo = Subdomain(self, k, device, capacity)
+            mine = slab == k
+            sim = Simulation(scene, device=device, particles=(x[mine], v[mine], ids[mine]), halo=halo)
+            halo.sim = sim
+            self.subdomains.append(halo)
+            self.sims.append(sim)
+        self.device = self.sims[0].device
+        wp.force_load(device=sorted({s.device.alias for s in self.sims}))  # not from several threads at once
+        self._parallel(lambda s: (s.halo.refresh(s), s.update_densities()))
+
+    @staticmethod
+    def _refuse_unsupported(scene):
+        unsupported = [("emitters", scene.emitters), ("sinks", scene.sinks), ("domain.open", scene.domain.is_open),
+                       ("solver.method", scene.solver.method != "dfsph"),
+                       ("obstacles.dynamics", any(o.dynamics is not None for o in scene.obstacles))]
+        for key, present in unsupported:
+            if present:
+                raise SceneError(scene.source, key, "is not supported on several subdomains yet (issue #22): "
+                                                    "run this scene on one device")
+
+    # -- cuts ----------------------------------------------------------------------------------------------
+    def _balanced_cuts(self, coordinate):
+        """Interior cuts at the quantiles of the fluid along the axis: equal particle counts."""
+        return np.quantile(coordinate, np.arange(1, self.count) / self.count).astype(np.float32)
+
+    def _capacity(self, coordinate, slab, support_radius, factor):
+        """Rows per subdomain: ``factor`` x the largest initial share with its ghosts, at most every particle
+        (a subdomain never holds more than all of them: each of the others sends a particle once)."""
+        need = 0
+        for k in range(self.count):
+            lower, upper = self.slab_bounds(k)
+            gap = np.maximum(np.maximum(lower - coordinate, coordinate - upper), 0.0)
+            if self.period > 0.0:
+                for shift in (self.period, -self.period):
+                    c = coordinate + shift
+                    gap = np.minimum(gap, np.maximum(np.maximum(lower - c, c - upper), 0.0))
+            need = max(need, int(np.sum(gap < GHOST_WIDTH * support_radius)))
+        return min(len(coordinate), int(factor * need) + 64)
+
+    def slab_bounds(self, k):
+        """[lower, upper) of slab k along the axis (unbounded outward where the axis is not periodic)."""
+        lower, upper = (self.lower, self.upper) if self.period > 0.0 else (-1e30, 1e30)
+        return (lower if k == 0 else float(self.cuts[k - 1]),
+                upper if k == self.count - 1 else float(self.cuts[k]))
+
+    def rebalance(self):
+        """Moves the cuts back to the fluid's quantiles (the next step migrates the particles)."""
+        coordinate = np.concatenate([s.host(s.fluid.x)[:, self.axis] for s in self.sims])
+        self.cuts = self._balanced_cuts(coordinate)
+        for s in self.subdomains:
+            s.cuts.assign(self.cuts)
+
+    # -- lockstep -------------------------------------------------------------------------------------------
+    def _parallel(self, work):
+        """Runs ``work(sim)`` for every subdomain, one thread each; the first error stops them all."""
+        def run(sim):
+            try:
+                with wp.ScopedDevice(sim.device):
+                    return work(sim)
+            except BaseException:
+                self.barrier.abort()  # the others stop at their next meeting point
+                raise
+
+        with ThreadPoolExecutor(self.count) as pool:
+            futures = [pool.submit(run, s) for s in self.sims]
+        errors = [f.exception() for f in futures if f.exception() is not None]
+        if errors:
+            self.barrier.reset()
+            real = [e for e in errors if not isinstance(e, threading.BrokenBarrierError)]
+            raise (real or errors)[0]
+        return [f.result() for f in futures]
+
+    def step(self):
+        if self.rebalance_interval and self.step_count and self.step_count % self.rebalance_interval == 0:
+            self.rebalance()
+        self._parallel(lambda s: s.step())
+
+    # -- what Simulation offers -----------------------------------------------------------------------------
+    num_fluid = property(lambda self: self.global_count)
+    time = property(lambda self: self.sims[0].time)
+    step_count = property(lambda self: self.sims[0].step_count)
+    particle_mass = property(lambda self: self.sims[0].particle_mass)
+    fluid_volume = property(lambda self: self.sims[0].fluid_volume)
+
+    @property
+    def frame(self):
+        return self.sims[0].frame
+
+    @frame.setter
+    def frame(self, value):
+        for s in self.sims:
+            s.frame = value
+
+    def check_health(self):
+        for s in self.sims:
+            problem = s.check_health()
+            if problem is not None:
+                return problem
+        return None
+
+    def statistics(self):
+        return self.sims[0].statistics()  # the solvers iterate together: the same counts everywhere
+
+    def _gathered(self, read):
+        """One per-particle quantity of every subdomain's own particles, rows ordered by id."""
+        ids = np.concatenate([s.ids() for s in self.sims])
+        values = np.concatenate([read(s) for s in self.sims])
+        return values[np.argsort(ids, kind="stable")]
+
+    def ids(self):
+        return np.sort(np.concatenate([s.ids() for s in self.sims]))
+
+    def positions(self):
+        return self._gathered(lambda s: s.positions())
+
+    def velocities(self):
+        return self._gathered(lambda s: s.velocities())
+
+    def densities(self):
+        return self._gathered(lambda s: s.densities())
+
+    def kinetic_energy(self):
+        return sum(s.kinetic_energy() for s in self.sims)
+
+    def owned_counts(self):
+        """Particles per subdomain (its own, without ghosts)."""
+        return [s.num_fluid for s in self.sims]
+
+    def _advance_to(self, target):
+        """Steps until ``time >= target``, stopping at the first failed health check."""
+        while self.time < target - 1e-9:
+            self.step()
+            problem = self.check_health()
+            if problem is not None:
+                raise problem
+
+    run = Simulation.run
