@@ -23,10 +23,11 @@ from .scene import Scene, load_scene, scene_from_dict  # noqa: F401
 
 _logging.getLogger(__name__).addHandler(_logging.NullHandler())  # the program decides what is shown (warpsph.log)
 
-__all__ = ["Scene", "Simulation", "InstabilityError", "SceneError", "load_scene", "scene_from_dict", "io",
+__all__ = ["Scene", "Simulation", "DecomposedSimulation", "InstabilityError", "SceneError", "load_scene", "scene_from_dict", "io",
            "__version__"]
 
-_LAZY = {"Simulation": "warpsph.simulation", "InstabilityError": "warpsph.simulation"}
+_LAZY = {"Simulation": "warpsph.simulation", "InstabilityError": "warpsph.simulation",
+         "DecomposedSimulation": "warpsph.decomposition"}
 
 
 def __getattr__(name):

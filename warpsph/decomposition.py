@@ -54,6 +54,7 @@ class Subdomain:
     def __init__(self, group, index, device, capacity):
         self.group, self.index, self.device, self.capacity = group, index, device, capacity
         self.ghosts = 0  # ghost rows after the subdomain's own particles
+        self.arrived = 0  # particles that crossed into this subdomain so far
         self.cuts = wp.array(group.cuts, dtype=float, device=device)
         k = group.count
         self.leave_start, self.leave_count = np.zeros(k, np.int64), np.zeros(k, np.int64)
@@ -163,6 +164,7 @@ class Subdomain:
             for a in rows:
                 wp.copy(a, a, dest_offset=stay, src_offset=n + total_in - moved, count=moved)
         sim.num_fluid = stay + total_in
+        self.arrived += total_in
 
     def _collect_ghosts(self, sim):
         group, n = self.group, sim.num_fluid
