@@ -91,7 +91,7 @@ class Subdomain:
                 else:  # gathered on the owner's device, then one peer copy
                     staging = self._staging_for(peer, src, count)
                     wp.launch(gather_rows, count, [src, index, 0, staging], device=src.device)
-                    wp.copy(dst, staging, dest_offset=first, count=count)
+                    wp.copy(dst, staging, dest_offset=first, count=count, stream=src.device.stream)  # after the gather
 
     def _staging_for(self, peer, src, count):
         key = (peer.index, src.dtype)

@@ -47,6 +47,10 @@ def add_arguments(parser):
                         help="turbulence model to run with its default parameters instead of the scene's models "
                              "(none: plain DFSPH/IISPH; all: the three at once); default: the scene's own")
     parser.add_argument("--sort-interval", type=int, help="override solver.sort_interval (0: never re-sort)")
+    parser.add_argument("--devices", help="D[,D...]: one simulation over several devices (slab subdomains, "
+                                          "warpsph.decomposition), e.g. cuda:0,cuda:1; with --subdomains, several "
+                                          "on one device")
+    parser.add_argument("--subdomains", type=int, help="subdomains (default one per --devices entry)")
     parser.add_argument("--out", help="JSON file to write")
 
 
@@ -71,6 +75,8 @@ def check_arguments(args):
         raise SceneError("", "--particles", "expected finite particle counts > 0")
     if args.density_error is not None and not 0 < args.density_error < math.inf:
         raise SceneError("", "--density-error", f"expected a percentage > 0, got {args.density_error}")
+    if getattr(args, "subdomains", None) is not None and args.subdomains < 1:
+        raise SceneError("", "--subdomains", f"expected an integer >= 1, got {args.subdomains}")
     if args.sort_interval is not None and args.sort_interval < 0:
         raise SceneError("", "--sort-interval", f"expected an integer >= 0, got {args.sort_interval}")
 
@@ -186,6 +192,8 @@ def run(args, particles):
     from warpsph.simulation import Simulation
 
     scene = make_scene(args, particles)
+    if getattr(args, "devices", None) or getattr(args, "subdomains", None):
+        return run_decomposed(args, scene)
     device = wp.get_device(args.device)
     pooled = device.is_cuda and wp.is_mempool_enabled(device)
     if pooled:  # freed blocks go back to the device at each synchronisation: free memory shows what is held
@@ -254,6 +262,60 @@ def run(args, particles):
     result["k_passes"] = neighbour_passes(result, names)
     del sim
     return result
+
+
+def run_decomposed(args, scene):
+    """One size over several subdomains: ms per step (threads in lockstep, no graph) and the share of the
+    synchronised step that subdomain 0 spends in each stage (``halo``: migration and ghost rows)."""
+    import warp as wp
+
+    from warpsph.decomposition import DecomposedSimulation
+
+    devices = (args.devices or args.device).split(",")
+    start = time.perf_counter()
+    sim = DecomposedSimulation(scene, devices, subdomains=args.subdomains)
+    setup_s = time.perf_counter() - start
+    for _ in range(args.warmup):
+        sim.step()
+    first = sim.sims[0]
+    first.timer.enabled = True
+    first.timer.seconds.clear()
+    it0 = first.pressure_solver.iteration_totals()
+    for _ in range(args.steps):
+        sim.step()
+    stages = {k: 1e3 * v / args.steps for k, v in first.timer.seconds.items()}
+    first.timer.enabled = False
+    wp.synchronize()
+    start = time.perf_counter()
+    for _ in range(args.steps):
+        sim.step()
+    wp.synchronize()
+    total_ms = 1e3 * (time.perf_counter() - start) / args.steps
+    it1 = first.pressure_solver.iteration_totals()
+    solves = max(it1[1] - it0[1], 1), max(it1[3] - it0[3], 1)
+    return {
+        "benchmark": "scene, decomposed",
+        "scene": scene.name,
+        "model": "+".join(type(m).plugin_name for m in scene.models) or "none",
+        "devices": [s.device.name if s.device.is_cuda else "cpu" for s in sim.sims],
+        "device_aliases": [s.device.alias for s in sim.sims],
+        "warp": wp.__version__,
+        **commit_info(),
+        "fluid_particles": sim.num_fluid,
+        "subdomains": sim.count,
+        "axis": sim.axis,
+        "particles_per_subdomain": sim.owned_counts(),
+        "ghosts_per_subdomain": [s.ghosts for s in sim.subdomains],
+        "rows_per_subdomain": [s.capacity for s in sim.subdomains],
+        "particle_radius": scene.particle_radius,
+        "setup_s": setup_s,
+        "simulated_time_s": sim.time,
+        "steps_total": sim.step_count,
+        "ms_per_step": total_ms,
+        "ms_per_step_by_stage_synchronised_subdomain0": stages,
+        "mean_divergence_iterations": (it1[0] - it0[0]) / solves[0],
+        "mean_density_iterations": (it1[2] - it0[2]) / solves[1],
+    }
 
 
 def scaling_plot(runs, out):
