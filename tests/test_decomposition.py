@@ -2,6 +2,7 @@
 
 import json
 import os
+import shutil
 
 import numpy as np
 import pytest
@@ -82,3 +83,46 @@ def test_what_subdomains_cannot_run_yet_is_refused_by_key(key, change):
     scene = scene_from_dict(tank_scene(radius=0.04, **change))
     with pytest.raises(SceneError, match=key.replace(".", r"\.")):
         DecomposedSimulation(scene, ["cpu"], subdomains=2)
+
+
+def test_a_run_over_subdomains_writes_what_one_domain_writes_and_resumes_either_way(tmp_path):
+    """warpsph run --subdomains: the same USD cache and statistics as one domain (to rounding); its checkpoint
+    resumes on one domain and on three subdomains alike."""
+    from pxr import Usd
+
+    from warpsph.cli import main
+    from warpsph.diagnostics import read_csv
+
+    data = tank_scene(radius=0.02, domain=(0.8, 0.6, 0.2), block=(0.3, 0.4, 0.2),
+                      models=[{"type": "vorticity_refinement"}], output={"fps": 25, "frames": 6})
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps(data))
+
+    def run(name, *extra, command="run", source=scene, frames=4):
+        if command == "run":
+            (tmp_path / name).mkdir()
+        out = tmp_path / name / "out.usdc"
+        args = [command, source, "--frames", frames, "--device", "cpu", "--quiet", *extra]
+        assert main([str(a) for a in (args + (["--out", out, "--checkpoint-every", 2] if command == "run" else []))]) == 0
+        return out
+
+    def points(path, frame):
+        stage = Usd.Stage.Open(str(path))
+        fluid = stage.GetPrimAtPath("/World/Fluid")
+        return np.array(fluid.GetAttribute("points").Get(frame)), np.array(fluid.GetAttribute("ids").Get(frame))
+
+    one, two = run("one"), run("two", "--subdomains", 2)
+    for frame in range(5):
+        (x1, ids1), (x2, ids2) = points(one, frame), points(two, frame)
+        assert np.array_equal(ids1, ids2) and np.abs(x1 - x2).max() < 1e-5, frame
+    s1, s2 = read_csv(one.with_suffix(".stats.csv")), read_csv(two.with_suffix(".stats.csv"))
+    assert np.array_equal(s1["steps"], s2["steps"])
+    np.testing.assert_allclose(s2["kinetic_energy"], s1["kinetic_energy"], rtol=1e-3)
+    np.testing.assert_allclose(s2["enstrophy"], s1["enstrophy"], rtol=1e-2)
+
+    straight = run("straight", frames=6)
+    for name, extra in (("on_one", []), ("on_three", ["--subdomains", 3])):
+        shutil.copytree(tmp_path / "two", tmp_path / name)  # the checkpoint (frame 4) and the cache it continues
+        run(name, *extra, command="resume", source=tmp_path / name / "out.checkpoint.h5", frames=6)
+        (x1, ids1), (x2, ids2) = points(straight, 6), points(tmp_path / name / "out.usdc", 6)
+        assert np.array_equal(ids1, ids2) and np.abs(x1 - x2).max() < 1e-4, name

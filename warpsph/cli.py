@@ -83,6 +83,23 @@ def _pick_device(name):
     return name
 
 
+def _pick_devices(args):
+    """(device, devices): --device alone gives (it, None); --devices D,D.. or --subdomains K one simulation
+    over several subdomains (``devices``: the list, each checked as --device)."""
+    if not args.devices and not args.subdomains:
+        return _pick_device(args.device), None
+    if args.subdomains is not None and args.subdomains < 1:
+        raise SceneError("", "--subdomains", f"expected an integer >= 1, got {args.subdomains}")
+    names = [d.strip() for d in (args.devices or args.device).split(",") if d.strip()]
+    if not names:
+        raise SceneError("", "--devices", "expected device names separated by commas, e.g. cuda:0,cuda:1")
+    try:
+        devices = [_pick_device(n) for n in names]
+    except SceneError as exc:
+        raise SceneError("", "--devices", exc.reason) from None
+    return devices[0], devices
+
+
 class Progress:
     """A run's progress after each frame: a rich bar (frames, steps/s, ETA) when stderr is a
     terminal, rich is installed and info is shown; else an info line per frame. A debug line per
@@ -395,10 +412,9 @@ def _simulate(sim, outputs, frames, args, options, append):
         if preview and frame % preview == 0:
             from .plots import plot_slice
 
-            fields_now = sim.fields()
-            values = (np.linalg.norm(sim.host(fields_now["vorticity"]), axis=1) if "vorticity" in fields_now
-                      else np.linalg.norm(sim.host(sim.fluid.v), axis=1))
-            plot_slice(sim.host(sim.fluid.x), values, outputs.out.with_name(f"{outputs.out.stem}.preview.{frame:05d}.png"),
+            values = (np.linalg.norm(sim.field_values("vorticity"), axis=1) if "vorticity" in sim.fields()
+                      else np.linalg.norm(sim.velocities(), axis=1))
+            plot_slice(sim.positions(), values, outputs.out.with_name(f"{outputs.out.stem}.preview.{frame:05d}.png"),
                        "z", thickness=2.0 * scene.particle_diameter, title=f"{scene.name}, frame {frame}, t = {sim.time:.3f} s")
 
     previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
@@ -616,10 +632,16 @@ def run_command(args):
     refusal = _refusal(outputs, args.overwrite)
     if refusal is not None:
         raise refusal
-    device = _pick_device(args.device)
-    from .simulation import Simulation
+    device, devices = _pick_devices(args)
+    if devices is None:
+        from .simulation import Simulation
 
-    sim = Simulation(scene, device=device)
+        sim = Simulation(scene, device=device)
+    else:
+        from .decomposition import DecomposedSimulation
+
+        sim = DecomposedSimulation(scene, devices, subdomains=args.subdomains)
+        device = ",".join(devices) + f" ({sim.count} subdomains along {'xyz'[sim.axis]})"
     sim.on_instability = args.on_instability
     from .io.frames import parse_fields
 
@@ -640,9 +662,15 @@ def resume_command(args):
     from .io.checkpoint import load_checkpoint
 
     _check_options(args)
-    device = _pick_device(args.device)
+    device, devices = _pick_devices(args)
     checkpoint = Path(args.checkpoint)
     sim = load_checkpoint(checkpoint, device=device)
+    if devices is not None:  # the checkpoint's state, split into subdomains
+        from .decomposition import DecomposedSimulation
+
+        state = ({k: a.numpy() for k, a in sim.state_arrays().items()}, sim.state_flags())
+        sim = DecomposedSimulation(sim.scene, devices, subdomains=args.subdomains, state=state)
+        device = ",".join(devices) + f" ({sim.count} subdomains along {'xyz'[sim.axis]})"
     with h5py.File(checkpoint, "r") as f:
         options = {k[4:]: (v.item() if hasattr(v, "item") else v) for k, v in f.attrs.items() if k.startswith("run:")}
     if "output" not in options:
@@ -881,6 +909,10 @@ def build_parser():
     schema.set_defaults(func=schema_command)
     for p in (run, resume):
         p.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
+        p.add_argument("--devices", help="D[,D...]: one simulation over several devices, a slab of the domain each "
+                                          "(e.g. cuda:0,cuda:1; emitters, sinks, dynamic bodies and IISPH not yet)")
+        p.add_argument("--subdomains", type=int, help="slabs (default one per --devices entry; several per device "
+                                                      "when more)")
         p.add_argument("--frames", type=int, help="last frame to simulate (default: the scene's output.frames)")
         p.add_argument("--sync-output", action="store_true",
                        help="write each frame on the simulation's thread (default: a background writer thread, "

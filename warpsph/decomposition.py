@@ -203,7 +203,9 @@ class DecomposedSimulation:
     """
 
     def __init__(self, scene, devices, subdomains=None, axis=None, capacity_factor=CAPACITY_FACTOR,
-                 rebalance_interval=100):
+                 rebalance_interval=100, state=None):
+        """``state``: (arrays, flags) of one simulation of the scene (``Simulation.state_arrays()`` as numpy,
+        ``state_flags()``; a checkpoint's) to start from instead of the scene's initial particles."""
         devices = [wp.get_device(d) for d in devices]
         self.count = subdomains or len(devices)
         self.scene = scene
@@ -213,15 +215,13 @@ class DecomposedSimulation:
         self.axis = int(np.argmax(extent)) if axis is None else int(axis)
         self.period = float(scene.domain.period[self.axis])
         self.lower, self.upper = float(scene.domain.min[self.axis]), float(scene.domain.max[self.axis])
-        x, v, _, _, bodies = sample_scene(scene)
-        x, v = remove_fluid_inside_bodies(scene, bodies, x, v, devices[0], lambda k, d, a: wp.launch(k, d, a, device=devices[0]))
-        if scene.initial_packing is not None:
-            from warpsph.packing import packed_positions
-
-            x = np.array(x)
-            packed = packed_positions(scene, devices[0])
-            x[: len(packed)] = packed
-        ids = np.arange(len(x), dtype=np.int32)
+        if state is not None:
+            arrays, flags = state
+            count = int(flags["num_fluid"])
+            x, v, ids = (arrays[f"fluid/{k}"][:count] for k in ("x", "v", "ids"))
+        else:
+            x, v = self._initial_fluid(scene, devices[0])
+            ids = np.arange(len(x), dtype=np.int32)
         self.global_count = len(x)
         self.cuts = self._balanced_cuts(x[:, self.axis])
         slab = np.searchsorted(self.cuts, x[:, self.axis], side="right")
@@ -237,8 +237,40 @@ class DecomposedSimulation:
             self.subdomains.append(halo)
             self.sims.append(sim)
         self.device = self.sims[0].device
+        if state is not None:
+            self._restore(state, slab)
         wp.force_load(device=sorted({s.device.alias for s in self.sims}))  # not from several threads at once
         self._parallel(lambda s: (s.halo.refresh(s), s.update_densities()))
+
+    @staticmethod
+    def _initial_fluid(scene, device):
+        """The scene's fluid particles as one simulation samples them: blocks and meshes, less what lies
+        inside closed bodies, packed when the scene asks."""
+        x, v, _, _, bodies = sample_scene(scene)
+        x, v = remove_fluid_inside_bodies(scene, bodies, x, v, device, lambda k, d, a: wp.launch(k, d, a, device=device))
+        if scene.initial_packing is not None:
+            from warpsph.packing import packed_positions
+
+            x = np.array(x)
+            packed = packed_positions(scene, device)
+            x[: len(packed)] = packed
+        return x, v
+
+    def _restore(self, state, slab):
+        """Each subdomain's rows of every carried array, and the rest (clock, solver totals, flags) as saved."""
+        arrays, flags = state
+        count = int(flags["num_fluid"])
+        for k, sim in enumerate(self.sims):
+            rows = {id(a) for a in sim.state.carried_rows()}
+            mine = np.flatnonzero(slab == k)
+            for name, a in sim.state_arrays().items():
+                data = arrays[name]
+                if id(a) in rows:
+                    if len(mine):
+                        a[: len(mine)].assign(np.ascontiguousarray(data[:count][mine]))
+                else:
+                    a.assign(data)
+            sim.restore_flags({**flags, "num_fluid": len(mine)})
 
     @staticmethod
     def _refuse_unsupported(scene):
@@ -307,8 +339,57 @@ class DecomposedSimulation:
             self.rebalance()
         self._parallel(lambda s: s.step())
 
-    # -- what Simulation offers -----------------------------------------------------------------------------
+    # -- what Simulation offers (the writers, diagnostics and checkpoints read these) -----------------------------------------------------------------------------
     num_fluid = property(lambda self: self.global_count)
+    capacity = property(lambda self: self.global_count)
+    inflow = None
+    num_boundary = property(lambda self: self.sims[0].num_boundary)
+    boundary = property(lambda self: self.sims[0].boundary)
+    bodies = property(lambda self: self.sims[0].bodies)
+    moving_bodies = property(lambda self: self.sims[0].moving_bodies)
+    turbulence_models = property(lambda self: self.sims[0].turbulence_models)
+    pressure_solver = property(lambda self: self.sims[0].pressure_solver)  # iteration totals: the same in all
+    dt = property(lambda self: self.sims[0].dt)
+    rest_density = property(lambda self: self.sims[0].rest_density)
+
+    @property
+    def on_instability(self):
+        return "stop"
+
+    @on_instability.setter
+    def on_instability(self, value):
+        if value != "stop":
+            raise SceneError("", "--on-instability", f"{value} is not supported on several subdomains yet: use stop")
+
+    def parts(self):
+        """The subdomains' simulations (writers and diagnostics read each one's own rows)."""
+        return list(self.sims)
+
+    def fields(self):
+        """The published fields of subdomain 0 (the same names in all; each part's arrays: ``parts()``)."""
+        return self.sims[0].fields()
+
+    def field_values(self, name):
+        return self._gathered(lambda s: s.field_values(name))
+
+    def state_arrays(self):
+        """The carried arrays as one simulation of the scene holds them (a checkpoint that loads on one device
+        or several): the per-particle ones gathered in id order (host arrays), the others subdomain 0's."""
+        first = self.sims[0]
+        rows = {id(a) for a in first.state.carried_rows()}
+        order = np.argsort(np.concatenate([s.ids() for s in self.sims]), kind="stable")
+        out = {}
+        for name, a in first.state_arrays().items():
+            if id(a) in rows:
+                data = np.concatenate([s.host(s.state_arrays()[name]) for s in self.sims])[order]
+                out[name] = wp.array(data, dtype=a.dtype, device="cpu")
+            else:
+                out[name] = a
+        return out
+
+    def state_flags(self):
+        return {**self.sims[0].state_flags(), "num_fluid": self.global_count}
+
     time = property(lambda self: self.sims[0].time)
     step_count = property(lambda self: self.sims[0].step_count)
     particle_mass = property(lambda self: self.sims[0].particle_mass)

@@ -31,40 +31,46 @@ class Diagnostics:
     radius during the step's advection are left out, as they are for the models)."""
 
     def __init__(self):
-        self._vorticity = None
-        self._out = None
-        self._empty = None
+        self._arrays = {}  # per part (the simulation, or each subdomain): the reduction's output and scratch
         self._totals = (0, 0, 0, 0)
 
-    def _vorticity_of(self, sim):
-        if sim.vorticity_field is not None:
-            return sim.vorticity_field.vorticity
-        if self._vorticity is None:  # plain DFSPH: a scratch array owned by the diagnostics
-            self._vorticity = sim.zeros("diagnostics", sim.capacity, dtype=wp.vec3)
-        return curl_of(sim, sim.fluid.v, self._vorticity)
-
     def reduce(self, sim):
-        """The device reductions of :mod:`warpsph.kernels.diagnostics` as a float64 numpy array."""
+        """The device reductions of :mod:`warpsph.kernels.diagnostics` as a float64 numpy array, summed over
+        the simulation's parts (the maximum of the density error the largest of theirs)."""
         from warpsph.kernels import diagnostics as dk
 
-        if self._out is None:
-            self._out = sim.zeros("diagnostics", dk.SLOTS, dtype=wp.float64)
-            self._empty = wp.empty(0, dtype=wp.vec3, device=sim.device)
-            self._init = np.zeros(dk.SLOTS, np.float64)
-            self._init[dk.ERROR_MAX] = -np.inf
+        sums = [self._reduce_part(part) for part in sim.parts()]
+        out = np.sum(sums, axis=0)
+        out[dk.ERROR_MAX] = max(s[dk.ERROR_MAX] for s in sums)
+        return out
+
+    def _reduce_part(self, sim):
+        from warpsph.kernels import diagnostics as dk
+
         n = sim.num_fluid
         if n == 0:
             return np.zeros(dk.SLOTS, np.float64)
+        a = self._arrays.get(id(sim))
+        if a is None:
+            a = self._arrays[id(sim)] = {"out": sim.zeros("diagnostics", dk.SLOTS, dtype=wp.float64),
+                                         "empty": wp.empty(0, dtype=wp.vec3, device=sim.device), "vorticity": None}
+        init = np.zeros(dk.SLOTS, np.float64)
+        init[dk.ERROR_MAX] = -np.inf
         f = sim.fluid
         with wp.ScopedDevice(sim.device):
-            zeta = self._vorticity_of(sim)
+            if sim.vorticity_field is not None:
+                zeta = sim.vorticity_field.vorticity
+            else:  # plain DFSPH: a scratch array owned by the diagnostics
+                if a["vorticity"] is None:
+                    a["vorticity"] = sim.zeros("diagnostics", sim.capacity, dtype=wp.vec3)
+                zeta = curl_of(sim, sim.fluid.v, a["vorticity"])
             spinning = [m.spin() for m in sim.turbulence_models if m.spin() is not None]
-            spin = spinning[0][0] if spinning else self._empty
-            self._out.assign(self._init)
+            spin = spinning[0][0] if spinning else a["empty"]
+            a["out"].assign(init)
             sim.launch(dk.reduce_frame_diagnostics, min(n, int(dk.REDUCE_THREADS)),
                        [f.x, f.v, f.density, zeta, spin, n, wp.vec3d(*sim.scene.domain.min), wp.vec3d(*sim.scene.gravity),
-                        wp.float64(sim.particle_mass), wp.float64(sim.rest_density), self._out])
-            return self._out.numpy()
+                        wp.float64(sim.particle_mass), wp.float64(sim.rest_density), a["out"]])
+            return a["out"].numpy()
 
     def measure(self, sim, frame):
         from warpsph.kernels import diagnostics as dk

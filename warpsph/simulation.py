@@ -307,6 +307,15 @@ class Simulation:
         """Stable particle ids (int32, unchanged by re-sorting) of the rows of :meth:`positions`."""
         return self._copy(self.fluid.ids)
 
+    def field_values(self, name):
+        """A published per-particle field (:meth:`fields`) of the rows of :meth:`positions`, as numpy."""
+        return self._copy(self.fields()[name])
+
+    def parts(self):
+        """The simulations whose particles together make this one: itself (a DecomposedSimulation: its
+        subdomains). Writers and diagnostics read each part's first ``num_fluid`` rows."""
+        return [self]
+
     def kinetic_energy(self):
         """Kinetic energy of the fluid [J], summed on the host in float64."""
         v = self.velocities().astype(np.float64)

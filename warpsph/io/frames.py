@@ -86,13 +86,13 @@ class HostFrame:
     poses: dict | None = None
     row: dict | None = None  # the diagnostics row
     buffers: dict | None = field(default=None, repr=False)
-    event: object = field(default=None, repr=False)
+    events: list = field(default_factory=list, repr=False)  # of the copies, one per CUDA device
 
     def sorted(self):
         """The arrays in id order (waits for the device copies first)."""
-        if self.event is not None:
-            wp.synchronize_event(self.event)
-            self.event = None
+        for event in self.events:
+            wp.synchronize_event(event)
+        self.events = []
         views = {k: a[: self.count] for k, a in self.buffers.items()}
         order = id_order(views["ids"])
         self.arrays = {k: a[order] for k, a in views.items()}
@@ -117,7 +117,7 @@ class FrameWriter:
         self.names = ["x", "ids"] + [n for n in copy if n not in ("x", "ids")]
         self.background = background
         self.device = sim.device
-        self.pinned = self.device.is_cuda
+        self.pinned = any(p.device.is_cuda for p in sim.parts())
         self.capacity = sim.capacity
         self.free = queue.Queue()
         for _ in range(max(1, depth)):
@@ -133,9 +133,9 @@ class FrameWriter:
             self._thread = threading.Thread(target=self._loop, name="warpsph-writer", daemon=True)
             self._thread.start()
 
-    def _sources(self, sim):
-        f = sim.fluid
-        fields = sim.fields()
+    def _sources(self, part):
+        f = part.fluid
+        fields = part.fields()
         return {n: (f.x if n == "x" else f.v if n == "v" else f.ids if n == "ids" else fields[n]) for n in self.names}
 
     def _allocate(self, sources):
@@ -156,25 +156,28 @@ class FrameWriter:
         import time
 
         self.check()
-        sources = self._sources(sim)
+        parts = [(p, self._sources(p)) for p in sim.parts()]  # one; or the subdomains, each with its rows
         start = time.perf_counter()
         buffers = self.free.get()
         self.waited += time.perf_counter() - start
         self.check()
         if buffers is None:
-            buffers = self._allocate(sources)
+            buffers = self._allocate(parts[0][1])
         n = sim.num_fluid
         now, step = sim.time, sim.step_count  # host reads before the copies are queued, not after them
         poses = sim.moving_bodies.poses() if sim.moving_bodies is not None else None
-        event = None
-        with wp.ScopedDevice(self.device):
-            for name, a in sources.items():
-                if n:
-                    wp.copy(buffers[name][0], a, count=n)
-            if self.device.is_cuda:
-                event = wp.record_event()
+        events, first = [], 0
+        for part, sources in parts:
+            k = part.num_fluid
+            with wp.ScopedDevice(part.device):
+                for name, a in sources.items():
+                    if k:
+                        wp.copy(buffers[name][0], a, dest_offset=first, count=k)
+                if part.device.is_cuda:
+                    events.append(wp.record_event())
+            first += k
         item = HostFrame(frame, now, step, n, {}, poses, row,
-                         buffers={k: v[1] for k, v in buffers.items()}, event=event)
+                         buffers={k: v[1] for k, v in buffers.items()}, events=events)
         item._handle = buffers
         if self.background:
             self.work.put(item)
