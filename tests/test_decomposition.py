@@ -126,3 +126,20 @@ def test_a_run_over_subdomains_writes_what_one_domain_writes_and_resumes_either_
         run(name, *extra, command="resume", source=tmp_path / name / "out.checkpoint.h5", frames=6)
         (x1, ids1), (x2, ids2) = points(straight, 6), points(tmp_path / name / "out.usdc", 6)
         assert np.array_equal(ids1, ids2) and np.abs(x1 - x2).max() < 1e-4, name
+
+
+def test_subdomains_run_a_scene_over_the_limit_of_one_simulation(monkeypatch):
+    """MAX_PARTICLES (int32 neighbour lists; 50M) bounds one simulation; subdomains each hold a share."""
+    from warpsph import scene_setup
+
+    monkeypatch.setattr(scene_setup, "MAX_PARTICLES", 1700)  # the walls: about 1,590 samples
+    data = tank_scene(radius=0.04, domain=(4.0, 0.48, 0.48), block=(4.0, 0.48, 0.48))  # 1,800 particles
+    scene = scene_from_dict(data)
+    with pytest.raises(SceneError, match="limit"):
+        Simulation(scene, device="cpu")
+    with pytest.raises(SceneError, match="rows a subdomain"):
+        DecomposedSimulation(scene, ["cpu"], subdomains=2, capacity_factor=2.0)
+    sim = DecomposedSimulation(scene, ["cpu"], subdomains=3)
+    assert sim.num_fluid == 1800 and max(s.capacity for s in sim.subdomains) <= 1700
+    sim.run(frames=2)
+    assert np.array_equal(sim.ids(), np.arange(1800)) and sim.check_health() is None

@@ -27,6 +27,7 @@ graph). Not supported yet (a clear error): emitters, sinks and open domains, dyn
 
 from __future__ import annotations
 
+import sys
 import threading
 from concurrent.futures import ThreadPoolExecutor
 
@@ -35,6 +36,7 @@ import warp as wp
 
 from warpsph.errors import SceneError
 from warpsph.kernels.decomposition import assign_subdomains, compact_marked, gather_rows, mark_ghosts
+from warpsph import scene_setup
 from warpsph.scene_setup import remove_fluid_inside_bodies, sample_scene
 from warpsph.simulation import Simulation
 
@@ -239,14 +241,16 @@ class DecomposedSimulation:
         self.device = self.sims[0].device
         if state is not None:
             self._restore(state, slab)
-        wp.force_load(device=sorted({s.device.alias for s in self.sims}))  # not from several threads at once
+        for name in [m for m in sys.modules if m.startswith("warpsph.kernels.")]:  # not from several threads at once
+            for alias in sorted({s.device.alias for s in self.sims}):
+                wp.load_module(name, device=alias)
         self._parallel(lambda s: (s.halo.refresh(s), s.update_densities()))
 
     @staticmethod
     def _initial_fluid(scene, device):
         """The scene's fluid particles as one simulation samples them: blocks and meshes, less what lies
         inside closed bodies, packed when the scene asks."""
-        x, v, _, _, bodies = sample_scene(scene)
+        x, v, _, _, bodies = sample_scene(scene, limit_fluid=False)  # the subdomains' rows are limited instead
         x, v = remove_fluid_inside_bodies(scene, bodies, x, v, device, lambda k, d, a: wp.launch(k, d, a, device=device))
         if scene.initial_packing is not None:
             from warpsph.packing import packed_positions
@@ -299,7 +303,12 @@ class DecomposedSimulation:
                     c = coordinate + shift
                     gap = np.minimum(gap, np.maximum(np.maximum(lower - c, c - upper), 0.0))
             need = max(need, int(np.sum(gap < GHOST_WIDTH * support_radius)))
-        return min(len(coordinate), int(factor * need) + 64)
+        rows = min(len(coordinate), int(factor * need) + 64)
+        if rows > scene_setup.MAX_PARTICLES:  # int32 neighbour lists: the limit of one simulation, per subdomain here
+            raise SceneError(self.scene.source, "particle_radius",
+                             f"{len(coordinate):,} particles need {rows:,} rows a subdomain, over the {scene_setup.MAX_PARTICLES:,} "
+                             f"limit of one: use more subdomains, a larger radius or a smaller --scale")
+        return rows
 
     def slab_bounds(self, k):
         """[lower, upper) of slab k along the axis (unbounded outward where the axis is not periodic)."""

@@ -66,11 +66,13 @@ def count_particles(scene: Scene):
     return fluid, walls
 
 
-def sample_scene(scene: Scene):
+def sample_scene(scene: Scene, limit_fluid=True, with_fluid=True):
     """Host-side initial particles: fluid (x, v), the static boundary (x, body index, Z-ordered)
-    and every obstacle as a :class:`RigidBody` (static ones included, for the USD meshes)."""
+    and every obstacle as a :class:`RigidBody` (static ones included, for the USD meshes). ``limit_fluid``
+    False: the fluid may exceed MAX_PARTICLES (a decomposed simulation limits each subdomain's rows);
+    ``with_fluid`` False: no fluid particles (the subdomains get theirs)."""
     fluid, walls = count_particles(scene)
-    if fluid > MAX_PARTICLES or walls > MAX_PARTICLES:
+    if (limit_fluid and fluid > MAX_PARTICLES) or walls > MAX_PARTICLES:
         raise SceneError(scene.source, "particle_radius",
                          f"r = {scene.particle_radius:.3g} m needs about {max(fluid, walls):.3g} particles, over the "
                          f"{MAX_PARTICLES:,} limit: use a larger radius or a smaller --scale")
@@ -80,8 +82,8 @@ def sample_scene(scene: Scene):
                                                        "missing) and no emitter starts at 0")
     d = scene.particle_diameter
     sources = list(scene.fluid_blocks) + list(scene.fluid_meshes)
-    blocks = [sampling.fill_block(b.start, b.end, d) for b in scene.fluid_blocks]
-    blocks += [fluid_mesh_points(scene, n) for n in range(len(scene.fluid_meshes))]
+    blocks = [sampling.fill_block(b.start, b.end, d) for b in scene.fluid_blocks] if with_fluid else []
+    blocks += [fluid_mesh_points(scene, n) for n in range(len(scene.fluid_meshes))] if with_fluid else []
     fluid_x = np.concatenate(blocks) if blocks else np.zeros((0, 3), np.float32)
     fluid_v = np.concatenate([np.tile(np.asarray(b.velocity, np.float32), (len(p), 1))
                               for b, p in zip(sources, blocks)]) if blocks else np.zeros((0, 3), np.float32)

@@ -113,11 +113,12 @@ class Simulation:
         nu = max(scene.fluid.viscosity, scene.fluid.boundary_viscosity)
         self.viscous_dt = 0.125 * (0.5 * self.support_radius) ** 2 / nu if nu > 0 else 1.0e30
 
-        fluid_x, fluid_v, boundary_x, body, self.bodies = sample_scene(scene)
         ids = None
         if particles is None:
+            fluid_x, fluid_v, boundary_x, body, self.bodies = sample_scene(scene)
             fluid_x, fluid_v = remove_fluid_inside_bodies(scene, self.bodies, fluid_x, fluid_v, self.device, self.launch)
-        else:
+        else:  # a subdomain: its own fluid, the scene's boundary
+            _, _, boundary_x, body, self.bodies = sample_scene(scene, limit_fluid=False, with_fluid=False)
             fluid_x, fluid_v, ids = particles
         # moving bodies' samples follow the static ones: kinematic, then dynamic
         moving = sorted((b for b in self.bodies if b.kind != "static"), key=lambda b: b.kind == "dynamic")
