@@ -137,9 +137,9 @@ def test_subdomains_run_a_scene_over_the_limit_of_one_simulation(monkeypatch):
     scene = scene_from_dict(data)
     with pytest.raises(SceneError, match="limit"):
         Simulation(scene, device="cpu")
-    with pytest.raises(SceneError, match="rows a subdomain"):
-        DecomposedSimulation(scene, ["cpu"], subdomains=2, capacity_factor=2.0)
-    sim = DecomposedSimulation(scene, ["cpu"], subdomains=3)
-    assert sim.num_fluid == 1800 and max(s.capacity for s in sim.subdomains) <= 1700
+    with pytest.raises(SceneError, match="in a subdomain"):
+        DecomposedSimulation(scene, ["cpu"], subdomains=1)
+    sim = DecomposedSimulation(scene, ["cpu"], subdomains=2)
+    assert sim.num_fluid == 1800 and max(s.num_fluid + s.halo.ghosts for s in sim.sims) <= 1700
     sim.run(frames=2)
     assert np.array_equal(sim.ids(), np.arange(1800)) and sim.check_health() is None

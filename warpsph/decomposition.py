@@ -303,12 +303,12 @@ class DecomposedSimulation:
                     c = coordinate + shift
                     gap = np.minimum(gap, np.maximum(np.maximum(lower - c, c - upper), 0.0))
             need = max(need, int(np.sum(gap < GHOST_WIDTH * support_radius)))
-        rows = min(len(coordinate), int(factor * need) + 64)
-        if rows > scene_setup.MAX_PARTICLES:  # int32 neighbour lists: the limit of one simulation, per subdomain here
+        if need > scene_setup.MAX_PARTICLES:  # int32 neighbour lists: the limit of one simulation, per subdomain here
             raise SceneError(self.scene.source, "particle_radius",
-                             f"{len(coordinate):,} particles need {rows:,} rows a subdomain, over the {scene_setup.MAX_PARTICLES:,} "
-                             f"limit of one: use more subdomains, a larger radius or a smaller --scale")
-        return rows
+                             f"{len(coordinate):,} particles put {need:,} in a subdomain with its ghosts, over the "
+                             f"{scene_setup.MAX_PARTICLES:,} limit of one: use more subdomains, a larger radius or a "
+                             "smaller --scale")
+        return min(len(coordinate), int(factor * need) + 64)
 
     def slab_bounds(self, k):
         """[lower, upper) of slab k along the axis (unbounded outward where the axis is not periodic)."""
