@@ -239,12 +239,29 @@ class DecomposedSimulation:
             self.subdomains.append(halo)
             self.sims.append(sim)
         self.device = self.sims[0].device
+        self.peer_access = self._enable_peer_access(devices)
         if state is not None:
             self._restore(state, slab)
         for name in [m for m in sys.modules if m.startswith("warpsph.kernels.")]:  # not from several threads at once
             for alias in sorted({s.device.alias for s in self.sims}):
                 wp.load_module(name, device=alias)
         self._parallel(lambda s: (s.halo.refresh(s), s.update_densities()))
+
+    @staticmethod
+    def _enable_peer_access(devices):
+        """Direct copies between the GPUs where they allow it (else the driver stages them through the host):
+        {"cuda:0->cuda:1": True, ...}."""
+        cuda = sorted({d.alias: d for d in devices if d.is_cuda}.values(), key=lambda d: d.alias)
+        enabled = {}
+        for a in cuda:
+            for b in cuda:
+                if a is not b:
+                    ok = wp.is_peer_access_supported(a, b) and wp.is_mempool_access_supported(a, b)
+                    if ok:
+                        wp.set_peer_access_enabled(a, b, True)
+                        wp.set_mempool_access_enabled(a, b, True)
+                    enabled[f"{a.alias}->{b.alias}"] = bool(ok)
+        return enabled
 
     @staticmethod
     def _initial_fluid(scene, device):

@@ -306,6 +306,7 @@ def run_decomposed(args, scene):
         "axis": sim.axis,
         "particles_per_subdomain": sim.owned_counts(),
         "ghosts_per_subdomain": [s.ghosts for s in sim.subdomains],
+        "peer_access": sim.peer_access,
         "rows_per_subdomain": [s.capacity for s in sim.subdomains],
         "particle_radius": scene.particle_radius,
         "setup_s": setup_s,
