@@ -68,14 +68,6 @@ def mark_ghosts(
 
 
 @wp.kernel
-def compact_marked(flags: wp.array(dtype=wp.int32), offsets: wp.array(dtype=wp.int32), index: wp.array(dtype=wp.int32)):
-    """index[offsets_i] = i for each flagged i (``offsets``: the exclusive scan of ``flags``)."""
-    i = wp.tid()
-    if flags[i] != 0:
-        index[offsets[i]] = i
-
-
-@wp.kernel
 def gather_rows(src: wp.array(dtype=Any), index: wp.array(dtype=wp.int32), first: int, dst: wp.array(dtype=Any)):
     """dst[first + i] = src[index[i]]: the rows of one field that another subdomain holds as ghosts."""
     i = wp.tid()

@@ -35,7 +35,8 @@ import numpy as np
 import warp as wp
 
 from warpsph.errors import SceneError
-from warpsph.kernels.decomposition import assign_subdomains, compact_marked, gather_rows, mark_ghosts
+from warpsph.kernels.decomposition import assign_subdomains, gather_rows, mark_ghosts
+from warpsph.kernels.neighbours import compact_flagged
 from warpsph import scene_setup
 from warpsph.scene_setup import remove_fluid_inside_bodies, sample_scene
 from warpsph.simulation import Simulation
@@ -179,7 +180,7 @@ class Subdomain:
             wp.utils.array_scan(flags, offsets, inclusive=False)
             count = int(offsets[n:].numpy()[0])
             index = wp.empty(max(count, 1), dtype=wp.int32, device=self.device)
-            sim.launch(compact_marked, n, [flags, offsets, index])
+            sim.launch(compact_flagged, n, [flags, offsets, index])
             self.send_index[peer.index], self.send_count[peer.index] = index, count
         self._meet()
         first = n

@@ -209,24 +209,7 @@ def run(args, particles):
     free_after = device.free_memory if device.is_cuda else None
     pool_after = wp.get_mempool_used_mem_current(device) if pooled else None
 
-    # per-stage times (synchronised around every stage; no graph)
-    sim.timer.enabled = True
-    sim.timer.seconds.clear()
-    it0 = sim.pressure_solver.iteration_totals()
-    for _ in range(args.steps):
-        sim.step()
-    stages = {k: 1e3 * v / args.steps for k, v in sim.timer.seconds.items()}
-    sim.timer.enabled = False
-
-    # production stepping (graph where available), total only
-    wp.synchronize_device(device)
-    start = time.perf_counter()
-    for _ in range(args.steps):
-        sim.step()
-    wp.synchronize_device(device)
-    total_ms = 1e3 * (time.perf_counter() - start) / args.steps
-    it1 = sim.pressure_solver.iteration_totals()
-    solves = max(it1[1] - it0[1], 1), max(it1[3] - it0[3], 1)
+    stages, total_ms, iterations = timed_steps(sim, sim, args.steps)
     result = {
         "benchmark": "scene",
         "scene": scene.name,
@@ -246,8 +229,7 @@ def run(args, particles):
         "steps_total": sim.step_count,
         "ms_per_step": total_ms,
         "ms_per_step_by_stage_synchronised": stages,
-        "mean_divergence_iterations": (it1[0] - it0[0]) / solves[0],
-        "mean_density_iterations": (it1[2] - it0[2]) / solves[1],
+        **iterations,
         "bytes_per_fluid_particle_device": None if free_before is None else (free_before - free_after) / sim.num_fluid,
         "bytes_per_fluid_particle_mempool": None if pool_before is None else (pool_after - pool_before) / sim.num_fluid,
         "mempool_release_threshold": 0 if pooled else None,
@@ -264,6 +246,30 @@ def run(args, particles):
     return result
 
 
+def timed_steps(sim, timed, steps):
+    """``steps`` steps with ``timed``'s stage timer (synchronised around every stage; no graph), then ``steps``
+    as production steps them (graph where available): (ms per stage, ms per step, mean solver iterations)."""
+    import warp as wp
+
+    timed.timer.enabled = True
+    timed.timer.seconds.clear()
+    it0 = timed.pressure_solver.iteration_totals()
+    for _ in range(steps):
+        sim.step()
+    stages = {k: 1e3 * v / steps for k, v in timed.timer.seconds.items()}
+    timed.timer.enabled = False
+    wp.synchronize()
+    start = time.perf_counter()
+    for _ in range(steps):
+        sim.step()
+    wp.synchronize()
+    total_ms = 1e3 * (time.perf_counter() - start) / steps
+    it1 = timed.pressure_solver.iteration_totals()
+    solves = max(it1[1] - it0[1], 1), max(it1[3] - it0[3], 1)
+    return stages, total_ms, {"mean_divergence_iterations": (it1[0] - it0[0]) / solves[0],
+                              "mean_density_iterations": (it1[2] - it0[2]) / solves[1]}
+
+
 def run_decomposed(args, scene):
     """One size over several subdomains: ms per step (threads in lockstep, no graph) and the share of the
     synchronised step that subdomain 0 spends in each stage (``halo``: migration and ghost rows)."""
@@ -277,22 +283,7 @@ def run_decomposed(args, scene):
     setup_s = time.perf_counter() - start
     for _ in range(args.warmup):
         sim.step()
-    first = sim.sims[0]
-    first.timer.enabled = True
-    first.timer.seconds.clear()
-    it0 = first.pressure_solver.iteration_totals()
-    for _ in range(args.steps):
-        sim.step()
-    stages = {k: 1e3 * v / args.steps for k, v in first.timer.seconds.items()}
-    first.timer.enabled = False
-    wp.synchronize()
-    start = time.perf_counter()
-    for _ in range(args.steps):
-        sim.step()
-    wp.synchronize()
-    total_ms = 1e3 * (time.perf_counter() - start) / args.steps
-    it1 = first.pressure_solver.iteration_totals()
-    solves = max(it1[1] - it0[1], 1), max(it1[3] - it0[3], 1)
+    stages, total_ms, iterations = timed_steps(sim, sim.sims[0], args.steps)
     return {
         "benchmark": "scene, decomposed",
         "scene": scene.name,
@@ -314,8 +305,7 @@ def run_decomposed(args, scene):
         "steps_total": sim.step_count,
         "ms_per_step": total_ms,
         "ms_per_step_by_stage_synchronised_subdomain0": stages,
-        "mean_divergence_iterations": (it1[0] - it0[0]) / solves[0],
-        "mean_density_iterations": (it1[2] - it0[2]) / solves[1],
+        **iterations,
     }
 
 
