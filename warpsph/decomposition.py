@@ -3,7 +3,7 @@
 Each subdomain is a :class:`~warpsph.simulation.Simulation` of its own particles (rows ``0 .. num_fluid - 1``)
 followed by **ghost rows**: copies of the other subdomains' particles within one support radius of its slab,
 which its neighbour lists find but its kernels never update. The subdomains step in lockstep, one thread
-each; they meet at three kinds of points, all in :class:`Subdomain`:
+each (the threads of one device take turns between meetings); they meet at three kinds of points, all in :class:`Subdomain`:
 
 - ``refresh`` at the start of a step: particles that crossed a cut move to their new subdomain (every array
   the step carries: positions, velocities, ids, warm starts, the models' state), then each subdomain
@@ -75,7 +75,16 @@ class Subdomain:
     def _meet(self):
         """Waits until this device's work is done and every subdomain has reached the same point."""
         wp.synchronize_device(self.device)
-        self.group.barrier.wait()
+        self._barrier()
+
+    def _barrier(self):
+        """The barrier, without the device's lock while waiting (subdomains of one device take turns)."""
+        lock = self.group.locks[self.device.alias]
+        lock.release()
+        try:
+            self.group.barrier.wait()
+        finally:
+            lock.acquire()
 
     def _peers(self):
         return [s for s in self.group.subdomains if s is not self]
@@ -118,7 +127,7 @@ class Subdomain:
 
     def allreduce(self, array, ops):
         self.posted = array.numpy().copy()  # waits for the device (on the CPU numpy() is a view: copied)
-        self.group.barrier.wait()
+        self._barrier()
         values = [s.posted for s in self.group.subdomains]
         out = values[0].copy()
         for n, op in enumerate(ops):
@@ -128,7 +137,7 @@ class Subdomain:
             elif op == "m":
                 out[n] = max(column)
         array.assign(out)
-        self.group.barrier.wait()  # the posted values are read by all before the next reduction
+        self._barrier()  # the posted values are read by all before the next reduction
 
     # -- refresh ----------------------------------------------------------------------------------------
     def _migrate(self, sim):
@@ -161,7 +170,7 @@ class Subdomain:
                     wp.copy(dst, src, dest_offset=first, src_offset=start, count=count)
                 first += count
         wp.synchronize()  # peer copies run on either device's stream
-        self.group.barrier.wait()
+        self._barrier()
         moved = min(total_in, leave)  # the last arrivals fill the leavers' rows
         if moved:
             for a in rows:
@@ -230,6 +239,8 @@ class DecomposedSimulation:
         slab = np.searchsorted(self.cuts, x[:, self.axis], side="right")
         capacity = self._capacity(x[:, self.axis], slab, scene.support_radius, capacity_factor)
         self.barrier = threading.Barrier(self.count)
+        # one thread at a time on a device: Warp's scans and sorts share their temporary storage per device
+        self.locks = {wp.get_device(d).alias: threading.Lock() for d in devices}
         self.subdomains, self.sims = [], []
         for k in range(self.count):
             device = devices[k % len(devices)]
@@ -346,7 +357,7 @@ class DecomposedSimulation:
         """Runs ``work(sim)`` for every subdomain, one thread each; the first error stops them all."""
         def run(sim):
             try:
-                with wp.ScopedDevice(sim.device):
+                with self.locks[sim.device.alias], wp.ScopedDevice(sim.device):
                     return work(sim)
             except BaseException:
                 self.barrier.abort()  # the others stop at their next meeting point
