@@ -66,6 +66,8 @@ class Subdomain:
         self.ghost_first = np.zeros(k, np.int64)  # where subdomain j's ghosts start in this one's rows
         self.ghost_count = np.zeros(k, np.int64)
         self.posted = ()  # what an exchange or a reduction put up for the others
+        self.posted_event = None  # CUDA: recorded after the posted arrays were written
+        self.done_event = None  # CUDA: recorded after this subdomain's gathers from the others
         self._staging = {}
 
     global_count = property(lambda self: self.group.global_count)
@@ -98,8 +100,9 @@ class Subdomain:
             index = peer.send_index[self.index]
             for dst, src in zip(mine, theirs_of(peer)):
                 first = int(self.ghost_first[peer.index])
-                if src.device == dst.device:
-                    wp.launch(gather_rows, count, [src, index, first, dst], device=src.device)
+                if src.device == dst.device or self.group.peer_access.get(f"{dst.device.alias}->{src.device.alias}"):
+                    # on this device, reading the other's memory directly where peer access allows
+                    wp.launch(gather_rows, count, [src, index, first, dst], device=dst.device)
                 else:  # gathered on the owner's device, then one peer copy
                     staging = self._staging_for(peer, src, count)
                     wp.launch(gather_rows, count, [src, index, 0, staging], device=src.device)
@@ -121,9 +124,24 @@ class Subdomain:
     def exchange(self, arrays):
         arrays = [a for a in arrays if a.shape[0]]
         self.posted = arrays
-        self._meet()
+        if not self.group.asynchronous:
+            self._meet()
+            self._pull_ghosts(arrays, lambda peer: peer.posted)
+            self._meet()
+            return
+        # CUDA with peer access: ordered by events, the host waits for no device. Each stream waits for the
+        # others' writes of the fields, gathers, and the others' streams wait for its gathers before they
+        # write their own rows again.
+        stream = self.device.stream
+        self.posted_event = stream.record_event()
+        self._barrier()
+        for peer in self._peers():
+            stream.wait_event(peer.posted_event)
         self._pull_ghosts(arrays, lambda peer: peer.posted)
-        self._meet()
+        self.done_event = stream.record_event()
+        self._barrier()
+        for peer in self._peers():
+            stream.wait_event(peer.done_event)
 
     def allreduce(self, array, ops):
         self.posted = array.numpy().copy()  # waits for the device (on the CPU numpy() is a view: copied)
@@ -252,6 +270,8 @@ class DecomposedSimulation:
             self.sims.append(sim)
         self.device = self.sims[0].device
         self.peer_access = self._enable_peer_access(devices)
+        # exchanges ordered by CUDA events alone: every device a GPU, each reading the others' memory
+        self.asynchronous = all(d.is_cuda for d in devices) and all(self.peer_access.values())
         if state is not None:
             self._restore(state, slab)
         for name in [m for m in sys.modules if m.startswith("warpsph.kernels.")]:  # not from several threads at once
