@@ -1,5 +1,6 @@
-"""Kernels of the slab decomposition (warpsph/decomposition.py): which subdomain a particle belongs to, which
-particles another subdomain needs as ghosts, and the row copies between subdomains."""
+"""Kernels of the slab decomposition (warpsph/decomposition.py): which particles leave for another subdomain,
+which ones another subdomain needs as ghosts, and the row moves. Lists are filled through atomic counters
+(no sort, no scan): on a GPU their order varies from run to run, as the order of atomic sums does."""
 
 from typing import Any
 
@@ -18,27 +19,59 @@ def slab_of(c: float, cuts: wp.array(dtype=float)):
     return s
 
 
+@wp.func
+def append(lists: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32), which: int, room: int, value: int):
+    """Appends ``value`` to list ``which`` (entries which * room ..; ``counts[which]`` counts past ``room``,
+    so that the caller sees the overflow and lists again with more room)."""
+    slot = wp.atomic_add(counts, which, 1)
+    if slot < room:
+        lists[which * room + slot] = value
+
+
 @wp.kernel
-def assign_subdomains(
+def list_leavers(
     x: wp.array(dtype=wp.vec3),
     axis: int,
     cuts: wp.array(dtype=float),
     own: int,
-    keys: wp.array(dtype=wp.int32),
-    order: wp.array(dtype=wp.int32),
-    leaving: wp.array(dtype=wp.int32),
+    room: int,
+    counts: wp.array(dtype=wp.int32),
+    leavers: wp.array(dtype=wp.int32),
 ):
-    """keys_i = 0 for a particle that stays in subdomain ``own``, 1 + its new subdomain for one that left
-    (a stable sort by key puts the stayers first, the leavers grouped by destination); ``leaving[s]``
-    counts the particles bound for subdomain s."""
+    """Rows whose slab is no longer ``own``, listed by the subdomain they go to."""
     i = wp.tid()
     s = slab_of(x[i][axis], cuts)
-    key = int(0)
     if s != own:
-        key = 1 + s
-        wp.atomic_add(leaving, s, 1)
-    keys[i] = key
-    order[i] = i
+        append(leavers, counts, s, room, i)
+
+
+@wp.kernel
+def list_holes(leavers: wp.array(dtype=wp.int32), room: int, counts: wp.array(dtype=wp.int32), stay: int,
+               found: wp.array(dtype=wp.int32), holes: wp.array(dtype=wp.int32)):
+    """The leavers' rows below ``stay`` (the rows that stayers will fill), counted in ``found[0]``."""
+    t = wp.tid()
+    if t % room < counts[t // room]:
+        r = leavers[t]
+        if r < stay:
+            holes[wp.atomic_add(found, 0, 1)] = r
+
+
+@wp.kernel
+def list_movers(x: wp.array(dtype=wp.vec3), axis: int, cuts: wp.array(dtype=float), own: int, stay: int,
+                found: wp.array(dtype=wp.int32), movers: wp.array(dtype=wp.int32)):
+    """The stayers among rows ``stay ..`` (as many as the holes), counted in ``found[1]``."""
+    r = stay + wp.tid()
+    if slab_of(x[r][axis], cuts) == own:
+        movers[wp.atomic_add(found, 1, 1)] = r
+
+
+@wp.kernel
+def move_rows(holes: wp.array(dtype=wp.int32), movers: wp.array(dtype=wp.int32), found: wp.array(dtype=wp.int32),
+              a: wp.array(dtype=Any)):
+    """a[holes[i]] = a[movers[i]]: every hole lies below every mover, so no row is read after it is written."""
+    i = wp.tid()
+    if i < found[0]:
+        a[holes[i]] = a[movers[i]]
 
 
 @wp.func
@@ -52,19 +85,23 @@ def interval_distance(c: float, lower: float, upper: float, period: float):
 
 
 @wp.kernel
-def mark_ghosts(
+def list_ghosts(
     x: wp.array(dtype=wp.vec3),
     axis: int,
     lower: float,
     upper: float,
     period: float,
     width: float,
-    flags: wp.array(dtype=wp.int32),
+    peer: int,
+    room: int,
+    counts: wp.array(dtype=wp.int32),
+    lists: wp.array(dtype=wp.int32),
 ):
-    """flags_i = 1 where particle i lies within ``width`` (the support radius) of the slab [lower, upper)
-    along ``axis``: a neighbour of one of that slab's particles, so a ghost there."""
+    """Rows within ``width`` (the support radius) of slab [lower, upper) of subdomain ``peer`` along ``axis``:
+    neighbours of that slab's particles, so its ghosts; listed as list ``peer``."""
     i = wp.tid()
-    flags[i] = int(interval_distance(x[i][axis], lower, upper, period) < width)
+    if interval_distance(x[i][axis], lower, upper, period) < width:
+        append(lists, counts, peer, room, i)
 
 
 @wp.kernel
@@ -79,3 +116,5 @@ def gather_rows(src: wp.array(dtype=Any), index: wp.array(dtype=wp.int32), first
 ROW_TYPES = (float, wp.int32, wp.vec3)
 for _t in ROW_TYPES:
     wp.overload(gather_rows, [wp.array(dtype=_t), wp.array(dtype=wp.int32), int, wp.array(dtype=_t)])
+    wp.overload(move_rows, [wp.array(dtype=wp.int32), wp.array(dtype=wp.int32), wp.array(dtype=wp.int32),
+                            wp.array(dtype=_t)])

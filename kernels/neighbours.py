@@ -178,13 +178,5 @@ def gather(src: wp.array(dtype=Any), order: wp.array(dtype=wp.int32), dst: wp.ar
     dst[i] = src[order[i]]
 
 
-@wp.kernel
-def compact_flagged(flags: wp.array(dtype=wp.int32), offsets: wp.array(dtype=wp.int32), index: wp.array(dtype=wp.int32)):
-    """index[offsets_i] = i for each flagged i (``offsets``: the exclusive scan of ``flags``)."""
-    i = wp.tid()
-    if flags[i] != 0:
-        index[offsets[i]] = i
-
-
 for _t in (float, wp.int32, wp.vec3):  # declared up front (subdomains permute from several threads)
     wp.overload(gather, [wp.array(dtype=_t), wp.array(dtype=wp.int32), wp.array(dtype=_t)])

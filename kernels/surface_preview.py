@@ -41,6 +41,13 @@ def mark_blocks(x: wp.array(dtype=wp.vec3), lower: wp.vec3, block: float, suppor
                 flags[(bi * dims[1] + bj) * dims[2] + bk] = 1
 
 
+@wp.kernel
+def compact(flags: wp.array(dtype=wp.int32), offsets: wp.array(dtype=wp.int32), out: wp.array(dtype=wp.int32)):
+    i = wp.tid()
+    if flags[i] != 0:
+        out[offsets[i]] = i
+
+
 @wp.func
 def block_origin(block: int, dims: wp.vec3i, B: int):
     """The node subscript of the block's minimum corner."""

@@ -55,8 +55,12 @@ def test_subdomains_reproduce_one_domain(subdomains, device):
     assert many.statistics()["density_iterations"] == pytest.approx(one.statistics()["density_iterations"], rel=0.02)
 
 
-def test_particles_cross_a_periodic_axis_and_the_cuts(device):
-    """Water flowing along a periodic x through three slabs: every particle passes a cut within the run."""
+def test_particles_cross_a_periodic_axis_and_the_cuts(device, monkeypatch):
+    """Water flowing along a periodic x through three slabs: every particle passes a cut within the run (with
+    device lists short enough to overflow and be made again)."""
+    from warpsph import decomposition
+
+    monkeypatch.setattr(decomposition, "MIN_LIST_ROOM", 1)
     data = tank_scene(radius=0.02, domain=(0.48, 0.16, 0.16), block=(0.48, 0.08, 0.16), gravity=[0, -9.81, 0])
     data["domain"]["periodic"] = ["x"]
     data["fluid_blocks"][0]["velocity"] = [2.0, 0.0, 0.0]

@@ -35,8 +35,7 @@ import numpy as np
 import warp as wp
 
 from warpsph.errors import SceneError
-from warpsph.kernels.decomposition import assign_subdomains, gather_rows, mark_ghosts
-from warpsph.kernels.neighbours import compact_flagged
+from warpsph.kernels.decomposition import gather_rows, list_ghosts, list_holes, list_leavers, list_movers, move_rows
 from warpsph import scene_setup
 from warpsph.scene_setup import remove_fluid_inside_bodies, sample_scene
 from warpsph.simulation import Simulation
@@ -45,6 +44,8 @@ from warpsph.simulation import Simulation
 CAPACITY_FACTOR = 1.6
 # a particle within this many support radii of a slab is a ghost there (1 + a margin for float rounding)
 GHOST_WIDTH = 1.001
+# entries a device list (leavers, ghosts) holds per subdomain at least; a list that overflows is made again, longer
+MIN_LIST_ROOM = 1024
 
 
 class DecompositionError(RuntimeError):
@@ -60,9 +61,11 @@ class Subdomain:
         self.arrived = 0  # particles that crossed into this subdomain so far
         self.cuts = wp.array(group.cuts, dtype=float, device=device)
         k = group.count
-        self.leave_start, self.leave_count = np.zeros(k, np.int64), np.zeros(k, np.int64)
-        self.send_index = [None] * k  # rows of this subdomain that subdomain j holds as ghosts (on this device)
-        self.send_count = np.zeros(k, np.int64)
+        self.leave_count = np.zeros(k, np.int64)
+        # rows of this subdomain that subdomain j holds as ghosts: send_lists[j * send_room:][:send_count[j]]
+        self.send_lists, self.send_room, self.send_count = None, 0, np.zeros(k, np.int64)
+        # rows that leave for subdomain j: leavers[j * room:][:leave_count[j]]
+        self.leavers, self.room = None, 0
         self.ghost_first = np.zeros(k, np.int64)  # where subdomain j's ghosts start in this one's rows
         self.ghost_count = np.zeros(k, np.int64)
         self.posted = ()  # what an exchange or a reduction put up for the others
@@ -95,21 +98,14 @@ class Subdomain:
         """Ghost rows of each array in ``mine`` from the matching array of every other subdomain."""
         for peer in self._peers():
             count = int(self.ghost_count[peer.index])
-            if count == 0:
-                continue
-            index = peer.send_index[self.index]
-            for dst, src in zip(mine, theirs_of(peer)):
-                first = int(self.ghost_first[peer.index])
-                if src.device == dst.device or self.group.peer_access.get(f"{dst.device.alias}->{src.device.alias}"):
-                    # on this device, reading the other's memory directly where peer access allows
-                    wp.launch(gather_rows, count, [src, index, first, dst], device=dst.device)
-                else:  # gathered on the owner's device, then one peer copy
-                    staging = self._staging_for(peer, src, count)
-                    wp.launch(gather_rows, count, [src, index, 0, staging], device=src.device)
-                    wp.copy(dst, staging, dest_offset=first, count=count, stream=src.device.stream)  # after the gather
+            if count:
+                first, k = int(self.ghost_first[peer.index]), self.index
+                index = peer.send_lists[k * peer.send_room: k * peer.send_room + count]
+                for dst, src in zip(mine, theirs_of(peer)):
+                    self._gather(src, index, first, dst, count)
 
-    def _staging_for(self, peer, src, count):
-        key = (peer.index, src.dtype)
+    def _staging_for(self, src, count):
+        key = (src.device.alias, src.dtype)
         a = self._staging.get(key)
         if a is None or a.shape[0] < count:
             a = self._staging[key] = wp.empty(int(count * 1.25) + 16, dtype=src.dtype, device=src.device)
@@ -158,20 +154,30 @@ class Subdomain:
         self._barrier()  # the posted values are read by all before the next reduction
 
     # -- refresh ----------------------------------------------------------------------------------------
+    def _list(self, name, size):
+        """A reusable device index list of at least ``size`` entries (grown by a quarter when short)."""
+        a = self._staging.get(name)
+        if a is None or a.shape[0] < size:
+            a = self._staging[name] = wp.empty(int(size * 1.25) + 1024, dtype=wp.int32, device=self.device)
+        return a
+
     def _migrate(self, sim):
+        """Particles whose slab changed go to its subdomain: listed by destination on the device (``leavers``,
+        ``room`` entries per destination), pulled by the others behind their rows; then this subdomain's stayers
+        in the last ``leave`` rows fill the leavers' rows before them, and the arrivals follow."""
         group, k, n = self.group, self.index, sim.num_fluid
-        keys = wp.empty(2 * max(n, 1), dtype=wp.int32, device=self.device)  # radix sort needs 2n
-        order = wp.empty(2 * max(n, 1), dtype=wp.int32, device=self.device)
-        leaving = wp.zeros(group.count, dtype=wp.int32, device=self.device)
-        sim.launch(assign_subdomains, n, [sim.fluid.x, group.axis, self.cuts, k, keys, order, leaving])
-        counts = leaving.numpy().astype(np.int64)
-        leave = int(counts.sum())
-        if leave:  # stayers first, then the leavers by destination (a stable sort)
-            wp.utils.radix_sort_pairs(keys, order, n)
-            sim.reorder_particles(order)
-        stay = n - leave
-        self.leave_count = counts
-        self.leave_start = stay + np.cumsum(counts) - counts
+        counts = self._list("counts", group.count)
+        room = max(MIN_LIST_ROOM, n // 16)
+        while True:
+            leavers = self._list("leavers", group.count * room)
+            counts.zero_()
+            sim.launch(list_leavers, n, [sim.fluid.x, group.axis, self.cuts, k, room, counts, leavers])
+            leaving = counts.numpy()[: group.count].astype(np.int64)
+            if leaving.max(initial=0) <= room:
+                break
+            room = int(leaving.max())
+        leave = int(leaving.sum())
+        self.leave_count, self.leavers, self.room = leaving, leavers, room
         self._meet()
         rows = sim.state.carried_rows()
         arriving = [int(p.leave_count[k]) for p in group.subdomains]
@@ -183,32 +189,56 @@ class Subdomain:
         for peer in self._peers():
             count = arriving[peer.index]
             if count:
-                start = int(peer.leave_start[k])
+                index = peer.leavers[k * peer.room: k * peer.room + count]
                 for dst, src in zip(rows, peer.sim.state.carried_rows()):
-                    wp.copy(dst, src, dest_offset=first, src_offset=start, count=count)
+                    self._gather(src, index, first, dst, count)
                 first += count
-        wp.synchronize()  # peer copies run on either device's stream
-        self._barrier()
-        moved = min(total_in, leave)  # the last arrivals fill the leavers' rows
+        self._meet()
+        stay = n - leave
+        if leave:  # the stayers among the last `leave` rows move into the leavers' rows before them
+            holes, movers = self._list("holes", leave), self._list("movers", leave)
+            found = self._list("found", 2)
+            found.zero_()
+            sim.launch(list_holes, group.count * room, [leavers, room, counts, stay, found, holes])
+            sim.launch(list_movers, leave, [sim.fluid.x, group.axis, self.cuts, k, stay, found, movers])
+            for a in rows:
+                sim.launch(move_rows, leave, [holes, movers, found, a])
+        moved = min(total_in, leave)  # the last arrivals fill the rows the leavers left at the end
         if moved:
             for a in rows:
                 wp.copy(a, a, dest_offset=stay, src_offset=n + total_in - moved, count=moved)
         sim.num_fluid = stay + total_in
         self.arrived += total_in
 
+    def _gather(self, src, index, first, dst, count):
+        """dst[first + i] = src[index[i]], i < count: on dst's device (reading src's memory where peer access
+        allows), else gathered on src's device and copied across."""
+        if src.device == dst.device or self.group.peer_access.get(f"{dst.device.alias}->{src.device.alias}"):
+            wp.launch(gather_rows, count, [src, index, first, dst], device=dst.device)
+        else:
+            staging = self._staging_for(src, count)
+            wp.launch(gather_rows, count, [src, index, 0, staging], device=src.device)
+            wp.copy(dst, staging, dest_offset=first, count=count, stream=src.device.stream)  # after the gather
+
     def _collect_ghosts(self, sim):
+        """Lists, for every other subdomain, this one's particles within a support radius of its slab (on the
+        device, ``room`` entries each); then takes its own ghost rows from the others' lists."""
         group, n = self.group, sim.num_fluid
-        flags = wp.zeros(n + 1, dtype=wp.int32, device=self.device)
-        offsets = wp.empty(n + 1, dtype=wp.int32, device=self.device)
         width = GHOST_WIDTH * sim.support_radius
-        for peer in self._peers():
-            lower, upper = group.slab_bounds(peer.index)
-            sim.launch(mark_ghosts, n, [sim.fluid.x, group.axis, lower, upper, group.period, width, flags])
-            wp.utils.array_scan(flags, offsets, inclusive=False)
-            count = int(offsets[n:].numpy()[0])
-            index = wp.empty(max(count, 1), dtype=wp.int32, device=self.device)
-            sim.launch(compact_flagged, n, [flags, offsets, index])
-            self.send_index[peer.index], self.send_count[peer.index] = index, count
+        counts = self._list("ghost_counts", group.count)
+        room = max(MIN_LIST_ROOM, n // 8)
+        while True:
+            index = self._list("ghost_index", group.count * room)
+            counts.zero_()
+            for peer in self._peers():
+                lower, upper = group.slab_bounds(peer.index)
+                sim.launch(list_ghosts, n, [sim.fluid.x, group.axis, lower, upper, group.period, width, peer.index,
+                                            room, counts, index])
+            found = counts.numpy()[: group.count].astype(np.int64)
+            if found.max(initial=0) <= room:
+                break
+            room = int(found.max())
+        self.send_count, self.send_lists, self.send_room = found, index, room
         self._meet()
         first = n
         for peer in self._peers():

@@ -159,7 +159,6 @@ def reconstruct_preview(points, radius, velocities=None, vorticity=None, options
     from warp.geometry import IsoSurfaceMarchingCubes, sparse_marching_cubes_from_cells
 
     from .kernels import surface_preview as K
-    from .kernels.neighbours import compact_flagged
 
     options = options if options is not None else SurfaceOptions(method="preview")
     start = time.perf_counter()
@@ -199,7 +198,7 @@ def reconstruct_preview(points, radius, velocities=None, vorticity=None, options
         wp.utils.array_scan(flags, offsets, inclusive=False)
         count = int(offsets[-1:].numpy()[0] + flags[-1:].numpy()[0])
         blocks = wp.empty(max(count, 1), dtype=wp.int32, device=device)
-        wp.launch(compact_flagged, len(flags), device=device, inputs=[flags, offsets, blocks])
+        wp.launch(K.compact, len(flags), device=device, inputs=[flags, offsets, blocks])
         nodes = (B + 1) ** 3
         values = wp.empty(count * nodes, dtype=float, device=device)
         wp.launch(K.block_field, count * nodes, device=device,
