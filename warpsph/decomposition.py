@@ -139,19 +139,25 @@ class Subdomain:
         for peer in self._peers():
             stream.wait_event(peer.done_event)
 
-    def allreduce(self, array, ops):
-        self.posted = array.numpy().copy()  # waits for the device (on the CPU numpy() is a view: copied)
+    def allreduce(self, pairs):
+        """(array, ops) pairs combined over the subdomains in one meeting (the same order of sums in all);
+        returns the combined values."""
+        self.posted = [array.numpy().copy() for array, _ in pairs]  # waits for the device (CPU: numpy() is a view)
         self._barrier()
-        values = [s.posted for s in self.group.subdomains]
-        out = values[0].copy()
-        for n, op in enumerate(ops):
-            column = [v[n] for v in values]
-            if op == "s":
-                out[n] = sum(column[1:], column[0])
-            elif op == "m":
-                out[n] = max(column)
-        array.assign(out)
+        combined = []
+        for n, (array, ops) in enumerate(pairs):
+            values = [s.posted[n] for s in self.group.subdomains]
+            out = values[0].copy()
+            for k, op in enumerate(ops):
+                column = [v[k] for v in values]
+                if op == "s":
+                    out[k] = sum(column[1:], column[0])
+                elif op == "m":
+                    out[k] = max(column)
+            array.assign(out)
+            combined.append(out)
         self._barrier()  # the posted values are read by all before the next reduction
+        return combined
 
     # -- refresh ----------------------------------------------------------------------------------------
     def _list(self, name, size):

@@ -221,11 +221,11 @@ class Simulation:
         if self.halo is not None:
             self.halo.exchange(arrays)
 
-    def allreduce(self, array, ops):
-        """Combines a small device array over the subdomains, element by element: ``ops[k]`` is "s"
-        (sum), "m" (max) or "-" (leave). A no-op without subdomains."""
-        if self.halo is not None:
-            self.halo.allreduce(array, ops)
+    def allreduce(self, *pairs):
+        """Combines small device arrays over the subdomains, element by element, at one meeting: each pair is
+        (array, ops) with ``ops[k]`` "s" (sum), "m" (max) or "-" (leave). Returns the combined values as numpy
+        arrays; None (and nothing done) without subdomains."""
+        return None if self.halo is None else self.halo.allreduce(pairs)
 
     @property
     def step_count(self) -> int:
@@ -413,7 +413,7 @@ class Simulation:
         with t("time_step"):  # CFL condition on |v^n|
             self.max_speed_sq.zero_()
             self.launch(compute_max_speed, min(n, REDUCE_THREADS), [f.v, n, self.max_speed_sq])
-            self.allreduce(self.max_speed_sq, "m")
+            self.allreduce((self.max_speed_sq, "m"))
             tm = self.scene.time
             self.launch(compute_time_step, 1,
                         [self.max_speed_sq, self.scene.particle_diameter, tm.cfl, *self.scene.time_step_bounds,

@@ -89,6 +89,7 @@ class DFSPHSolver:
         # the regime: 1 = p >= 0 everywhere (a free surface), 0 = signed in the bulk (a confined box this step)
         self.free_surface = z("pressure", 1, dtype=wp.int32)
         self.fills_domain = fluid_fills_domain(sim.scene, sim.global_count)
+        self.free_surface_known = None
         # accumulated stiffness of the last solve of each kind, for the warm start
         self.pressure_sum = [sim.per_particle("pressure"), sim.per_particle("pressure")]
         self.error_stats = z("pressure", 3)  # sum |error|, max |error|, sum of the signed source
@@ -122,8 +123,9 @@ class DFSPHSolver:
         sim.launch(classify_free_surface, sim.num_fluid,
                    [self.position_divergence, sim.fluid.density, sim.neighbours.lists, FREE_SURFACE_THRESHOLD,
                     FREE_SURFACE_DENSITY * sim.rest_density, self.surface, self.surface_count, self.free_surface])
-        sim.allreduce(self.surface_count, "s")
-        sim.allreduce(self.free_surface, "m")
+        combined = sim.allreduce((self.surface_count, "s"), (self.free_surface, "m"))
+        # on subdomains the regime is known on the host: a free-surface step skips the mean source's reduction
+        self.free_surface_known = None if combined is None else int(combined[1][0])
 
     # -- Algorithm 1: the two projection loops -------------------------------------------
     def correct_divergence(self):
@@ -169,7 +171,8 @@ class DFSPHSolver:
         # a box without free surface: the source less its mean (no-ops otherwise)
         sim.launch(reduce_source_sum, min(sim.num_fluid, REDUCE_THREADS),
                    [self.error, sim.num_fluid, self.free_surface, self.error_stats])
-        sim.allreduce(self.error_stats, "--s")
+        if self.free_surface_known != 1:  # (error_stats[2] stays 0 with a free surface)
+            sim.allreduce((self.error_stats, "--s"))
         sim.launch(remove_mean_source, sim.num_fluid,
                    [self.error_stats, sim.global_count, self.free_surface, sim.fluid.factor, sim.dt,
                     int(kind == DIVERGENCE), self.error, self.stiffness])
@@ -178,7 +181,7 @@ class DFSPHSolver:
                        [self.error, sim.fluid.factor, sim.dt, sim.dt_previous, int(kind == DIVERGENCE),
                         self.pressure_sum[kind], self.stiffness])
         sim.launch(reduce_error, min(sim.num_fluid, REDUCE_THREADS), [self.error, sim.num_fluid, self.error_stats])
-        sim.allreduce(self.error_stats, "sm-")
+        sim.allreduce((self.error_stats, "sm-"))
         sim.launch(update_solver_status, 1,
                    [self.error_stats, sim.global_count, max_error, max_error * PEAK_ERROR_RATIO, int(kind == DIVERGENCE), sim.dt, min_it, max_it,
                     int(first), kind, self.average_error[kind], self.condition,
