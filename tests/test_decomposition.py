@@ -199,3 +199,14 @@ def test_models_and_a_kinematic_body_over_subdomains_match_one_domain(model, dev
     assert drift < max(3 * np.abs(by_id(other_order) - by_id(one)).max(), 1e-5)
     assert many.kinetic_energy() == pytest.approx(one.kinetic_energy(), rel=1e-3) and one.kinetic_energy() > 0
     assert sum(s.arrived for s in many.subdomains) > 0
+
+
+@pytest.mark.parametrize("options, words", [(["--subdomains", "0"], "--subdomains"), (["--devices", "cpu,cuda:7"], "--devices"),
+                                            (["--subdomains", "2", "--on-instability", "reduce-dt"], "--on-instability")])
+def test_bad_subdomain_options_name_the_option(tmp_path, capsys, options, words):
+    from warpsph.cli import main
+
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps(tank_scene(radius=0.04)))
+    assert main(["run", str(scene), "--device", "cpu", "--out", str(tmp_path / "out.usdc"), *options]) == 2
+    assert words in capsys.readouterr().err and not (tmp_path / "out.usdc").exists()

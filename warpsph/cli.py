@@ -86,7 +86,7 @@ def _pick_device(name):
 def _pick_devices(args):
     """(device, devices): --device alone gives (it, None); --devices D,D.. or --subdomains K one simulation
     over several subdomains (``devices``: the list, each checked as --device)."""
-    if not args.devices and not args.subdomains:
+    if not args.devices and args.subdomains is None:
         return _pick_device(args.device), None
     if args.subdomains is not None and args.subdomains < 1:
         raise SceneError("", "--subdomains", f"expected an integer >= 1, got {args.subdomains}")
