@@ -111,6 +111,17 @@ def gather_rows(src: wp.array(dtype=Any), index: wp.array(dtype=wp.int32), first
     dst[first + i] = src[index[i]]
 
 
+@wp.kernel
+def combine_values(other: wp.array(dtype=Any), ops: wp.array(dtype=wp.int32), values: wp.array(dtype=Any)):
+    """values[k] += other[k] (ops[k] 1) or max(values[k], other[k]) (ops[k] 2); 0 leaves it: one subdomain's
+    part of an all-reduction, combined in the same order on every subdomain."""
+    k = wp.tid()
+    if ops[k] == 1:
+        values[k] = values[k] + other[k]
+    elif ops[k] == 2:
+        values[k] = wp.max(values[k], other[k])
+
+
 # the row types a step carries or exchanges, declared up front: the subdomains' threads must not create
 # overloads of a generic kernel at the same time (Warp's registry of them is not thread-safe)
 ROW_TYPES = (float, wp.int32, wp.vec3)
@@ -118,3 +129,4 @@ for _t in ROW_TYPES:
     wp.overload(gather_rows, [wp.array(dtype=_t), wp.array(dtype=wp.int32), int, wp.array(dtype=_t)])
     wp.overload(move_rows, [wp.array(dtype=wp.int32), wp.array(dtype=wp.int32), wp.array(dtype=wp.int32),
                             wp.array(dtype=_t)])
+    wp.overload(combine_values, [wp.array(dtype=_t), wp.array(dtype=wp.int32), wp.array(dtype=_t)])

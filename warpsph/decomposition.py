@@ -35,7 +35,15 @@ import numpy as np
 import warp as wp
 
 from warpsph.errors import SceneError
-from warpsph.kernels.decomposition import gather_rows, list_ghosts, list_holes, list_leavers, list_movers, move_rows
+from warpsph.kernels.decomposition import (
+    combine_values,
+    gather_rows,
+    list_ghosts,
+    list_holes,
+    list_leavers,
+    list_movers,
+    move_rows,
+)
 from warpsph import scene_setup
 from warpsph.scene_setup import remove_fluid_inside_bodies, sample_scene
 from warpsph.simulation import Simulation
@@ -139,9 +147,12 @@ class Subdomain:
         for peer in self._peers():
             stream.wait_event(peer.done_event)
 
-    def allreduce(self, pairs):
-        """(array, ops) pairs combined over the subdomains in one meeting (the same order of sums in all);
-        returns the combined values."""
+    def allreduce(self, pairs, read=True):
+        """(array, ops) pairs combined over the subdomains in one meeting, in the same order of sums in all.
+        ``read``: returns the combined values (through the host); else, where every subdomain can read the others'
+        memory, combined on the devices (:meth:`_allreduce_on_devices`) and None returned."""
+        if not read and self.group.direct:
+            return self._allreduce_on_devices(pairs)
         self.posted = [array.numpy().copy() for array, _ in pairs]  # waits for the device (CPU: numpy() is a view)
         self._barrier()
         combined = []
@@ -158,6 +169,40 @@ class Subdomain:
             combined.append(out)
         self._barrier()  # the posted values are read by all before the next reduction
         return combined
+
+    def _allreduce_on_devices(self, pairs):
+        """Each subdomain copies its values aside; after the meeting each one combines subdomain 0's, 1's, ...
+        copies into its arrays on its own device (the others' memory read directly), so the host waits for no
+        device; on GPUs, events order the copies and the reads."""
+        stream = self.device.stream if self.device.is_cuda else None
+        self.posted = []
+        for array, ops in pairs:
+            snapshot = self._staging.get(("snapshot", id(array)))
+            if snapshot is None:
+                snapshot = self._staging[("snapshot", id(array))] = wp.empty_like(array)
+            if ("ops", ops) not in self._staging:
+                self._staging[("ops", ops)] = wp.array(["-sm".index(o) for o in ops], dtype=wp.int32, device=self.device)
+            wp.copy(snapshot, array)
+            self.posted.append(snapshot)
+        if stream is not None:
+            self.posted_event = stream.record_event()
+        self._barrier()
+        if stream is not None:
+            for peer in self._peers():
+                stream.wait_event(peer.posted_event)
+        first = self.group.subdomains[0]
+        for n, (array, ops) in enumerate(pairs):
+            wp.copy(array, first.posted[n])
+            for other in self.group.subdomains[1:]:
+                wp.launch(combine_values, array.shape[0], [other.posted[n], self._staging[("ops", ops)], array],
+                          device=self.device)
+        if stream is not None:
+            self.done_event = stream.record_event()
+        self._barrier()  # the copies are read by all before the next reduction overwrites them
+        if stream is not None:
+            for peer in self._peers():
+                stream.wait_event(peer.done_event)
+        return None
 
     # -- refresh ----------------------------------------------------------------------------------------
     def _list(self, name, size):
@@ -308,6 +353,8 @@ class DecomposedSimulation:
         self.peer_access = self._enable_peer_access(devices)
         # exchanges ordered by CUDA events alone: every device a GPU, each reading the others' memory
         self.asynchronous = all(d.is_cuda for d in devices) and all(self.peer_access.values())
+        # every subdomain reads the others' memory (one CPU, or GPUs with peer access): reductions on the devices
+        self.direct = self.asynchronous or all(d.is_cpu for d in devices)
         if state is not None:
             self._restore(state, slab)
         for name in [m for m in sys.modules if m.startswith("warpsph.kernels.")]:  # not from several threads at once

@@ -221,11 +221,11 @@ class Simulation:
         if self.halo is not None:
             self.halo.exchange(arrays)
 
-    def allreduce(self, *pairs):
+    def allreduce(self, *pairs, read=False):
         """Combines small device arrays over the subdomains, element by element, at one meeting: each pair is
-        (array, ops) with ``ops[k]`` "s" (sum), "m" (max) or "-" (leave). Returns the combined values as numpy
-        arrays; None (and nothing done) without subdomains."""
-        return None if self.halo is None else self.halo.allreduce(pairs)
+        (array, ops) with ``ops[k]`` "s" (sum), "m" (max) or "-" (leave). ``read``: also return the combined
+        values as numpy arrays (through the host); else None. A no-op without subdomains."""
+        return None if self.halo is None else self.halo.allreduce(pairs, read)
 
     @property
     def step_count(self) -> int:

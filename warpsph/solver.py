@@ -123,7 +123,7 @@ class DFSPHSolver:
         sim.launch(classify_free_surface, sim.num_fluid,
                    [self.position_divergence, sim.fluid.density, sim.neighbours.lists, FREE_SURFACE_THRESHOLD,
                     FREE_SURFACE_DENSITY * sim.rest_density, self.surface, self.surface_count, self.free_surface])
-        combined = sim.allreduce((self.surface_count, "s"), (self.free_surface, "m"))
+        combined = sim.allreduce((self.surface_count, "s"), (self.free_surface, "m"), read=True)
         # on subdomains the regime is known on the host: a free-surface step skips the mean source's reduction
         self.free_surface_known = None if combined is None else int(combined[1][0])
 
