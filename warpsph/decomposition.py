@@ -19,9 +19,12 @@ So a subdomain computes, for its own particles, what one simulation of the whole
 order of floating-point sums. Cuts start at the quantiles of the fluid along the axis and move back to them
 every ``rebalance_interval`` steps (load balance).
 
-Communication is Warp's: ``wp.copy`` of rows (a peer copy between GPUs) and a gather kernel on the owner's
-device; the threads meet at a :class:`threading.Barrier`, so every exchange waits on the host (no captured
-graph). Not supported yet (a clear error): emitters, sinks and open domains, dynamic bodies, IISPH,
+Communication is Warp's: gather kernels that read the other subdomain's memory (one CPU, or GPUs with peer
+access; else a gather on the owner's device and a peer ``wp.copy``). The threads meet at a
+:class:`threading.Barrier`; on GPUs with peer access, CUDA events order the exchanges and the reductions the
+solver does not read on the host, so those meetings wait on no device. The refresh's counts, the free-surface
+flag and each solver iteration's loop condition are still read on the host, and the step is not a captured graph.
+Not supported yet (a clear error): emitters, sinks and open domains, dynamic bodies, IISPH,
 ``on_instability = "reduce-dt"``.
 """
 
@@ -79,7 +82,7 @@ class Subdomain:
         self.posted = ()  # what an exchange or a reduction put up for the others
         self.posted_event = None  # CUDA: recorded after the posted arrays were written
         self.done_event = None  # CUDA: recorded after this subdomain's gathers from the others
-        self._staging = {}
+        self._buffers = {}  # reused device arrays: lists, staging rows, reduction copies
 
     global_count = property(lambda self: self.group.global_count)
     grid_points = property(lambda self: self.group.global_count)  # cells as fine as one simulation's
@@ -114,9 +117,9 @@ class Subdomain:
 
     def _staging_for(self, src, count):
         key = (src.device.alias, src.dtype)
-        a = self._staging.get(key)
+        a = self._buffers.get(key)
         if a is None or a.shape[0] < count:
-            a = self._staging[key] = wp.empty(int(count * 1.25) + 16, dtype=src.dtype, device=src.device)
+            a = self._buffers[key] = wp.empty(int(count * 1.25) + 16, dtype=src.dtype, device=src.device)
         return a
 
     # -- the three meeting points ------------------------------------------------------------------------
@@ -177,11 +180,11 @@ class Subdomain:
         stream = self.device.stream if self.device.is_cuda else None
         self.posted = []
         for array, ops in pairs:
-            snapshot = self._staging.get(("snapshot", id(array)))
+            snapshot = self._buffers.get(("snapshot", id(array)))
             if snapshot is None:
-                snapshot = self._staging[("snapshot", id(array))] = wp.empty_like(array)
-            if ("ops", ops) not in self._staging:
-                self._staging[("ops", ops)] = wp.array(["-sm".index(o) for o in ops], dtype=wp.int32, device=self.device)
+                snapshot = self._buffers[("snapshot", id(array))] = wp.empty_like(array)
+            if ("ops", ops) not in self._buffers:
+                self._buffers[("ops", ops)] = wp.array(["-sm".index(o) for o in ops], dtype=wp.int32, device=self.device)
             wp.copy(snapshot, array)
             self.posted.append(snapshot)
         if stream is not None:
@@ -194,7 +197,7 @@ class Subdomain:
         for n, (array, ops) in enumerate(pairs):
             wp.copy(array, first.posted[n])
             for other in self.group.subdomains[1:]:
-                wp.launch(combine_values, array.shape[0], [other.posted[n], self._staging[("ops", ops)], array],
+                wp.launch(combine_values, array.shape[0], [other.posted[n], self._buffers[("ops", ops)], array],
                           device=self.device)
         if stream is not None:
             self.done_event = stream.record_event()
@@ -207,9 +210,9 @@ class Subdomain:
     # -- refresh ----------------------------------------------------------------------------------------
     def _list(self, name, size):
         """A reusable device index list of at least ``size`` entries (grown by a quarter when short)."""
-        a = self._staging.get(name)
+        a = self._buffers.get(name)
         if a is None or a.shape[0] < size:
-            a = self._staging[name] = wp.empty(int(size * 1.25) + 1024, dtype=wp.int32, device=self.device)
+            a = self._buffers[name] = wp.empty(int(size * 1.25) + 1024, dtype=wp.int32, device=self.device)
         return a
 
     def _migrate(self, sim):
@@ -267,7 +270,7 @@ class Subdomain:
         if src.device == dst.device or self.group.peer_access.get(f"{dst.device.alias}->{src.device.alias}"):
             wp.launch(gather_rows, count, [src, index, first, dst], device=dst.device)
         else:
-            staging = self._staging_for(src, count)
+            staging = self._buffers_for(src, count)
             wp.launch(gather_rows, count, [src, index, 0, staging], device=src.device)
             wp.copy(dst, staging, dest_offset=first, count=count, stream=src.device.stream)  # after the gather
 
