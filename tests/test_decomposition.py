@@ -202,6 +202,7 @@ def test_models_and_a_kinematic_body_over_subdomains_match_one_domain(model, dev
 
 
 @pytest.mark.parametrize("options, words", [(["--subdomains", "0"], "--subdomains"), (["--devices", "cpu,cuda:7"], "--devices"),
+                                            (["--devices", "0"], "--devices"),
                                             (["--subdomains", "2", "--on-instability", "reduce-dt"], "--on-instability")])
 def test_bad_subdomain_options_name_the_option(tmp_path, capsys, options, words):
     from warpsph.cli import main

@@ -90,9 +90,12 @@ def _pick_devices(args):
         return _pick_device(args.device), None
     if args.subdomains is not None and args.subdomains < 1:
         raise SceneError("", "--subdomains", f"expected an integer >= 1, got {args.subdomains}")
-    names = [d.strip() for d in (args.devices or args.device).split(",") if d.strip()]
+    from .decomposition import device_names
+
+    names = device_names(args.devices or args.device)
     if not names:
-        raise SceneError("", "--devices", "expected device names separated by commas, e.g. cuda:0,cuda:1")
+        raise SceneError("", "--devices", "expected device names separated by commas (e.g. cuda:0,cuda:1) or a "
+                                          "count of GPUs (e.g. 2)")
     try:
         devices = [_pick_device(n) for n in names]
     except SceneError as exc:
@@ -909,8 +912,9 @@ def build_parser():
     schema.set_defaults(func=schema_command)
     for p in (run, resume):
         p.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
-        p.add_argument("--devices", help="D[,D...]: one simulation over several devices, a slab of the domain each "
-                                          "(e.g. cuda:0,cuda:1; emitters, sinks, dynamic bodies and IISPH not yet)")
+        p.add_argument("--devices", help="D[,D...] or N: one simulation over several devices, a slab of the domain "
+                                          "each (e.g. cuda:0,cuda:1, or 2 for the first two GPUs; emitters, sinks, "
+                                          "dynamic bodies and IISPH not yet)")
         p.add_argument("--subdomains", type=int, help="slabs (default one per --devices entry; several per device "
                                                       "when more)")
         p.add_argument("--frames", type=int, help="last frame to simulate (default: the scene's output.frames)")

@@ -59,6 +59,14 @@ GHOST_WIDTH = 1.001
 MIN_LIST_ROOM = 1024
 
 
+def device_names(text):
+    """``--devices``: "cuda:0,cuda:1" as a list, or a count N as cuda:0 .. cuda:N-1."""
+    text = str(text).strip()
+    if text.isdigit():
+        return [f"cuda:{n}" for n in range(int(text))]
+    return [d.strip() for d in text.split(",") if d.strip()]
+
+
 class DecompositionError(RuntimeError):
     """A subdomain outgrew its rows (raise ``capacity_factor`` or rebalance more often)."""
 

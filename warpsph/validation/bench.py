@@ -47,7 +47,7 @@ def add_arguments(parser):
                         help="turbulence model to run with its default parameters instead of the scene's models "
                              "(none: plain DFSPH/IISPH; all: the three at once); default: the scene's own")
     parser.add_argument("--sort-interval", type=int, help="override solver.sort_interval (0: never re-sort)")
-    parser.add_argument("--devices", help="D[,D...]: one simulation over several devices (slab subdomains, "
+    parser.add_argument("--devices", help="D[,D...] or N: one simulation over several devices (slab subdomains, "
                                           "warpsph.decomposition), e.g. cuda:0,cuda:1; with --subdomains, several "
                                           "on one device")
     parser.add_argument("--subdomains", type=int, help="subdomains (default one per --devices entry)")
@@ -275,9 +275,9 @@ def run_decomposed(args, scene):
     synchronised step that subdomain 0 spends in each stage (``halo``: migration and ghost rows)."""
     import warp as wp
 
-    from warpsph.decomposition import DecomposedSimulation
+    from warpsph.decomposition import DecomposedSimulation, device_names
 
-    devices = (args.devices or args.device).split(",")
+    devices = device_names(args.devices or args.device)
     start = time.perf_counter()
     sim = DecomposedSimulation(scene, devices, subdomains=args.subdomains)
     setup_s = time.perf_counter() - start
