@@ -14,7 +14,8 @@ VORTICITY_SQ = 3  # sum |zeta|^2
 SPIN_SQ = 4  # sum |omega|^2 (a model's angular velocity)
 ERROR_SUM = 5  # sum max(rho / rho0 - 1, 0)
 ERROR_MAX = 6  # max (rho / rho0 - 1)
-SLOTS = 7
+REGION_ENSTROPHY = 7  # ENSTROPHY of the particles inside a box (a wake; 0 without one)
+SLOTS = 8
 
 
 @wp.func
@@ -37,10 +38,13 @@ def reduce_frame_diagnostics(
     gravity: wp.vec3d,
     particle_mass: wp.float64,
     rest_density: wp.float64,
+    region_lower: wp.vec3,
+    region_upper: wp.vec3,
     out: wp.array(dtype=wp.float64),
 ):
     """Launched on min(count, REDUCE_THREADS) threads, grid-stride, one atomic per slot and thread
-    (``out`` zeroed first, ERROR_MAX at -inf). ``vorticity`` and ``spin`` may be empty."""
+    (``out`` zeroed first, ERROR_MAX at -inf). ``vorticity`` and ``spin`` may be empty; a region with
+    ``region_lower`` above ``region_upper`` holds nothing."""
     t = wp.tid()
     threads = wp.min(count, REDUCE_THREADS)
     has_vorticity = vorticity.shape[0] > 0
@@ -54,6 +58,7 @@ def reduce_frame_diagnostics(
     spin_sq = wp.float64(0.0)
     error_sum = wp.float64(0.0)
     error_max = wp.float64(-1.0e300)
+    region = wp.float64(0.0)
     for i in range(t, count, threads):
         kinetic += norm_sq64(v[i])
         xi = x[i]
@@ -66,7 +71,11 @@ def reduce_frame_diagnostics(
         if has_vorticity:
             z = norm_sq64(vorticity[i])
             vorticity_sq += z
-            enstrophy += m / wp.max(rho, wp.float64(1.0e-9)) * z
+            e = m / wp.max(rho, wp.float64(1.0e-9)) * z
+            enstrophy += e
+            inside = xi[0] >= region_lower[0] and xi[0] <= region_upper[0] and xi[1] >= region_lower[1]
+            if inside and xi[1] <= region_upper[1] and xi[2] >= region_lower[2] and xi[2] <= region_upper[2]:
+                region += e
         if has_spin:
             spin_sq += norm_sq64(spin[i])
     wp.atomic_add(out, 0, kinetic)
@@ -76,3 +85,4 @@ def reduce_frame_diagnostics(
     wp.atomic_add(out, 4, spin_sq)
     wp.atomic_add(out, 5, error_sum)
     wp.atomic_max(out, 6, error_max)
+    wp.atomic_add(out, 7, region)

@@ -237,6 +237,22 @@ def test_scene_sweep_cells_keep_the_energies_and_enstrophy_per_frame(scene_sweep
             assert row["rotational_energy"] == [0.0] * n
 
 
+def test_scene_sweep_region_gives_the_enstrophy_inside_a_box(tmp_path):
+    """"region": the cells also measure the enstrophy of the particles inside a box: all of it for a box around the
+    domain, a part for the right half, none for a box off the fluid."""
+    def run(region, name):
+        (tmp_path / name).mkdir()
+        path = _scene_sweep(tmp_path / name, axes={"models": [VR]}, time=0.1, region=region)
+        run_sweep(path, tmp_path / name / "out", workers=1, log=lambda line: None)
+        return [record["row"] for _, record in records(path, tmp_path / name / "out")][0]
+
+    everything = run({"min": [-1, -1, -1], "max": [1, 1, 1]}, "all")
+    assert everything["region_enstrophy"] == everything["enstrophy"] and max(everything["enstrophy"]) > 0
+    half = run({"min": [0.1, -1, -1], "max": [1, 1, 1]}, "half")
+    assert 0 < max(half["region_enstrophy"]) < max(half["enstrophy"])
+    assert max(run({"min": [0.35, 0.25, 0], "max": [0.4, 0.3, 0.12]}, "none")["region_enstrophy"]) == 0
+
+
 def test_scene_sweep_counts_the_particles_an_emitter_added(tmp_path):
     """An inflow scene starts with one layer (25 particles); particles_end counts what the emitter added."""
     scene = {"name": "channel", "particle_radius": 0.02, "domain": {"min": [0, 0, 0], "max": [1.0, 0.4, 0.2]},
@@ -287,6 +303,7 @@ def test_scene_keys_apply_models_first(tmp_path):
     ({"frames": 3}, "time"),
     ({"time": -1}, "time"),
     ({"measures": ["ke_ratio", "energy"]}, "measures[1]"),
+    ({"region": {"min": [0, 0], "max": [1, 1, 1]}}, "region"),
 ])
 def test_bad_scene_sweep_names_the_key(tmp_path, capsys, change, key):
     path = _scene_sweep(tmp_path, **change)

@@ -110,6 +110,7 @@ def load(sweep, out):
                      "t": np.array(r["frame_times"]), "ke": np.array(r["kinetic_energy"]),
                      "rot": np.array(r.get("rotational_energy") or [0.0] * len(r["kinetic_energy"])),
                      "ens": np.array(r.get("enstrophy") or [0.0] * len(r["kinetic_energy"])),
+                     "wake": None if r.get("region_enstrophy") is None else np.array(r["region_enstrophy"]),
                      "particles_end": r.get("particles_end", r["particles"]),
                      "device": record.get("device"), "warp": record.get("warp")})
     meta = {"sweep": str(sweep), "scene": spec["scene"], "scale": spec["scale"], "time": spec["time"],
@@ -309,11 +310,14 @@ def river(meta, rows):
                "enstrophy, last 1 s": window_mean(r["t"], r["ens"], t_end - 1.0, t_end),
                "KE (J), last 1 s": window_mean(r["t"], r["ke"], t_end - 1.0, t_end)}
         row["enstrophy per particle"] = ratio(row["enstrophy, last 1 s"], float(r["particles_end"] or 0))
+        if r["wake"] is not None:  # the sweep's region (the wake behind the hemisphere)
+            row["wake enstrophy, last 1 s"] = window_mean(r["t"], r["wake"], t_end - 1.0, t_end)
         out.append(with_series(row, r, {"enstrophy": "ens"}))
     base = next((x for x in out if x["method"] in ("DFSPH", "IISPH")), None)
     for x in out:
-        if base and x.get("enstrophy, last 1 s") is not None:
-            x["enstrophy / baseline"] = ratio(x["enstrophy, last 1 s"], base["enstrophy, last 1 s"])
+        for key in ("enstrophy", "wake enstrophy"):
+            if base and x.get(f"{key}, last 1 s") is not None:
+                x[f"{key} / baseline"] = ratio(x[f"{key}, last 1 s"], base[f"{key}, last 1 s"])
     return out
 
 
@@ -589,8 +593,9 @@ NOTES = {
                 "method (not a model's own field); |zeta| mean, p90, p99, max over the region's particles; enstrophy: "
                 "1/2 sum V |zeta|^2, V = m / rho, over the region (as the stats CSV's, there over all the fluid); "
                 "/ DFSPH: over the first cell's in the same region at the same time."),
-    "river": ("enstrophy: 1/2 sum V |zeta|^2 over every fluid particle in the tunnel (not the wake alone), "
-              "averaged over the last simulated second; per particle: over the fluid count at the end."),
+    "river": ("enstrophy: 1/2 sum V |zeta|^2 over every fluid particle in the tunnel, averaged over the last "
+              "simulated second; per particle: over the fluid count at the end; wake enstrophy (when the sweep has a "
+              "region): the same over the particles inside the sweep's region (the wake box)."),
 }
 
 

@@ -30,7 +30,10 @@ class Diagnostics:
     step (built at its start: no rebuild at the frame, pairs that came within the support
     radius during the step's advection are left out, as they are for the models)."""
 
-    def __init__(self):
+    def __init__(self, region=None):
+        """``region``: (lower, upper) corners [m] of a box whose enstrophy the rows also give
+        (``region_enstrophy``, e.g. a wake); none: the rows have no such column."""
+        self.region = region
         self._arrays = {}  # per part (the simulation, or each subdomain): the reduction's output and scratch
         self._totals = (0, 0, 0, 0)
 
@@ -69,7 +72,9 @@ class Diagnostics:
             a["out"].assign(init)
             sim.launch(dk.reduce_frame_diagnostics, min(n, int(dk.REDUCE_THREADS)),
                        [f.x, f.v, f.density, zeta, spin, n, wp.vec3d(*sim.scene.domain.min), wp.vec3d(*sim.scene.gravity),
-                        wp.float64(sim.particle_mass), wp.float64(sim.rest_density), a["out"]])
+                        wp.float64(sim.particle_mass), wp.float64(sim.rest_density),
+                        wp.vec3(*(self.region[0] if self.region else (1.0, 1.0, 1.0))),
+                        wp.vec3(*(self.region[1] if self.region else (0.0, 0.0, 0.0))), a["out"]])
             return a["out"].numpy()
 
     def measure(self, sim, frame):
@@ -88,7 +93,7 @@ class Diagnostics:
         d = [a - b for a, b in zip(totals, self._totals)]
         self._totals = totals
         n = sim.num_fluid
-        return {
+        row = {
             "frame": frame,
             "time": sim.time,
             "steps": sim.step_count,
@@ -105,6 +110,9 @@ class Diagnostics:
             # particles removed since the start: inside sinks and outside an open domain
             "removed": sim.inflow.removed_in_sinks + sim.inflow.removed_outside if sim.inflow is not None else 0,
         }
+        if self.region is not None:
+            row["region_enstrophy"] = 0.5 * float(sums[dk.REGION_ENSTROPHY])
+        return row
 
 
 def vorticity_now(sim):

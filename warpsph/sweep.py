@@ -48,7 +48,8 @@ Scene-file measures (``SCENE_MEASURES``, every frame measured by :class:`warpsph
 synchronised, measurements subtracted), ``steps``, ``density_iterations`` / ``divergence_iterations`` (mean per
 solve, ``sim.statistics()``), ``dt_min`` (the smallest step: read back every step, asked for only); per frame
 (lists, 5 significant digits): ``kinetic_energy``, ``rotational_energy`` (as the stats CSV: micropolar's
-spin, VR/Rankine's ζ/2; 0 for plain DFSPH/IISPH), ``enstrophy`` and ``frame_times``.
+spin, VR/Rankine's ζ/2; 0 for plain DFSPH/IISPH), ``enstrophy``, ``frame_times``, and ``region_enstrophy`` (the
+enstrophy of the particles inside the sweep's ``"region": {"min": [x, y, z], "max": [x, y, z]}``, e.g. a wake).
 
 Output folder: ``cells/CELL.json`` per cell (written atomically by the driver when the cell ends; ``status``
 "done", "unstable" (a blow-up: the health check's diagnostic in ``unstable``, a result) or "failed" (an
@@ -83,7 +84,7 @@ from pathlib import Path
 from .errors import SceneError
 
 SWEEP_KEYS = ("name", "base", "scene", "scale", "frames", "time", "axes", "cells", "fixed", "measures", "warm_up",
-              "device")
+              "device", "region")
 SCENE_ONLY = ("scale", "frames", "time")
 ALIASES = {"cfl": "time.cfl", "fixed_dt": "time.fixed_dt", "tolerance": "solver.density_max_error",
            "density_max_error": "solver.density_max_error", "divergence_max_error": "solver.divergence_max_error",
@@ -107,7 +108,8 @@ SCENE_MEASURES = ("particles", "particles_end", "ke_ratio", "ke_start", "ke_end"
                   "enstrophy_end", "blow_up_step", "blow_up_time", "unstable", "instability", "steps", "frames",
                   "time_reached", "density_iterations", "divergence_iterations", "solver_density_error_pct",
                   "max_density_error_pct", "mean_density_error_pct", "dt_mean", "dt_min", "wall_s", "setup_s",
-                  "measure_s", "ms_per_step", "kinetic_energy", "rotational_energy", "enstrophy", "frame_times")
+                  "measure_s", "ms_per_step", "kinetic_energy", "rotational_energy", "enstrophy", "frame_times",
+                  "region_enstrophy")
 SCENE_DEFAULT_MEASURES = ("particles", "ke_ratio", "enstrophy_end", "blow_up_step", "steps", "density_iterations",
                           "wall_s")
 # differ from run to run: not compared between executors
@@ -499,6 +501,14 @@ def load_sweep(source):
     device = data.get("device")
     if device is not None and not isinstance(device, str):
         raise SceneError(file, "device", f"expected a device name (cpu, cuda:0, ...), got {device!r}")
+    region = data.get("region")
+    if region is not None:
+        corners = [region.get(k) if isinstance(region, dict) else None for k in ("min", "max")]
+        if not isinstance(base, _SceneFile) or set(region) - {"min", "max"} or not all(
+                isinstance(c, list) and len(c) == 3 and all(_number(x, low=-math.inf) for x in c) for c in corners):
+            raise SceneError(file, "region", "expected {\"min\": [x, y, z], \"max\": [x, y, z]} (metres; a scene "
+                                             "sweep's box whose enstrophy the cells also measure)")
+        region = [[float(x) for x in c] for c in corners]
     name = data.get("name", Path(file).stem if file != "<sweep>" else "sweep")
     if not isinstance(name, str):
         raise SceneError(file, "name", f"expected a string, got {name!r}")
@@ -507,7 +517,7 @@ def load_sweep(source):
             "device": device}
     if isinstance(base, _SceneFile):
         spec.update(scene=base.label, scene_file=str(base.path), scene_data=base.data, scale=base.scale,
-                    frames=base.frames, time=base.seconds)
+                    frames=base.frames, time=base.seconds, region=region)
     if isinstance(base, _Function):
         spec.update(function=base.function, takes_warm_up=base.takes_warm_up)
     return spec
@@ -529,8 +539,10 @@ def cells(spec):
         if spec.get("kind") == "scene":
             cell = {"kind": "scene", "case": spec["case"], "scene": spec["scene_data"], "scene_file": spec["scene_file"],
                     "scale": spec["scale"], "frames": spec["frames"], "seconds": spec["time"], "params": params,
-                    "warm_up": spec["warm_up"], "track_dt": "dt_min" in spec["measures"]}
+                    "warm_up": spec["warm_up"], "track_dt": "dt_min" in spec["measures"], "region": spec.get("region")}
             digest = [spec["scene_data"], spec["scale"], spec["frames"], spec["time"], params]
+            if spec.get("region") is not None:  # (sweeps without one keep their cells' ids)
+                digest.append(spec["region"])
         elif spec.get("kind") == "function":
             cell = {"kind": "function", "case": spec["case"], "function": spec["function"], "params": params,
                     "warm_up": spec["warm_up"] if spec["takes_warm_up"] else None}
@@ -602,7 +614,7 @@ def scene_row(cell, device):
     start = time.perf_counter()
     sim = Simulation(scene_of(cell), device=device)
     row = {"particles": sim.num_fluid, "setup_s": time.perf_counter() - start}
-    diagnostics, frames, dts = Diagnostics(), [], []
+    diagnostics, frames, dts = Diagnostics(region=cell.get("region")), [], []
     if cell.get("track_dt"):  # every step's dt (a read-back per step)
         step = sim.step
 
@@ -642,6 +654,8 @@ def scene_row(cell, device):
         kinetic_energy=[float(f"{e:.5g}") for e in ke], frame_times=[round(f["time"], 5) for f in frames],
         rotational_energy=[float(f"{f['rotational_energy']:.5g}") for f in frames],
         enstrophy=[float(f"{e:.5g}") for e in enstrophy])
+    if cell.get("region") is not None:
+        row["region_enstrophy"] = [float(f"{f['region_enstrophy']:.5g}") for f in frames]
     row.setdefault("blow_up_step", None)
     if dts:
         row["dt_min"] = min(dts)
