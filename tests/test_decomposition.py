@@ -82,6 +82,22 @@ def test_particles_cross_a_periodic_axis_and_the_cuts(device, monkeypatch):
     assert gap.max() < 1e-4
 
 
+def test_rows_copied_across_without_peer_access_match_direct_reads(device, monkeypatch):
+    """GPUs that cannot read each other's memory gather rows on the owner's device and copy them across: the
+    same particles as reading directly (here forced on one device)."""
+    from warpsph.decomposition import DecomposedSimulation as Decomposed
+
+    scene = dam_break_with_vr()
+    direct = Decomposed(scene, [device], subdomains=2, rebalance_interval=0)
+    monkeypatch.setattr(Decomposed, "reads_directly", lambda self, reader, owner: False)
+    copied = Decomposed(scene, [device], subdomains=2, rebalance_interval=0)
+    for _ in range(10):
+        direct.step()
+        copied.step()
+    assert sum(s.ghosts for s in copied.subdomains) > 0
+    assert np.array_equal(by_id(copied), by_id(direct))
+
+
 @pytest.mark.parametrize("key, change", [
     ("emitters", {"emitters": [{"min": [0.0, 0.4, 0.1], "max": [0.0, 0.5, 0.2], "velocity": [1, 0, 0]}]}),
     ("solver.method", {"solver": {"method": "iisph"}}),

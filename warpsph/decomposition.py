@@ -90,7 +90,11 @@ class Subdomain:
         self.posted = ()  # what an exchange or a reduction put up for the others
         self.posted_event = None  # CUDA: recorded after the posted arrays were written
         self.done_event = None  # CUDA: recorded after this subdomain's gathers from the others
-        self._buffers = {}  # reused device arrays: lists, staging rows, reduction copies
+        # device arrays reused from step to step, each kind apart
+        self._lists = {}  # index lists by name (leavers, ghosts, holes, movers, counts)
+        self._staging = {}  # rows gathered on another device before a copy across: by (device, dtype)
+        self._snapshots = {}  # a reduction's values set aside for the others to read: by (position, dtype, shape)
+        self._reduction_ops = {}  # the ops string of a reduction as a device array
 
     global_count = property(lambda self: self.group.global_count)
     grid_points = property(lambda self: self.group.global_count)  # cells as fine as one simulation's
@@ -125,9 +129,9 @@ class Subdomain:
 
     def _staging_for(self, src, count):
         key = (src.device.alias, src.dtype)
-        a = self._buffers.get(key)
+        a = self._staging.get(key)
         if a is None or a.shape[0] < count:
-            a = self._buffers[key] = wp.empty(int(count * 1.25) + 16, dtype=src.dtype, device=src.device)
+            a = self._staging[key] = wp.empty(int(count * 1.25) + 16, dtype=src.dtype, device=src.device)
         return a
 
     # -- the three meeting points ------------------------------------------------------------------------
@@ -187,12 +191,13 @@ class Subdomain:
         device; on GPUs, events order the copies and the reads."""
         stream = self.device.stream if self.device.is_cuda else None
         self.posted = []
-        for array, ops in pairs:
-            snapshot = self._buffers.get(("snapshot", id(array)))
+        for n, (array, ops) in enumerate(pairs):
+            key = (n, array.dtype, array.shape)
+            snapshot = self._snapshots.get(key)
             if snapshot is None:
-                snapshot = self._buffers[("snapshot", id(array))] = wp.empty_like(array)
-            if ("ops", ops) not in self._buffers:
-                self._buffers[("ops", ops)] = wp.array(["-sm".index(o) for o in ops], dtype=wp.int32, device=self.device)
+                snapshot = self._snapshots[key] = wp.empty_like(array)
+            if ops not in self._reduction_ops:
+                self._reduction_ops[ops] = wp.array(["-sm".index(o) for o in ops], dtype=wp.int32, device=self.device)
             wp.copy(snapshot, array)
             self.posted.append(snapshot)
         if stream is not None:
@@ -205,7 +210,7 @@ class Subdomain:
         for n, (array, ops) in enumerate(pairs):
             wp.copy(array, first.posted[n])
             for other in self.group.subdomains[1:]:
-                wp.launch(combine_values, array.shape[0], [other.posted[n], self._buffers[("ops", ops)], array],
+                wp.launch(combine_values, array.shape[0], [other.posted[n], self._reduction_ops[ops], array],
                           device=self.device)
         if stream is not None:
             self.done_event = stream.record_event()
@@ -218,9 +223,9 @@ class Subdomain:
     # -- refresh ----------------------------------------------------------------------------------------
     def _list(self, name, size):
         """A reusable device index list of at least ``size`` entries (grown by a quarter when short)."""
-        a = self._buffers.get(name)
+        a = self._lists.get(name)
         if a is None or a.shape[0] < size:
-            a = self._buffers[name] = wp.empty(int(size * 1.25) + 1024, dtype=wp.int32, device=self.device)
+            a = self._lists[name] = wp.empty(int(size * 1.25) + 1024, dtype=wp.int32, device=self.device)
         return a
 
     def _migrate(self, sim):
@@ -275,12 +280,13 @@ class Subdomain:
     def _gather(self, src, index, first, dst, count):
         """dst[first + i] = src[index[i]], i < count: on dst's device (reading src's memory where peer access
         allows), else gathered on src's device and copied across."""
-        if src.device == dst.device or self.group.peer_access.get(f"{dst.device.alias}->{src.device.alias}"):
+        if self.group.reads_directly(dst.device, src.device):
             wp.launch(gather_rows, count, [src, index, first, dst], device=dst.device)
         else:
-            staging = self._buffers_for(src, count)
+            staging = self._staging_for(src, count)
             wp.launch(gather_rows, count, [src, index, 0, staging], device=src.device)
-            wp.copy(dst, staging, dest_offset=first, count=count, stream=src.device.stream)  # after the gather
+            stream = src.device.stream if src.device.is_cuda else None  # after the gather
+            wp.copy(dst, staging, dest_offset=first, count=count, stream=stream)
 
     def _collect_ghosts(self, sim):
         """Lists, for every other subdomain, this one's particles within a support radius of its slab (on the
@@ -388,6 +394,11 @@ class DecomposedSimulation:
                         wp.set_mempool_access_enabled(a, b, True)
                     enabled[f"{a.alias}->{b.alias}"] = bool(ok)
         return enabled
+
+    def reads_directly(self, reader, owner):
+        """Whether a kernel on device ``reader`` reads arrays on ``owner`` (the same device, or peer access);
+        else rows are gathered on ``owner`` and copied across."""
+        return reader == owner or bool(self.peer_access.get(f"{reader.alias}->{owner.alias}"))
 
     @staticmethod
     def _initial_fluid(scene, device):
