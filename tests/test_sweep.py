@@ -18,9 +18,19 @@ import pytest
 
 from warpsph.cli import main
 from warpsph.errors import SceneError
-from warpsph.sweep import cells, comparable, load_sweep, records, run_sweep, scene_of
+from warpsph.sweep import assemble, cells, comparable, load_sweep, records, run_sweep, scene_of
 
 PNG = b"\x89PNG\r\n\x1a\n"
+
+
+def paper_tables():
+    """tools/paper_tables.py as a module (a developer script, not part of the package)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("paper_tables", Path(__file__).resolve().parent.parent / "tools" / "paper_tables.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 SWEEP = {"base": "taylor-green", "axes": {"method": ["dfsph", "vr"], "resolution": [6, 8]}, "warm_up": False,
          "measures": ["particles", "error_pct", "steps", "ke_ratio", "wall_s"]}
@@ -405,3 +415,27 @@ def test_plots_from_the_tables(local, scene_sweep, tmp_path, capsys):
     assert main(["plot", "results", str(scene_out / "table.json"), "--out-dir", str(tmp_path / "figs")]) == 0
     assert (tmp_path / "figs" / "table.heat_map.png").read_bytes()[:8] == PNG
     assert not (tmp_path / "figs" / "table.pareto.png").exists()
+
+
+def test_tables_name_the_commit_that_ran_the_cells(tmp_path, monkeypatch):
+    """A cell records the code that ran it (WARPSPH_COMMIT on a host whose copy has no .git); the sweep's table
+    and the paper tables made later, in a checkout at another commit, name that commit, not their own. A cell
+    from before the key: the table says the commit is its own."""
+    path = _scene_sweep(tmp_path, axes={"models": [[]]}, time=0.05)
+    monkeypatch.setenv("WARPSPH_COMMIT", "ran1234")
+    run_sweep(path, tmp_path / "out", workers=1, log=lambda line: None)
+    monkeypatch.setenv("WARPSPH_COMMIT", "later99")
+    (_, record), = records(path, tmp_path / "out")
+    assert record["commit"] == "ran1234"
+    assert assemble(load_sweep(path), tmp_path / "out")["commit"] == "ran1234"
+    meta, _ = paper_tables().load(path, tmp_path / "out")
+    assert (meta["commit"], meta["commit_from"]) == ("ran1234", "cells")
+
+    cell_file = next((tmp_path / "out" / "cells").glob("*.json"))
+    old = json.loads(cell_file.read_text())
+    del old["commit"]
+    cell_file.write_text(json.dumps(old))
+    table = assemble(load_sweep(path), tmp_path / "out")
+    assert (table["commit"], table["commit_from"]) == ("later99", "table")
+    meta, _ = paper_tables().load(path, tmp_path / "out")
+    assert "this checkout's" in paper_tables().header({**meta, "device": "cpu", "warp": "1.19.0"})

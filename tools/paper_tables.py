@@ -94,12 +94,12 @@ def cell_label(params, fixed=()):
 
 
 def load(sweep, out):
-    from warpsph.sweep import load_sweep, records
-    from warpsph.validation.cases import commit_info
+    from warpsph.sweep import cells_commit, load_sweep, records
 
     spec = load_sweep(sweep)
     rows = []
-    for cell, record in records(spec, out):
+    pairs = records(spec, out)
+    for cell, record in pairs:
         if record is None:
             rows.append({"label": cell_label(cell["params"], spec["fixed"]), "status": "missing"})
             continue
@@ -114,7 +114,7 @@ def load(sweep, out):
                      "particles_end": r.get("particles_end", r["particles"]),
                      "device": record.get("device"), "warp": record.get("warp")})
     meta = {"sweep": str(sweep), "scene": spec["scene"], "scale": spec["scale"], "time": spec["time"],
-            "fixed": spec["fixed"], **commit_info()}
+            "fixed": spec["fixed"], **cells_commit([record for _, record in pairs])}
     return meta, rows
 
 
@@ -445,7 +445,7 @@ def fig4_cell(cell, times, device):
 def fig4_records(sweep, out, times, device=None):
     """(meta, [(label, record, arrays)]) for the sweep's cells, each run (or read from OUT/cells) to ``times``."""
     from warpsph.cli import _init_warp
-    from warpsph.sweep import cells, load_sweep
+    from warpsph.sweep import cells, cells_commit, load_sweep
     from warpsph.validation.cases import commit_info, device_info
 
     spec = load_sweep(sweep)
@@ -469,13 +469,14 @@ def fig4_records(sweep, out, times, device=None):
             print(f"running {cell_label(cell['params'], spec['fixed'])} to t = {', '.join(keys)} s", flush=True)
             record, arrays = fig4_cell(cell, times, device)
             record.update(device_info(device))
+            record.update(commit_info())
             np.savez_compressed(path.with_suffix(".npz"), **{f"{name}_{k}": a for k, v in arrays.items()
                                                              for name, a in zip(("x", "zeta", "volume"), v)})
             path.write_text(json.dumps(record, indent=1) + "\n")
         results.append((cell_label(cell["params"], spec["fixed"]), record, arrays))
     done = [r for _, r, _ in results]
     meta = {"sweep": str(sweep), "scene": spec["scene"], "scale": spec["scale"], "time": max(times),
-            "fixed": spec["fixed"], **commit_info(), "device": done[0].get("device"), "warp": done[0].get("warp"),
+            "fixed": spec["fixed"], **cells_commit(done), "device": done[0].get("device"), "warp": done[0].get("warp"),
             "times": list(times)}
     return meta, results, cells(spec)[0]
 
@@ -551,7 +552,9 @@ def header(meta):
         return (f"Benchmarks in {meta['folder']}; device {meta['device']}, Warp {meta['warp']}, "
                 f"commit {meta['commit']}.{unused}")
     return (f"Scene {meta['scene']} at scale {meta['scale']}, {meta['time']} s simulated; device {meta['device']}, "
-            f"Warp {meta['warp']}, commit {meta.get('commit')}."
+            f"Warp {meta['warp']}, commit {meta.get('commit')}"
+            + (" (this checkout's: the cells do not record the code that ran them)."
+               if meta.get("commit_from") == "table" else ".")
             + (f" Every cell: {', '.join(f'{k} = {v}' for k, v in meta['fixed'].items())}." if meta["fixed"] else ""))
 
 

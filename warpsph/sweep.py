@@ -673,11 +673,12 @@ def run_cell(cell, device="cpu"):
 
         wp = _init_warp()
         from .simulation import InstabilityError
-        from .validation.cases import ERRORS, ROWS, _finite, device_info, warm_up
+        from .validation.cases import ERRORS, ROWS, _finite, commit_info, device_info, warm_up
         from .validation.taylor_green import METHODS
 
         params, kind = cell["params"], cell.get("kind", "case")
         record.update(device_info(device))  # "device": the device's name, "device_alias": cpu, cuda:0, ...
+        record.update(commit_info())  # the code that ran this cell (a table may be made later, elsewhere)
         if cell.get("warm_up") and kind != "function":
             t0 = time.perf_counter()
             if kind == "case":
@@ -752,13 +753,27 @@ def records(sweep, out):
     return pairs
 
 
+def cells_commit(records):
+    """{"commit": ..., "uncommitted": [...]} of the code that ran the cells (their records; several commits
+    joined by ", "), or of this checkout when a record predates the key (then "commit_from": "table")."""
+    from .validation.cases import commit_info
+
+    records = [r for r in records if r]
+    if not records or any("commit" not in r for r in records):
+        return {**commit_info(), "commit_from": "table"}
+    commits = sorted({str(r["commit"]) for r in records})
+    uncommitted = sorted({f for r in records for f in r.get("uncommitted") or []})
+    return {"commit": ", ".join(commits), "uncommitted": uncommitted, "commit_from": "cells"}
+
+
 def assemble(spec, out):
     """``table.json`` and ``table.md`` in ``out`` from the cell files; returns the table (a dict)."""
-    from .validation.cases import commit_info, write_json
+    from .validation.cases import write_json
 
+    pairs = records(spec, out)
     columns = spec.get("columns", [k for k, _ in spec["axes"]])
     rows, counts = [], {"done": 0, "unstable": 0, "failed": 0, "missing": 0}
-    for cell, record in records(spec, out):
+    for cell, record in pairs:
         record = record or {"status": "missing"}
         status = record.get("status", "missing")
         counts[status] = counts.get(status, 0) + 1
@@ -774,7 +789,8 @@ def assemble(spec, out):
         rows.append(row)
     table = {"sweep": spec["name"], "kind": spec.get("kind", "case"), "case": spec["case"], "axes": columns,
              "fixed": spec["fixed"], "measures": spec["measures"], "counts": counts,
-             "complete": counts["done"] + counts["unstable"] == len(rows), **commit_info(), "rows": rows}
+             "complete": counts["done"] + counts["unstable"] == len(rows),
+             **cells_commit([record for _, record in pairs]), "rows": rows}
     write_json(table, Path(out) / "table.json")
     _write_text(Path(out) / "table.md", markdown(table))
     return table
