@@ -1,14 +1,13 @@
 """tools/paper_tables.py (#21): the figure tables from a sweep's per-frame series, on made-up series (no run)."""
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-_spec = importlib.util.spec_from_file_location("paper_tables", Path(__file__).resolve().parent.parent / "tools" / "paper_tables.py")
-pt = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(pt)
+from conftest import tool
+
+pt = tool("paper_tables")
 
 
 def _row(label, ke, models=(), t_end=10.0, fps=25, rot=None):

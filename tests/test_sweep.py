@@ -16,21 +16,12 @@ from pathlib import Path
 
 import pytest
 
+from conftest import tool
 from warpsph.cli import main
 from warpsph.errors import SceneError
 from warpsph.sweep import assemble, cells, comparable, load_sweep, records, run_sweep, scene_of
 
 PNG = b"\x89PNG\r\n\x1a\n"
-
-
-def paper_tables():
-    """tools/paper_tables.py as a module (a developer script, not part of the package)."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("paper_tables", Path(__file__).resolve().parent.parent / "tools" / "paper_tables.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 SWEEP = {"base": "taylor-green", "axes": {"method": ["dfsph", "vr"], "resolution": [6, 8]}, "warm_up": False,
          "measures": ["particles", "error_pct", "steps", "ke_ratio", "wall_s"]}
@@ -428,7 +419,7 @@ def test_tables_name_the_commit_that_ran_the_cells(tmp_path, monkeypatch):
     (_, record), = records(path, tmp_path / "out")
     assert record["commit"] == "ran1234"
     assert assemble(load_sweep(path), tmp_path / "out")["commit"] == "ran1234"
-    meta, _ = paper_tables().load(path, tmp_path / "out")
+    meta, _ = tool("paper_tables").load(path, tmp_path / "out")
     assert (meta["commit"], meta["commit_from"]) == ("ran1234", "cells")
 
     cell_file = next((tmp_path / "out" / "cells").glob("*.json"))
@@ -437,5 +428,5 @@ def test_tables_name_the_commit_that_ran_the_cells(tmp_path, monkeypatch):
     cell_file.write_text(json.dumps(old))
     table = assemble(load_sweep(path), tmp_path / "out")
     assert (table["commit"], table["commit_from"]) == ("later99", "table")
-    meta, _ = paper_tables().load(path, tmp_path / "out")
-    assert "this checkout's" in paper_tables().header({**meta, "device": "cpu", "warp": "1.19.0"})
+    meta, _ = tool("paper_tables").load(path, tmp_path / "out")
+    assert "this checkout's" in tool("paper_tables").header({**meta, "device": "cpu", "warp": "1.19.0"})
