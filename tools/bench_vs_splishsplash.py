@@ -24,11 +24,15 @@ import time
 from pathlib import Path
 
 
-def write_scene(data: Path, radius: float, out: Path):
+def write_scene(data: Path, radius: float, out: Path, map_scale: int = 1):
     """SPlisHSPlasH's DamBreakModel.json with another particle radius, beside the original (its model
-    paths are relative to the scene file)."""
+    paths are relative to the scene file); ``map_scale`` refines SPlisHSPlasH's volume maps by that factor
+    per axis (warpsph samples walls with particles and does not read them)."""
     scene = json.loads((data / "Scenes" / "DamBreakModel.json").read_text())
     scene["Configuration"]["particleRadius"] = radius
+    for body in scene.get("RigidBodies", []):
+        if "mapResolution" in body:
+            body["mapResolution"] = [int(n) * map_scale for n in body["mapResolution"]]
     out.write_text(json.dumps(scene, indent=1))
 
 
@@ -109,6 +113,7 @@ def main(argv=None):
     s.add_argument("--data", type=Path, required=True, help="pysplishsplash's data directory (Scenes/, models/)")
     s.add_argument("--radius", type=float, default=0.005)
     s.add_argument("--out", type=Path, required=True)
+    s.add_argument("--map-scale", type=int, default=1, help="refine SPlisHSPlasH's volume maps by this factor")
     p = sub.add_parser("splishsplash")
     p.add_argument("--scene", type=Path, required=True)
     p.add_argument("--stop", type=float, default=1.0)
@@ -119,7 +124,7 @@ def main(argv=None):
     c.add_argument("--out", type=Path)
     args = ap.parse_args(argv)
     if args.what == "scene":
-        write_scene(args.data, args.radius, args.out)
+        write_scene(args.data, args.radius, args.out, args.map_scale)
     elif args.what == "splishsplash":
         run_splishsplash(args.scene, args.stop, args.progress)
     else:
