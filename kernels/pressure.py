@@ -171,7 +171,7 @@ def remove_mean_source(
     stiffness[i] = relaxed_stiffness(s, False, factor[i], scale)
 
 
-# The warm start keeps at most this much of last step's pressure, in units of the density error it
+# Where it is capped, the warm start keeps at most this much of last step's pressure, in units of the density error it
 # corrects (k dt^2 / factor for the density solver, k dt / factor per second for the divergence solver):
 # SPlisHSPlasH caps k dt^2 at 0.00025 m^2, which is 0.042 of density error at its default radius 25 mm.
 WARM_START_FACTOR = wp.constant(0.5)
@@ -185,15 +185,22 @@ def warm_start_pressure(
     dt: wp.array(dtype=float),
     dt_previous: wp.array(dtype=float),
     per_unit_time: int,
+    surface: wp.array(dtype=wp.int32),
     pressure_sum: wp.array(dtype=float),
     stiffness: wp.array(dtype=float),
 ):
-    """Warm start as SPlisHSPlasH's DFSPH does it: k_i = 0.5 x last step's accumulated k_i (rescaled from
-    dt_prev to dt: dt^2 for the density solver, dt for the rate of the divergence solver), capped, and only
-    where this step's source still has the sign of that pressure (still compressed, still diverging; or
-    still expanded in the signed bulk). Elsewhere it starts at 0: the iterations cannot take back a
-    pressure that is no longer needed. ``error`` holds this step's source before any pressure. The value
-    becomes the first iteration's stiffness; ``pressure_sum`` restarts at 0 and the first apply adds it."""
+    """Warm start: k_i = 0.5 x last step's accumulated k_i, rescaled from dt_prev to dt (dt^2 for the
+    density solver, dt for the rate of the divergence solver). ``error`` holds this step's source before
+    any pressure; the value becomes the first iteration's stiffness, ``pressure_sum`` restarts at 0 and
+    the first apply adds it.
+
+    Where particles can separate (the divergence solver everywhere; the density solver on the free surface
+    and its band) it is SPlisHSPlasH's: capped, and kept only where this step's source still has the sign
+    of that pressure (still diverging, still compressed), since clamped iterations cannot take back a
+    pressure that is no longer needed. In the density solver's bulk it is kept whole, as before the cap and
+    sign test: there it is mostly the hydrostatic load, still needed, and dropping it where a particle is
+    momentarily expanded cost the 1M dam break 0.6-0.8 density iterations a step on the H100 with no
+    change in any validation case (docs/notes/solver.md)."""
     i = wp.tid()
     h = dt[0]
     hp = dt_previous[0]
@@ -202,10 +209,13 @@ def warm_start_pressure(
     if per_unit_time != 0:
         scale = h
         previous_scale = hp
-    limit = WARM_START_CAP * factor[i]
-    k = wp.clamp(pressure_sum[i] * previous_scale, -limit, limit) * WARM_START_FACTOR / scale
-    if k * error[i] <= 0.0:
-        k = 0.0
+    k = pressure_sum[i] * previous_scale
+    if per_unit_time != 0 or surface[i] == SURFACE or surface[i] == BAND:
+        limit = WARM_START_CAP * factor[i]
+        k = wp.clamp(k, -limit, limit)
+        if k * error[i] <= 0.0:
+            k = 0.0
+    k = k * WARM_START_FACTOR / scale
     stiffness[i] = k
     pressure_sum[i] = 0.0
 
