@@ -186,6 +186,7 @@ def warm_start_pressure(
     dt_previous: wp.array(dtype=float),
     per_unit_time: int,
     surface: wp.array(dtype=wp.int32),
+    free_surface: wp.array(dtype=wp.int32),
     pressure_sum: wp.array(dtype=float),
     stiffness: wp.array(dtype=float),
 ):
@@ -194,13 +195,14 @@ def warm_start_pressure(
     any pressure; the value becomes the first iteration's stiffness, ``pressure_sum`` restarts at 0 and
     the first apply adds it.
 
-    Where particles can separate (the divergence solver everywhere; the density solver on the free surface
-    and its band) it is SPlisHSPlasH's: capped, and kept only where this step's source still has the sign
-    of that pressure (still diverging, still compressed), since clamped iterations cannot take back a
-    pressure that is no longer needed. In the density solver's bulk it is kept whole, as before the cap and
-    sign test: there it is mostly the hydrostatic load, still needed, and dropping it where a particle is
-    momentarily expanded cost the 1M dam break 0.6-0.8 density iterations a step on the H100 with no
-    change in any validation case (docs/notes/solver.md)."""
+    It is SPlisHSPlasH's (capped, and kept only where this step's source still has the sign of that
+    pressure: still diverging, still compressed, or still expanded in the signed bulk) in the divergence
+    solver, on the free surface and its band, and in a box without free surface (``free_surface[0]`` 0):
+    clamped iterations cannot take back a pressure that is no longer needed where particles can separate.
+    In the bulk of a free-surface scene the density solver keeps it whole, as before the cap and sign test:
+    there it is mostly the hydrostatic load, still needed, and dropping it where a particle is momentarily
+    expanded cost the 1M dam break 0.6-0.8 density iterations a step on the H100 with no change in the
+    dam front or the hydrostatic tank (docs/notes/solver.md)."""
     i = wp.tid()
     h = dt[0]
     hp = dt_previous[0]
@@ -210,7 +212,7 @@ def warm_start_pressure(
         scale = h
         previous_scale = hp
     k = pressure_sum[i] * previous_scale
-    if per_unit_time != 0 or surface[i] == SURFACE or surface[i] == BAND:
+    if per_unit_time != 0 or surface[i] == SURFACE or surface[i] == BAND or free_surface[0] == 0:
         limit = WARM_START_CAP * factor[i]
         k = wp.clamp(k, -limit, limit)
         if k * error[i] <= 0.0:

@@ -54,7 +54,9 @@ def test_subdomains_reproduce_one_domain(subdomains, device):
     assert np.all(many.cuts > cuts) and max(counts) < 1.15 * min(counts)
     drift = np.abs(by_id(many) - by_id(one)).max()
     reordered = np.abs(by_id(other_order) - by_id(one)).max()
-    assert drift < max(3 * reordered, 1e-5) and drift < 0.05 * RADIUS  # no further apart than row order alone puts them
+    # no further apart than row order alone puts them (0.2 r by step 100 since the bulk warm start of a
+    # free-surface scene is kept whole, 93c3975; 0.03 r before: the collapse amplifies float noise more)
+    assert drift < max(3 * reordered, 1e-5) and drift < 0.25 * RADIUS
     assert many.statistics()["density_iterations"] == pytest.approx(one.statistics()["density_iterations"], rel=0.02)
 
 

@@ -126,9 +126,10 @@ def test_warm_start_saves_density_iterations(settled_tank):
 
 
 def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
-    """The density solver's warm start (kernels/pressure.py): in the bulk half of last step's pressure,
-    whole, whatever this step's source; on the surface and its band, and in the divergence solver,
-    capped and dropped where the source no longer asks for it."""
+    """The density solver's warm start (kernels/pressure.py): in the bulk of a free-surface scene half of
+    last step's pressure, whole, whatever this step's source; on the surface and its band, in the
+    divergence solver and in a box without free surface, capped and dropped where the source no longer
+    asks for it."""
     import warp as wp
 
     from warpsph.kernels.free_surface import BAND, SURFACE
@@ -141,23 +142,28 @@ def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
     surface = [0, 0, SURFACE, BAND, SURFACE]
     source = [-1e-3, 1e-3, -1e-3, 1e-3, 1e-3]
     pressure = [big, big, big, big, 0.01 * big]
+    capped = 0.5 * WARM_START_CAP * factor / dt**2
     expected = {
-        "density": [0.5 * big, 0.5 * big, 0.0, 0.5 * WARM_START_CAP * factor / dt**2, 0.005 * big],
+        "density": [0.5 * big, 0.5 * big, 0.0, capped, 0.005 * big],
+        "density, no free surface": [0.0, capped, 0.0, capped, 0.005 * big],
         "divergence": [0.0] + [0.5 * WARM_START_CAP * factor / dt, 0.0] + [0.5 * WARM_START_CAP * factor / dt] * 2,
     }
-    for kind, per_unit_time in (("density", 0), ("divergence", 1)):
+    for kind, per_unit_time, free_surface in (("density", 0, 1), ("density, no free surface", 0, 0),
+                                              ("divergence", 1, 1)):
         arrays = dict(
             error=wp.array(source, dtype=float, device=device),
             factor=wp.full(5, factor, dtype=float, device=device),
             dt=wp.array([dt], dtype=float, device=device),
             dt_previous=wp.array([dt], dtype=float, device=device),
             surface=wp.array(surface, dtype=wp.int32, device=device),
+            free_surface=wp.array([free_surface], dtype=wp.int32, device=device),
             pressure_sum=wp.array(pressure, dtype=float, device=device),
             stiffness=wp.zeros(5, dtype=float, device=device),
         )
         wp.launch(warm_start_pressure, 5, inputs=[arrays["error"], arrays["factor"], arrays["dt"],
                                                    arrays["dt_previous"], per_unit_time, arrays["surface"],
-                                                   arrays["pressure_sum"], arrays["stiffness"]], device=device)
+                                                   arrays["free_surface"], arrays["pressure_sum"],
+                                                   arrays["stiffness"]], device=device)
         np.testing.assert_allclose(arrays["stiffness"].numpy(), expected[kind], rtol=1e-5, err_msg=kind)
         assert not arrays["pressure_sum"].numpy().any()
 

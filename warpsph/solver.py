@@ -178,8 +178,8 @@ class DFSPHSolver:
                     int(kind == DIVERGENCE), self.error, self.stiffness])
         if first and sim.scene.solver.warm_start:  # last step's pressure (capped and sign-tested where particles separate)
             sim.launch(warm_start_pressure, sim.num_fluid,
-                       [self.error, sim.fluid.factor, sim.dt, sim.dt_previous, int(kind == DIVERGENCE), self.surface,
-                        self.pressure_sum[kind], self.stiffness])
+                       [self.error, sim.fluid.factor, sim.dt, sim.dt_previous, int(kind == DIVERGENCE),
+                        self.surface, self.free_surface, self.pressure_sum[kind], self.stiffness])
         sim.launch(reduce_error, min(sim.num_fluid, REDUCE_THREADS), [self.error, sim.num_fluid, self.error_stats])
         sim.allreduce((self.error_stats, "sm-"))
         sim.launch(update_solver_status, 1,
