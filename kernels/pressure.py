@@ -171,9 +171,9 @@ def remove_mean_source(
     stiffness[i] = relaxed_stiffness(s, False, factor[i], scale)
 
 
-# Where it is capped, the warm start keeps at most this much of last step's pressure, in units of the density error it
-# corrects (k dt^2 / factor for the density solver, k dt / factor per second for the divergence solver):
-# SPlisHSPlasH caps k dt^2 at 0.00025 m^2, which is 0.042 of density error at its default radius 25 mm.
+# Where it is capped, the warm start keeps at most this much of last step's pressure, in units of the
+# density error it corrects (k dt^2 / factor for the density solver, k dt / factor per second for the
+# divergence solver): SPlisHSPlasH caps k dt^2 at 0.00025 m^2, 0.042 of density error at its radius 25 mm.
 WARM_START_FACTOR = wp.constant(0.5)
 WARM_START_CAP = wp.constant(0.05)
 

@@ -176,7 +176,7 @@ class DFSPHSolver:
         sim.launch(remove_mean_source, sim.num_fluid,
                    [self.error_stats, sim.global_count, self.free_surface, sim.fluid.factor, sim.dt,
                     int(kind == DIVERGENCE), self.error, self.stiffness])
-        if first and sim.scene.solver.warm_start:  # last step's pressure (capped and sign-tested where particles separate)
+        if first and sim.scene.solver.warm_start:  # last step's pressure (kernels/pressure.py says where it is capped)
             sim.launch(warm_start_pressure, sim.num_fluid,
                        [self.error, sim.fluid.factor, sim.dt, sim.dt_previous, int(kind == DIVERGENCE),
                         self.surface, self.free_surface, self.pressure_sum[kind], self.stiffness])
