@@ -12,6 +12,10 @@ second over the longest window both finished, at a frame boundary.
         --progress pss.jsonl
     warpsph run DIR/Scenes/DamBreakModel_r5.json --device cuda --frames 25 -v > warpsph.log
     python tools/bench_vs_splishsplash.py compare --progress pss.jsonl --warpsph-log warpsph.log --out R.json
+
+On a bare GPU host pysplishsplash's extension also needs the system's libGL, libGLX, libGLdispatch, libX11,
+libxcb, libXext, libXau, libXdmcp, libbsd and libmd: carry them, put them on LD_LIBRARY_PATH, and preload
+libGLdispatch as tools/splishsplash_side_by_side.py explains.
 """
 
 from __future__ import annotations
@@ -65,8 +69,6 @@ def run_splishsplash(scene: Path, stop: float, progress: Path):
     out.write(json.dumps({"done": True, "process_wall_s": time.perf_counter() - t_process}) + "\n")
 
 
-
-
 def read_warpsph_log(log: Path):
     """(frame, simulated time, loop wall so far) per frame from ``warpsph run -v``, and its done line."""
     frames, done, wall = [], None, 0.0
@@ -92,8 +94,8 @@ def compare(progress: Path, log: Path):
     if not common:
         raise SystemExit("SPlisHSPlasH did not reach warpsph's first frame")
     frame, t, warpsph_wall = common[-1]
-    first = next(r for r in steps if r["t"] >= t - 1e-6)
-    n = sum(1 for r in steps if r["t"] <= first["t"])
+    n = next(k for k, r in enumerate(steps, 1) if r["t"] >= t - 1e-6)  # SPlisHSPlasH's steps to the window
+    first = steps[n - 1]
     return {
         "window_s": t, "frame": frame,
         "splishsplash": {"particles": head["particles"], "loop_wall_s": first["wall_s"], "steps": n,
