@@ -22,16 +22,21 @@ def compute_density_source(
     rest_density: float,
     support_radius: float,
     dt: wp.array(dtype=float),
+    drift_weight: float,
     error: wp.array(dtype=float),
     stiffness: wp.array(dtype=float),
 ):
-    """Predicted density rho*_i/rho0 = rho_i/rho0 + dt D(rho_i/rho0)/Dt (Bender & Koschier 2017, eq 11);
+    """Predicted density rho*_i/rho0 = rho_i/rho0 + dt D(rho_i/rho0)/Dt (Bender & Koschier 2017, eq 11), with the
+    step's starting error rho_i/rho0 - 1 weighted by ``drift_weight`` (1; 0 and 1 in the two halves of the
+    split solve of a box without free surface, warpsph/solver.py);
     source s_i = rho*_i/rho0 - 1, clamped at >= 0 at the free surface and signed in the bulk
     (:func:`pressure_source`), and k_i from :func:`relaxed_stiffness`."""
     i = wp.tid()
     h = dt[0]
     is_clamped = clamped(surface[i], free_surface)
     predicted = density[i] / rest_density + h * density_rate(i, x, v, nb, boundary, fluid_volume, support_radius)
+    if drift_weight != 1.0:
+        predicted -= (1.0 - drift_weight) * (density[i] / rest_density - 1.0)
     s = pressure_source(predicted - 1.0, is_clamped)
     error[i] = s
     stiffness[i] = relaxed_stiffness(s, is_clamped, factor[i], h * h)
