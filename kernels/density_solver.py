@@ -28,7 +28,7 @@ def compute_density_source(
 ):
     """Predicted density rho*_i/rho0 = rho_i/rho0 + dt D(rho_i/rho0)/Dt (Bender & Koschier 2017, eq 11), with the
     step's starting error rho_i/rho0 - 1 weighted by ``drift_weight`` (1; 0 and 1 in the two halves of the
-    split solve of a box without free surface, warpsph/solver.py);
+    split solve of a periodic box, warpsph/solver.py);
     source s_i = rho*_i/rho0 - 1, clamped at >= 0 at the free surface and signed in the bulk
     (:func:`pressure_source`), and k_i from :func:`relaxed_stiffness`."""
     i = wp.tid()

@@ -195,17 +195,15 @@ class DFSPHSolver:
         return self._common(velocity) + [sim.fluid.density, sim.fluid.factor, self.surface, self.free_surface,
                                          sim.fluid_volume, sim.rest_density, sim.support_radius, sim.dt, drift_weight]
 
-    def _apply(self, slot, accumulate, velocity):
+    def _apply(self, kind, accumulate, velocity):
         sim = self.sim
         sim.launch(apply_pressure_acceleration, sim.num_fluid,
                    [self.stiffness, sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume,
-                    sim.support_radius, sim.dt, accumulate, self.pressure_sum[slot], velocity])
+                    sim.support_radius, sim.dt, accumulate, self.pressure_sum[kind], velocity])
 
-    def _measure(self, kind, source_kernel, inputs, max_error, min_it, max_it, first, slot=None):
+    def _measure(self, kind, source_kernel, inputs, max_error, min_it, max_it, first):
         """Source, stiffness and error of the current velocities, and the loop's decision. The first
-        measure of a solve replaces the stiffness by the warm start (when on) from ``pressure_sum[slot]``
-        (default: ``kind``): the loop's first apply uses it."""
-        slot = kind if slot is None else slot
+        measure of a solve replaces the stiffness by the warm start (when on): the loop's first apply uses it."""
         sim = self.sim
         sim.launch(source_kernel, sim.num_fluid, inputs + [self.error, self.stiffness])
         # a box without free surface: the source less its mean (no-ops otherwise)
@@ -219,7 +217,7 @@ class DFSPHSolver:
         if first and sim.scene.solver.warm_start:  # last step's pressure (kernels/pressure.py says where it is capped)
             sim.launch(warm_start_pressure, sim.num_fluid,
                        [self.error, sim.fluid.factor, sim.dt, sim.dt_previous, int(kind == DIVERGENCE),
-                        self.surface, self.free_surface, self.pressure_sum[slot], self.stiffness])
+                        self.surface, self.free_surface, self.pressure_sum[kind], self.stiffness])
         sim.launch(reduce_error, min(sim.num_fluid, REDUCE_THREADS), [self.error, sim.num_fluid, self.error_stats])
         sim.allreduce((self.error_stats, "sm-"))
         sim.launch(update_solver_status, 1,
@@ -228,25 +226,24 @@ class DFSPHSolver:
                     self.iterations, *((self.drift_totals, self.drift_streak) if kind == DRIFT
                                        else (self.totals, self.max_iteration_streak))])
 
-    def _solve(self, kind, source_kernel, inputs, max_error, min_it, max_it, slot=None, velocity=None):
-        """One pressure solve of ``kind`` that accumulates its stiffness in ``pressure_sum[slot]`` (default:
-        ``kind``) and applies it to ``velocity`` (default: the fluid's)."""
-        slot = kind if slot is None else slot
+    def _solve(self, kind, source_kernel, inputs, max_error, min_it, max_it, velocity=None):
+        """One pressure solve of ``kind`` (DIVERGENCE, DENSITY or DRIFT) that accumulates its stiffness in
+        ``pressure_sum[kind]`` and applies it to ``velocity`` (default: the fluid's)."""
         velocity = self.sim.fluid.v if velocity is None else velocity
         if not self.sim.scene.solver.warm_start:
-            self.pressure_sum[slot].zero_()
-        self._measure(kind, source_kernel, inputs, max_error, min_it, max_it, True, slot)
+            self.pressure_sum[kind].zero_()
+        self._measure(kind, source_kernel, inputs, max_error, min_it, max_it, True)
 
         def iteration():
             self.sim.exchange(self.stiffness)  # k_j of the apply
-            self._apply(slot, 1, velocity)
+            self._apply(kind, 1, velocity)
             self.sim.exchange(velocity)  # v_j of the next source
-            self._measure(kind, source_kernel, inputs, max_error, min_it, max_it, False, slot)
+            self._measure(kind, source_kernel, inputs, max_error, min_it, max_it, False)
 
         wp.capture_while(self.condition, iteration)
 
     def shift_particles(self):
-        """After the position update: the density drift's correction (a box without free surface, see
+        """After the position update: the density drift's correction (a periodic box, see
         :meth:`correct_density`), then particle shifting down the concentration gradient of the step's
         density pass (none when ``solver.shifting`` is 0)."""
         sim, f = self.sim, self.sim.fluid
