@@ -14,6 +14,17 @@ def _flags(sim):
     return sim.host(sim.pressure_solver.surface), sim.pressure_solver.free_surface_count()
 
 
+def _jittered_periodic_box(device):
+    """A box periodic along x, y and z, full of fluid at rest, its lattice jittered by up to 0.1 spacing."""
+    sim = make_sim({"particle_radius": 0.025, "gravity": [0, 0, 0],
+                    "domain": {"min": [0, 0, 0], "max": [0.5, 0.5, 0.4], "periodic": ["x", "y", "z"]},
+                    "fluid_blocks": [{"start": [0, 0, 0], "end": [0.5, 0.5, 0.4]}]}, device=device)
+    x = sim.host(sim.fluid.x)
+    x += np.random.default_rng(2).uniform(-0.005, 0.005, x.shape).astype(np.float32)
+    sim.active(sim.fluid.x).assign(np.mod(x, [0.5, 0.5, 0.4]).astype(np.float32))
+    return sim
+
+
 def test_tank_surface_is_the_top_layer(device):
     """Water in a tank with air above: the top layer is the free surface (p >= 0 there), the layer
     below it its band, and nothing deeper than one support radius is either."""
@@ -31,12 +42,7 @@ def test_tank_surface_is_the_top_layer(device):
 def test_full_periodic_box_has_no_free_surface(device):
     """A periodic box full of fluid, jittered: no particle is taken for a free surface, so the pressure is
     signed everywhere and its source mean-free."""
-    sim = make_sim({"particle_radius": 0.025, "gravity": [0, 0, 0],
-                    "domain": {"min": [0, 0, 0], "max": [0.5, 0.5, 0.4], "periodic": ["x", "y", "z"]},
-                    "fluid_blocks": [{"start": [0, 0, 0], "end": [0.5, 0.5, 0.4]}]}, device=device)
-    x = sim.host(sim.fluid.x)
-    x += np.random.default_rng(2).uniform(-0.005, 0.005, x.shape).astype(np.float32)
-    sim.active(sim.fluid.x).assign(np.mod(x, [0.5, 0.5, 0.4]).astype(np.float32))
+    sim = _jittered_periodic_box(device)
     flags, count = _flags(sim)
     assert count == 0 and not np.isin(flags, [SURFACE, BAND]).any()
 
@@ -45,12 +51,7 @@ def test_periodic_box_corrects_its_density_drift_through_the_positions_only(devi
     """A jittered periodic box at rest: the split density solve evens out the density by moving particles and
     leaves the velocity at zero. The single solve of earlier versions (and of walled boxes) corrects the same
     error with a velocity that stays in the flow, a kick the viscosity then has to remove (docs/notes/solver.md)."""
-    sim = make_sim({"particle_radius": 0.025, "gravity": [0, 0, 0],
-                    "domain": {"min": [0, 0, 0], "max": [0.5, 0.5, 0.4], "periodic": ["x", "y", "z"]},
-                    "fluid_blocks": [{"start": [0, 0, 0], "end": [0.5, 0.5, 0.4]}]}, device=device)
-    x = sim.host(sim.fluid.x)
-    x += np.random.default_rng(2).uniform(-0.005, 0.005, x.shape).astype(np.float32)
-    sim.active(sim.fluid.x).assign(np.mod(x, [0.5, 0.5, 0.4]).astype(np.float32))
+    sim = _jittered_periodic_box(device)
     sim.update_densities()
     spread = np.std(sim.host(sim.fluid.density))
     def positions():  # by particle id (steps re-sort the rows)
