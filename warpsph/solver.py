@@ -106,8 +106,9 @@ class DFSPHSolver:
         # per solver: [iterations summed over steps, solves]
         self.totals = z("pressure", 4, dtype=wp.int64)
         self.max_iteration_streak = z("pressure", 2, dtype=wp.int32)
-        # a periodic box without walls corrects its density drift through the positions only (correct_density)
-        self.drift_by_positions = self.fills_domain and len(set(sim.scene.domain.periodic)) == 3
+        # a periodic box without walls corrects its density drift through the positions only (correct_density);
+        # the scene rejects an axis named twice, so three names are the three axes
+        self.drift_by_positions = self.fills_domain and len(sim.scene.domain.periodic) == 3
         if self.drift_by_positions:  # the drift solve's velocity, and its stiffness for the warm start
             self.drift_velocity = sim.per_particle("pressure", wp.vec3)
             self.pressure_sum.append(sim.per_particle("pressure"))
