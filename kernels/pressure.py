@@ -229,6 +229,8 @@ def update_solver_status(
     max_error: float,
     max_peak_error: float,
     per_unit_time: int,
+    max_rate: float,
+    min_error: float,
     dt: wp.array(dtype=float),
     min_iterations: int,
     max_iterations: int,
@@ -245,7 +247,8 @@ def update_solver_status(
     ``condition[0]`` is read by ``wp.capture_while`` (1 = iterate again), ``iterations[0]``
     counts the iterations done. The tolerance is ``max_error`` (relative),
     divided by dt when the error is a rate (divergence solver: SPlisHSPlasH's
-    avg <= maxErrorV / dt). Besides the average, the largest error must be below
+    avg <= maxErrorV / dt). ``max_rate`` > 0 [1/s]: the average's tolerance is max_rate x dt, within
+    [``min_error``, ``max_error``] (the periodic box's rate half: a tolerance per unit time). Besides the average, the largest error must be below
     ``max_peak_error``: in a tall column the average hides a crushed bottom layer. When the loop ends, its iterations are added to
     ``totals[2 kind]`` and ``totals[2 kind + 1]`` counts the solves; ``max_iteration_streak[kind]``
     counts the consecutive solves that stopped at ``max_iterations``."""
@@ -264,6 +267,8 @@ def update_solver_status(
     if per_unit_time != 0:
         eta = max_error / dt[0]
         eta_peak = max_peak_error / dt[0]
+    if max_rate > 0.0:
+        eta = wp.max(wp.min(eta, max_rate * dt[0]), min_error)
     done = iterations[0]
     if (avg > eta or peak > eta_peak or done < min_iterations) and done < max_iterations:
         condition[0] = 1

@@ -169,6 +169,38 @@ def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
         assert not arrays["pressure_sum"].numpy().any()
 
 
+def test_rate_tolerance_is_per_unit_time_within_its_bounds(device):
+    """The periodic box's rate half stops at a tolerance per unit time, rate x dt, held between a floor and the
+    per-step tolerance (update_solver_status): at a small step it iterates on where the per-step tolerance would
+    have stopped, and it never asks for less than the floor."""
+    import warp as wp
+
+    from warpsph.kernels.pressure import update_solver_status
+
+    per_step, per_second, floor = 1e-5, 1.6e-2, 3e-6
+
+    def iterates(average_error, dt, rate=(per_second, floor)):
+        a = dict(stats=wp.array([average_error * 10, 0.0, 0.0], dtype=float, device=device),  # 10 particles
+                 dt=wp.array([dt], dtype=float, device=device), average=wp.zeros(1, dtype=float, device=device),
+                 condition=wp.zeros(1, dtype=wp.int32, device=device),
+                 iterations=wp.zeros(1, dtype=wp.int32, device=device),
+                 totals=wp.zeros(4, dtype=wp.int64, device=device),
+                 streak=wp.zeros(2, dtype=wp.int32, device=device))
+        wp.launch(update_solver_status, 1, inputs=[a["stats"], 10, per_step, 1.0, 0, *rate, a["dt"], 0, 100, 1, 1,
+                                                   a["average"], a["condition"], a["iterations"], a["totals"],
+                                                   a["streak"]], device=device)
+        return bool(a["condition"].numpy()[0])
+
+    # a 0.19 ms step: the tolerance is 3.04e-6, not the per-step 1e-5
+    assert iterates(5e-6, 1.9e-4) and not iterates(2.9e-6, 1.9e-4)
+    assert not iterates(5e-6, 1.9e-4, rate=(0.0, 0.0))  # without a rate: the per-step tolerance
+    # a 5 ms step: capped at the per-step tolerance
+    assert iterates(1.1e-5, 5e-3) and not iterates(9e-6, 5e-3)
+    # a 10 us step: the floor
+    assert not iterates(2.9e-6, 1e-5) and iterates(3.1e-6, 1e-5)
+
+
+
 def _energy(sim):
     v, x = sim.fluid.v.numpy().astype(np.float64), sim.fluid.x.numpy().astype(np.float64)
     return sim.particle_mass * (0.5 * (v**2).sum() + 9.81 * x[:, 1].sum())

@@ -36,11 +36,14 @@ from warpsph.kernels.pressure import (
 from warpsph.kernels.shifting import apply_shift, compute_shift
 
 DIVERGENCE, DENSITY, DRIFT = 0, 1, 2
-# In a periodic box the density solve is split (DFSPHSolver.correct_density): its rate half stops at this fraction of
-# solver.density_max_error, its drift half after at most DRIFT_MAX_ITERATIONS. At the full tolerance the rate half
-# left Taylor-Green 7.5 % off at 256 across; at 0.1 of it 0.67 %; at 0.03 0.55 %, but then the rate half ran into
-# max_iterations at 16-24 across on the CPU (docs/notes/solver.md).
+# In a periodic box the density solve is split (DFSPHSolver.correct_density). Its rate half's tolerance is per unit
+# time: RATE_TOLERANCE_PER_SECOND x dt of solver.density_max_error, between RATE_TOLERANCE_FLOOR and
+# RATE_TOLERANCE_FACTOR of it; its drift half stops after at most DRIFT_MAX_ITERATIONS. Taylor-Green at 256 across: 7.5 %
+# at the full per-step tolerance, 0.67 % at 0.1 of it, 0.55 % at 0.03 (this rate); a fixed 0.03 ran into
+# max_iterations at 16-24 across on the CPU, and 0.01 at 128-256 across on the GPU (docs/notes/solver.md).
 RATE_TOLERANCE_FACTOR = 0.1
+RATE_TOLERANCE_PER_SECOND = 160.0  # [1/s]: 0.03 at the 0.19 ms viscous step of 256 across, 0.1 from 0.6 ms up
+RATE_TOLERANCE_FLOOR = 0.03
 DRIFT_MAX_ITERATIONS = 30
 # The largest per-particle error may be this many times the average tolerance (density:
 # 0.01 % average, 1 % peak). Without it a 1M-particle dam break converged in 2 iterations on
@@ -159,8 +162,8 @@ class DFSPHSolver:
         """v~ := v~ + dt a_proj until rho*(x + dt v~) ~ rho0 (projection).
 
         In a box periodic along x, y and z (no walls, no free surface) the solve is split in two. The first
-        half drives only this step's density change, dt D(rho/rho0)/Dt of v~, to zero, at RATE_TOLERANCE_FACTOR
-        of the tolerance: its pressure is the flow's and its velocity stays. The second drives the density error
+        half drives only this step's density change, dt D(rho/rho0)/Dt of v~, to zero, at a tolerance per unit
+        time (RATE_TOLERANCE_PER_SECOND): its pressure is the flow's and its velocity stays. The second drives the density error
         the step starts with, rho/rho0 - 1, to zero with a velocity of its own that moves the positions in
         :meth:`shift_particles` and is then dropped. Kept in the velocity, that correction is a particle-scale
         kick every step which the viscosity has to take out again: it held Taylor-Green's error at 2 % from 128
@@ -172,7 +175,8 @@ class DFSPHSolver:
         tolerance = s.density_max_error * 0.01
         if self.drift_by_positions:
             self._solve(DENSITY, compute_density_source, self._density_inputs(drift_weight=0.0),
-                        tolerance * RATE_TOLERANCE_FACTOR, s.min_iterations, s.max_iterations)
+                        tolerance * RATE_TOLERANCE_FACTOR, s.min_iterations, s.max_iterations,
+                        rate=(tolerance * RATE_TOLERANCE_PER_SECOND, tolerance * RATE_TOLERANCE_FLOOR))
             self.drift_velocity.zero_()
             self._solve(DRIFT, compute_density_source, self._density_inputs(self.drift_velocity), tolerance,
                         min(s.min_iterations, DRIFT_MAX_ITERATIONS), min(s.max_iterations, DRIFT_MAX_ITERATIONS),
@@ -202,7 +206,7 @@ class DFSPHSolver:
                    [self.stiffness, sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume,
                     sim.support_radius, sim.dt, accumulate, self.pressure_sum[kind], velocity])
 
-    def _measure(self, kind, source_kernel, inputs, max_error, min_it, max_it, first):
+    def _measure(self, kind, source_kernel, inputs, max_error, min_it, max_it, first, rate=(0.0, 0.0)):
         """Source, stiffness and error of the current velocities, and the loop's decision. The first
         measure of a solve replaces the stiffness by the warm start (when on): the loop's first apply uses it."""
         sim = self.sim
@@ -222,24 +226,25 @@ class DFSPHSolver:
         sim.launch(reduce_error, min(sim.num_fluid, REDUCE_THREADS), [self.error, sim.num_fluid, self.error_stats])
         sim.allreduce((self.error_stats, "sm-"))
         sim.launch(update_solver_status, 1,
-                   [self.error_stats, sim.global_count, max_error, max_error * PEAK_ERROR_RATIO, int(kind == DIVERGENCE), sim.dt, min_it, max_it,
+                   [self.error_stats, sim.global_count, max_error, max_error * PEAK_ERROR_RATIO, int(kind == DIVERGENCE), *rate, sim.dt, min_it, max_it,
                     int(first), 0 if kind == DRIFT else kind, self.average_error[kind], self.condition,
                     self.iterations, *((self.drift_totals, self.drift_streak) if kind == DRIFT
                                        else (self.totals, self.max_iteration_streak))])
 
-    def _solve(self, kind, source_kernel, inputs, max_error, min_it, max_it, velocity=None):
+    def _solve(self, kind, source_kernel, inputs, max_error, min_it, max_it, velocity=None, rate=(0.0, 0.0)):
         """One pressure solve of ``kind`` (DIVERGENCE, DENSITY or DRIFT) that accumulates its stiffness in
-        ``pressure_sum[kind]`` and applies it to ``velocity`` (default: the fluid's)."""
+        ``pressure_sum[kind]`` and applies it to ``velocity`` (default: the fluid's). ``rate`` = (per second, least):
+        a tolerance per unit time, rate[0] x dt within [rate[1], max_error] (none when rate[0] is 0)."""
         velocity = self.sim.fluid.v if velocity is None else velocity
         if not self.sim.scene.solver.warm_start:
             self.pressure_sum[kind].zero_()
-        self._measure(kind, source_kernel, inputs, max_error, min_it, max_it, True)
+        self._measure(kind, source_kernel, inputs, max_error, min_it, max_it, True, rate)
 
         def iteration():
             self.sim.exchange(self.stiffness)  # k_j of the apply
             self._apply(kind, 1, velocity)
             self.sim.exchange(velocity)  # v_j of the next source
-            self._measure(kind, source_kernel, inputs, max_error, min_it, max_it, False)
+            self._measure(kind, source_kernel, inputs, max_error, min_it, max_it, False, rate)
 
         wp.capture_while(self.condition, iteration)
 
