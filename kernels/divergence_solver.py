@@ -3,7 +3,7 @@
 import warp as wp
 
 from .particles import Boundary, Neighbours
-from .pressure import clamped, density_rate, pressure_source, relaxed_stiffness
+from .pressure import clamped, corrected_density_rate, density_rate, pressure_source, relaxed_stiffness
 
 wp.set_module_options({"enable_backward": False})
 
@@ -24,6 +24,7 @@ def compute_divergence_source(
     fluid_volume: float,
     support_radius: float,
     dt: wp.array(dtype=float),
+    correction: wp.array(dtype=wp.mat33),
     error: wp.array(dtype=float),
     stiffness: wp.array(dtype=float),
 ):
@@ -34,6 +35,11 @@ def compute_divergence_source(
     s = float(0.0)
     is_clamped = clamped(surface[i], free_surface)
     if count >= MIN_NEIGHBOURS:
-        s = pressure_source(density_rate(i, x, v, nb, boundary, fluid_volume, support_radius), is_clamped)
+        rate = float(0.0)
+        if correction.shape[0] > 0:
+            rate = corrected_density_rate(i, x, v, nb, boundary, correction, fluid_volume, support_radius)
+        else:
+            rate = density_rate(i, x, v, nb, boundary, fluid_volume, support_radius)
+        s = pressure_source(rate, is_clamped)
     error[i] = s
     stiffness[i] = relaxed_stiffness(s, is_clamped, factor[i], dt[0])

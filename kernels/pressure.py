@@ -39,6 +39,61 @@ def density_rate(
 
 
 @wp.kernel
+def compute_gradient_correction(
+    x: wp.array(dtype=wp.vec3),
+    nb: Neighbours,
+    boundary: Boundary,
+    fluid_volume: float,
+    support_radius: float,
+    correction: wp.array(dtype=wp.mat33),
+):
+    """L_i = M_i^-T, M_i = sum_f V_j (x_j - x_i) (x) grad W_ij + sum_b V_b (x_b - x_i) (x) grad W_ib (Bonet & Lok
+    1999): with it :func:`corrected_density_rate` is the divergence of every linear field exactly, whatever the
+    arrangement. The identity where M_i is near singular."""
+    i = wp.tid()
+    xi = x[i]
+    m = wp.mat33(0.0)
+    for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
+        xij = separation(nb, xi, x[nb.fluid[k]])
+        m += fluid_volume * wp.outer(-xij, cubic_kernel_gradient(xij, support_radius))
+    for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
+        b = nb.boundary[k]
+        xib = separation(nb, xi, boundary.x[b])
+        m += boundary.volume[b] * wp.outer(-xib, cubic_kernel_gradient(xib, support_radius))
+    if wp.abs(wp.determinant(m)) > 0.1:
+        correction[i] = wp.transpose(wp.inverse(m))
+    else:
+        correction[i] = wp.identity(3, dtype=float)
+
+
+@wp.func
+def corrected_density_rate(
+    i: int,
+    x: wp.array(dtype=wp.vec3),
+    v: wp.array(dtype=wp.vec3),
+    nb: Neighbours,
+    boundary: Boundary,
+    correction: wp.array(dtype=wp.mat33),
+    fluid_volume: float,
+    support_radius: float,
+):
+    """:func:`density_rate` with the corrected kernel gradient L_i grad W (:func:`compute_gradient_correction`):
+    minus the divergence of v, exact for linear fields on any arrangement."""
+    xi = x[i]
+    vi = v[i]
+    li = correction[i]
+    rate = float(0.0)
+    for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
+        j = nb.fluid[k]
+        rate += fluid_volume * wp.dot(vi - v[j], li * cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius))
+    for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
+        b = nb.boundary[k]
+        rate += boundary.volume[b] * wp.dot(vi - boundary_velocity(boundary, b),
+                                            li * cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius))
+    return rate
+
+
+@wp.kernel
 def apply_pressure_acceleration(
     stiffness: wp.array(dtype=float),
     x: wp.array(dtype=wp.vec3),
