@@ -104,9 +104,16 @@ def apply_pressure_acceleration(
     dt: wp.array(dtype=float),
     accumulate: int,
     stiffness_sum: wp.array(dtype=float),
+    correction: wp.array(dtype=wp.mat33),
     v: wp.array(dtype=wp.vec3),
 ):
     """v_i -= dt (sum_f V_j (k_i + k_j) grad W_ij + sum_b V_b k_i grad W_ib).
+
+    With ``correction`` (L_i of :func:`compute_gradient_correction`; empty: none) the first-order part of the
+    fluid sum, sum_f V_j (k_j - k_i) grad W_ij, is taken with L_i grad W_ij, so a linear k gives its exact
+    gradient on any arrangement; the zeroth-order part 2 k_i sum_f V_j grad W_ij, which keeps the particles
+    apart, stays plain. (The whole sum corrected blew up Taylor-Green at 16 across.) The force is then not
+    antisymmetric: Taylor-Green's mean velocity drifted by 0.14 % of its rms speed at 16 across, 0.02 % at 32.
 
     A boundary neighbour uses k_i only (Akinci 2012 mirroring); a sample of a dynamic body gets
     the equal and opposite impulse dt V_b k_i grad W_ib (per unit mass of i). With ``accumulate``
@@ -115,9 +122,18 @@ def apply_pressure_acceleration(
     ki = stiffness[i]
     xi = x[i]
     dv = wp.vec3(0.0)
-    for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
-        j = nb.fluid[k]
-        dv += fluid_volume * (ki + stiffness[j]) * cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius)
+    if correction.shape[0] > 0:
+        first_order = wp.vec3(0.0)
+        for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
+            j = nb.fluid[k]
+            gw = cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius)
+            dv += fluid_volume * (ki + stiffness[j]) * gw
+            first_order += fluid_volume * (stiffness[j] - ki) * gw
+        dv += correction[i] * first_order - first_order
+    else:
+        for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
+            j = nb.fluid[k]
+            dv += fluid_volume * (ki + stiffness[j]) * cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius)
     for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
         b = nb.boundary[k]
         dvb = boundary.volume[b] * ki * cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius)

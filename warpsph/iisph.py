@@ -48,6 +48,7 @@ class IISPHSolver:
         self.stiffness = sim.scratch(float, 8)
         self.error = sim.scratch(float, 9)
         self.pressure = sim.per_particle("pressure")  # p / rho0 of the last solve: the next step's warm start
+        self.no_gradient_correction = z("pressure", 0, dtype=wp.mat33)  # DFSPH's periodic box only
         self.error_stats = z("pressure", 3)  # sum |error|, max |error| (update_solver_status resets them)
         self.average_error = z("pressure", 1)
         self.condition = z("pressure", 1, dtype=wp.int32)  # read by wp.capture_while
@@ -106,7 +107,7 @@ class IISPHSolver:
         # a_p of the final pressures: q = p / rho^2 is the DFSPH stiffness, so DFSPH's kernel applies it (and
         # hands dynamic bodies their reaction)
         sim.launch(apply_pressure_acceleration, n,
-                   [self.stiffness, f.x, nb, bnd, V, H, sim.dt, 0, self.stiffness, f.v])
+                   [self.stiffness, f.x, nb, bnd, V, H, sim.dt, 0, self.stiffness, self.no_gradient_correction, f.v])
 
     # -- statistics (host reads, outside the step) -----------------------------------------
     def iteration_totals(self):

@@ -113,7 +113,7 @@ class DFSPHSolver:
         # a periodic box without walls corrects its density drift through the positions only (correct_density);
         # the scene rejects an axis named twice, so three names are the three axes
         self.drift_by_positions = self.fills_domain and len(sim.scene.domain.periodic) == 3
-        # ... and its divergence and rate solves use the corrected kernel gradient (none elsewhere)
+        # ... and its divergence solve and rate half use the corrected kernel gradient (none elsewhere)
         self.gradient_correction = self.no_gradient_correction = sim.zeros("pressure", 0, dtype=wp.mat33)
         if self.drift_by_positions:  # the drift solve's velocity, and its stiffness for the warm start
             self.drift_velocity = sim.per_particle("pressure", wp.vec3)
@@ -175,12 +175,13 @@ class DFSPHSolver:
         the step starts with, rho/rho0 - 1, to zero with a velocity of its own that moves the positions in
         :meth:`shift_particles` and is then dropped. Kept in the velocity, that correction is a particle-scale
         kick every step which the viscosity has to take out again: it held Taylor-Green's error at 2 % from 128
-        across up (docs/notes/solver.md). Both the rate half and the divergence solve measure div v with the
-        corrected kernel gradient (:func:`compute_gradient_correction`): the flow's strain makes the particle
-        arrangement anisotropic, and there the plain SPH divergence of a divergence-free field is a smooth error
-        of order one that the solve turned into a velocity error (Taylor-Green at 16 / 24 / 32 across: 7.00 /
-        4.01 / 2.88 % plain, 3.80 / 2.49 / 1.99 % corrected). The pressure force stays the symmetric, plain one:
-        corrected, it blew up at 16 across. With walls the drift half does not converge (the Akinci walls' density
+        across up (docs/notes/solver.md). The rate half and the divergence solve use the corrected kernel
+        gradient (:func:`compute_gradient_correction`) in their divergence and in the first-order part of their
+        pressure force (:func:`apply_pressure_acceleration`): the flow's strain makes the particle arrangement
+        anisotropic, and there the plain SPH divergence of a divergence-free field, and the plain gradient of a
+        smooth pressure, are smooth errors of order one (Taylor-Green at 16 / 24 / 32 across: 7.00 / 4.01 / 2.88 %
+        plain, 3.80 / 2.49 / 1.99 % with the corrected divergence, 2.73 / 1.73 / 1.38 % with both). The drift
+        half keeps the plain operators of the summation density it corrects. With walls the drift half does not converge (the Akinci walls' density
         is a standing drift; Lamb-Oseen ran into its cap every step at 256 across), so a walled box keeps the
         single solve.
         """
@@ -218,7 +219,8 @@ class DFSPHSolver:
         sim = self.sim
         sim.launch(apply_pressure_acceleration, sim.num_fluid,
                    [self.stiffness, sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume,
-                    sim.support_radius, sim.dt, accumulate, self.pressure_sum[kind], velocity])
+                    sim.support_radius, sim.dt, accumulate, self.pressure_sum[kind],
+                    self.no_gradient_correction if kind == DRIFT else self.gradient_correction, velocity])
 
     def _measure(self, kind, source_kernel, inputs, max_error, min_it, max_it, first, rate=(0.0, 0.0)):
         """Source, stiffness and error of the current velocities, and the loop's decision. The first
