@@ -87,9 +87,9 @@ def test_a_pool_whose_surface_is_no_longer_detected_stays_at_rest(device, monkey
 def test_taylor_green_error_falls_with_resolution():
     """The default scene settings (no solver keys): the Taylor-Green L1 error of |u| at 24 across is below
     0.75 x the error at 16 across. The clamped solver of earlier versions lost the vortex at both (16
-    across: 58 % of the peak speed) and fails this. The periodic box's corrected kernel gradient (divergence
-    and pressure force of its divergence solve and rate half) brings 16 across from 7.00 % to 2.73 % and its
-    energy error from -17 % to -4 %; with the corrected divergence alone it was 3.80 % and -9.6 %."""
+    across: 58 % of the peak speed) and fails this. The periodic box's corrected kernel gradient (divergence,
+    pressure force and factor of its divergence solve and rate half) brings 16 across from 7.00 % to 2.39 % and
+    its energy error from -17 % to -4.5 %; with the corrected divergence alone it was 3.80 % and -9.6 %."""
     coarse = taylor_green_row([], 16, "cpu")
     fine = taylor_green_row([], 24, "cpu")
     assert fine["error_pct"] < 0.75 * coarse["error_pct"], (coarse["error_pct"], fine["error_pct"])

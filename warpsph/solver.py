@@ -118,6 +118,7 @@ class DFSPHSolver:
         if self.drift_by_positions:  # the drift solve's velocity, and its stiffness for the warm start
             self.drift_velocity = sim.per_particle("pressure", wp.vec3)
             self.gradient_correction = sim.per_particle("pressure", wp.mat33)  # L_i, recomputed every step
+            self.corrected_factor = sim.per_particle("pressure")  # ... and the factor of the corrected solves
             self.pressure_sum.append(sim.per_particle("pressure"))
             self.average_error.append(z("pressure", 1))
             # its statistics apart: a drift solve that stops at its cap leaves the rest to the next step, so
@@ -155,7 +156,7 @@ class DFSPHSolver:
         if self.drift_by_positions:  # the periodic box's corrected kernel gradient, for its divergence and rate solves
             sim.launch(compute_gradient_correction, sim.num_fluid,
                        [sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume, sim.support_radius,
-                        self.gradient_correction])
+                        self.gradient_correction, self.corrected_factor])
 
     # -- Algorithm 1: the two projection loops -------------------------------------------
     def correct_divergence(self):
@@ -176,12 +177,12 @@ class DFSPHSolver:
         :meth:`shift_particles` and is then dropped. Kept in the velocity, that correction is a particle-scale
         kick every step which the viscosity has to take out again: it held Taylor-Green's error at 2 % from 128
         across up (docs/notes/solver.md). The rate half and the divergence solve use the corrected kernel
-        gradient (:func:`compute_gradient_correction`) in their divergence and in the first-order part of their
-        pressure force (:func:`apply_pressure_acceleration`): the flow's strain makes the particle arrangement
-        anisotropic, and there the plain SPH divergence of a divergence-free field, and the plain gradient of a
-        smooth pressure, are smooth errors of order one (Taylor-Green at 16 / 24 / 32 across: 7.00 / 4.01 / 2.88 %
-        plain, 3.80 / 2.49 / 1.99 % with the corrected divergence, 2.73 / 1.73 / 1.38 % with both). The drift
-        half keeps the plain operators of the summation density it corrects. With walls the drift half does not converge (the Akinci walls' density
+        gradient (:func:`compute_gradient_correction`) in their divergence, in their pressure force (its negative
+        adjoint, :func:`apply_pressure_acceleration`) and in their Jacobi factor: the flow's strain makes the
+        particle arrangement anisotropic, and there the plain SPH divergence of a divergence-free field, and the
+        plain gradient of a smooth pressure, are smooth errors of order one (Taylor-Green at 16 / 24 / 32 across:
+        7.00 / 4.01 / 2.88 % plain, 2.39 / 1.55 / 1.19 % corrected). The drift half keeps the plain operators of
+        the summation density it corrects. With walls the drift half does not converge (the Akinci walls' density
         is a standing drift; Lamb-Oseen ran into its cap every step at 256 across), so a walled box keeps the
         single solve.
         """
@@ -206,14 +207,20 @@ class DFSPHSolver:
 
     def _divergence_inputs(self):
         sim = self.sim
-        return self._common() + [sim.fluid.factor, self.surface, self.free_surface, sim.fluid_volume,
+        return self._common() + [self._factor(DIVERGENCE), self.surface, self.free_surface, sim.fluid_volume,
                                  sim.support_radius, sim.dt, self.gradient_correction]
 
     def _density_inputs(self, velocity=None, drift_weight=1.0, corrected=False):
         sim = self.sim
-        return self._common(velocity) + [sim.fluid.density, sim.fluid.factor, self.surface, self.free_surface,
+        return self._common(velocity) + [sim.fluid.density, self.corrected_factor if corrected else sim.fluid.factor,
+                                         self.surface, self.free_surface,
                                          sim.fluid_volume, sim.rest_density, sim.support_radius, sim.dt, drift_weight,
                                          self.gradient_correction if corrected else self.no_gradient_correction]
+
+    def _factor(self, kind):
+        """The DFSPH factor of a solve of ``kind``: the corrected one for the periodic box's divergence solve and
+        rate half (kind DIVERGENCE or DENSITY there), the density pass's elsewhere."""
+        return self.corrected_factor if self.drift_by_positions and kind != DRIFT else self.sim.fluid.factor
 
     def _apply(self, kind, accumulate, velocity):
         sim = self.sim
@@ -233,11 +240,11 @@ class DFSPHSolver:
         if self.free_surface_known != 1:  # (error_stats[2] stays 0 with a free surface)
             sim.allreduce((self.error_stats, "--s"))
         sim.launch(remove_mean_source, sim.num_fluid,
-                   [self.error_stats, sim.global_count, self.free_surface, sim.fluid.factor, sim.dt,
+                   [self.error_stats, sim.global_count, self.free_surface, self._factor(kind), sim.dt,
                     int(kind == DIVERGENCE), self.error, self.stiffness])
         if first and sim.scene.solver.warm_start:  # last step's pressure (kernels/pressure.py says where it is capped)
             sim.launch(warm_start_pressure, sim.num_fluid,
-                       [self.error, sim.fluid.factor, sim.dt, sim.dt_previous, int(kind == DIVERGENCE),
+                       [self.error, self._factor(kind), sim.dt, sim.dt_previous, int(kind == DIVERGENCE),
                         self.surface, self.free_surface, self.pressure_sum[kind], self.stiffness])
         sim.launch(reduce_error, min(sim.num_fluid, REDUCE_THREADS), [self.error, sim.num_fluid, self.error_stats])
         sim.allreduce((self.error_stats, "sm-"))
