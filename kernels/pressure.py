@@ -106,53 +106,68 @@ def corrected_density_rate(
     return rate
 
 
-@wp.kernel
-def apply_pressure_acceleration(
-    stiffness: wp.array(dtype=float),
-    x: wp.array(dtype=wp.vec3),
-    nb: Neighbours,
-    boundary: Boundary,
-    fluid_volume: float,
-    support_radius: float,
-    dt: wp.array(dtype=float),
-    accumulate: int,
-    stiffness_sum: wp.array(dtype=float),
-    correction: wp.array(dtype=wp.mat33),
-    v: wp.array(dtype=wp.vec3),
-):
-    """v_i -= dt (sum_f V_j (k_i + k_j) grad W_ij + sum_b V_b k_i grad W_ib).
+def _pressure_acceleration_kernel(corrected: bool):
+    @wp.kernel
+    def apply_pressure_acceleration(
+        stiffness: wp.array(dtype=float),
+        x: wp.array(dtype=wp.vec3),
+        nb: Neighbours,
+        boundary: Boundary,
+        fluid_volume: float,
+        support_radius: float,
+        dt: wp.array(dtype=float),
+        accumulate: int,
+        stiffness_sum: wp.array(dtype=float),
+        correction: wp.array(dtype=wp.mat33),
+        v: wp.array(dtype=wp.vec3),
+    ):
+        """v_i -= dt (sum_f V_j (k_i + k_j) grad W_ij + sum_b V_b k_i grad W_ib).
 
-    With ``correction`` (L_i of :func:`compute_gradient_correction`; empty: none) the fluid sum is
-    sum_f V_j (k_i L_i + k_j L_j) grad W_ij: the negative adjoint of :func:`corrected_density_rate`, so the
-    pressure does no work on a velocity whose corrected divergence is zero, and the pair forces stay equal and
-    opposite (momentum is kept). Its Jacobi step needs the corrected factor of
-    :func:`compute_gradient_correction`. (With the plain factor it blew up Taylor-Green at 16 across.)
+        A boundary neighbour uses k_i only (Akinci 2012 mirroring); a sample of a dynamic body gets
+        the equal and opposite impulse dt V_b k_i grad W_ib (per unit mass of i). With ``accumulate``
+        set, k_i is added to ``stiffness_sum`` (the pressure used in this step, for warm start).
 
-    A boundary neighbour uses k_i only (Akinci 2012 mirroring); a sample of a dynamic body gets
-    the equal and opposite impulse dt V_b k_i grad W_ib (per unit mass of i). With ``accumulate``
-    set, k_i is added to ``stiffness_sum`` (the pressure used in this step, for warm start)."""
-    i = wp.tid()
-    ki = stiffness[i]
-    xi = x[i]
-    dv = wp.vec3(0.0)
-    if correction.shape[0] > 0:
-        li = ki * correction[i]
-        for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
-            j = nb.fluid[k]
-            dv += fluid_volume * ((li + stiffness[j] * correction[j]) * cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius))
-    else:
-        for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
-            j = nb.fluid[k]
-            dv += fluid_volume * (ki + stiffness[j]) * cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius)
-    for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
-        b = nb.boundary[k]
-        dvb = boundary.volume[b] * ki * cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius)
-        if b >= boundary.first_dynamic:
-            wp.atomic_add(boundary.impulse, b, dt[0] * dvb)
-        dv += dvb
-    v[i] = v[i] - dt[0] * dv
-    if accumulate != 0:
-        stiffness_sum[i] = stiffness_sum[i] + ki
+        The periodic box's :data:`apply_corrected_pressure_acceleration` takes the corrected gradient, L_i of
+        :func:`compute_gradient_correction` (the plain kernel does not read ``correction``): v_i -= dt
+        (sum_f V_j (k_i L_i + k_j L_j) grad W_ij + sum_b V_b k_i L_i grad W_ib), the negative adjoint of
+        :func:`corrected_density_rate`. So the pressure does no work on a velocity whose corrected divergence is
+        zero, and the pair forces stay equal and opposite. Its Jacobi step needs the corrected factor of
+        :func:`compute_gradient_correction`: with the plain factor it blew up Taylor-Green at 16 across."""
+        i = wp.tid()
+        ki = stiffness[i]
+        xi = x[i]
+        dv = wp.vec3(0.0)
+        if wp.static(corrected):
+            li = ki * correction[i]
+            for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
+                j = nb.fluid[k]
+                grad = cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius)
+                dv += fluid_volume * ((li + stiffness[j] * correction[j]) * grad)
+            for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
+                b = nb.boundary[k]
+                dvb = boundary.volume[b] * (li * cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius))
+                if b >= boundary.first_dynamic:
+                    wp.atomic_add(boundary.impulse, b, dt[0] * dvb)
+                dv += dvb
+        else:
+            for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
+                j = nb.fluid[k]
+                dv += fluid_volume * (ki + stiffness[j]) * cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius)
+            for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
+                b = nb.boundary[k]
+                dvb = boundary.volume[b] * ki * cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius)
+                if b >= boundary.first_dynamic:
+                    wp.atomic_add(boundary.impulse, b, dt[0] * dvb)
+                dv += dvb
+        v[i] = v[i] - dt[0] * dv
+        if accumulate != 0:
+            stiffness_sum[i] = stiffness_sum[i] + ki
+
+    return apply_pressure_acceleration
+
+
+apply_pressure_acceleration = _pressure_acceleration_kernel(False)
+apply_corrected_pressure_acceleration = _pressure_acceleration_kernel(True)
 
 
 # threads of the grid-stride reductions (error, max speed); each strides over n / REDUCE_THREADS values.

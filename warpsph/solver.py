@@ -20,12 +20,13 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from warpsph.kernels.density_solver import compute_density_source
-from warpsph.kernels.divergence_solver import compute_divergence_source
+from warpsph.kernels.density_solver import compute_corrected_density_source, compute_density_source
+from warpsph.kernels.divergence_solver import compute_corrected_divergence_source, compute_divergence_source
 from warpsph.kernels.free_surface import classify_free_surface
 from warpsph.kernels.integration import advect_positions
 from warpsph.kernels.pressure import (
     REDUCE_THREADS,
+    apply_corrected_pressure_acceleration,
     apply_pressure_acceleration,
     compute_gradient_correction,
     reduce_error,
@@ -164,7 +165,8 @@ class DFSPHSolver:
         s = self.sim.scene.solver
         if not s.divergence_solver:
             return
-        self._solve(DIVERGENCE, compute_divergence_source, self._divergence_inputs(),
+        self._solve(DIVERGENCE, compute_corrected_divergence_source if self.drift_by_positions else compute_divergence_source,
+                    self._divergence_inputs(),
                     s.divergence_max_error * 0.01, s.divergence_min_iterations, s.divergence_max_iterations)
 
     def correct_density(self):
@@ -178,7 +180,7 @@ class DFSPHSolver:
         kick every step which the viscosity has to take out again: it held Taylor-Green's error at 2 % from 128
         across up (docs/notes/solver.md). The rate half and the divergence solve use the corrected kernel
         gradient (:func:`compute_gradient_correction`) in their divergence, in their pressure force (its negative
-        adjoint, :func:`apply_pressure_acceleration`) and in their Jacobi factor: the flow's strain makes the
+        adjoint, :data:`apply_corrected_pressure_acceleration`) and in their Jacobi factor: the flow's strain makes the
         particle arrangement anisotropic, and there the plain SPH divergence of a divergence-free field, and the
         plain gradient of a smooth pressure, are smooth errors of order one (Taylor-Green at 16 / 24 / 32 across:
         7.00 / 4.01 / 2.88 % plain, 2.39 / 1.55 / 1.19 % corrected). The drift half keeps the plain operators of
@@ -189,7 +191,7 @@ class DFSPHSolver:
         s = self.sim.scene.solver
         tolerance = s.density_max_error * 0.01
         if self.drift_by_positions:
-            self._solve(DENSITY, compute_density_source, self._density_inputs(drift_weight=0.0, corrected=True),
+            self._solve(DENSITY, compute_corrected_density_source, self._density_inputs(drift_weight=0.0, corrected=True),
                         tolerance * RATE_TOLERANCE_FACTOR, s.min_iterations, s.max_iterations,
                         rate=(tolerance * RATE_TOLERANCE_PER_SECOND, tolerance * RATE_TOLERANCE_FLOOR))
             self.drift_velocity.zero_()
@@ -217,17 +219,23 @@ class DFSPHSolver:
                                          sim.fluid_volume, sim.rest_density, sim.support_radius, sim.dt, drift_weight,
                                          self.gradient_correction if corrected else self.no_gradient_correction]
 
+    def _corrected(self, kind):
+        """Whether a solve of ``kind`` uses the corrected gradient: the periodic box's divergence solve and rate
+        half (correct_density)."""
+        return self.drift_by_positions and kind != DRIFT
+
     def _factor(self, kind):
-        """The DFSPH factor of a solve of ``kind``: the corrected one for the periodic box's divergence solve and
-        rate half (kind DIVERGENCE or DENSITY there), the density pass's elsewhere."""
-        return self.corrected_factor if self.drift_by_positions and kind != DRIFT else self.sim.fluid.factor
+        """The DFSPH factor of a solve of ``kind``: the corrected one where :meth:`_corrected`, the density
+        pass's elsewhere."""
+        return self.corrected_factor if self._corrected(kind) else self.sim.fluid.factor
 
     def _apply(self, kind, accumulate, velocity):
         sim = self.sim
-        sim.launch(apply_pressure_acceleration, sim.num_fluid,
+        corrected = self._corrected(kind)
+        sim.launch(apply_corrected_pressure_acceleration if corrected else apply_pressure_acceleration, sim.num_fluid,
                    [self.stiffness, sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume,
                     sim.support_radius, sim.dt, accumulate, self.pressure_sum[kind],
-                    self.no_gradient_correction if kind == DRIFT else self.gradient_correction, velocity])
+                    self.gradient_correction if corrected else self.no_gradient_correction, velocity])
 
     def _measure(self, kind, source_kernel, inputs, max_error, min_it, max_it, first, rate=(0.0, 0.0)):
         """Source, stiffness and error of the current velocities, and the loop's decision. The first
