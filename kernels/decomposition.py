@@ -124,9 +124,11 @@ def combine_values(other: wp.array(dtype=Any), ops: wp.array(dtype=wp.int32), va
 
 # the row types a step carries or exchanges, declared up front: the subdomains' threads must not create
 # overloads of a generic kernel at the same time (Warp's registry of them is not thread-safe)
-ROW_TYPES = (float, wp.int32, wp.vec3)
+# (mat33: the periodic box's corrected gradient, exchanged only)
+ROW_TYPES = (float, wp.int32, wp.vec3, wp.mat33)
 for _t in ROW_TYPES:
     wp.overload(gather_rows, [wp.array(dtype=_t), wp.array(dtype=wp.int32), int, wp.array(dtype=_t)])
     wp.overload(move_rows, [wp.array(dtype=wp.int32), wp.array(dtype=wp.int32), wp.array(dtype=wp.int32),
                             wp.array(dtype=_t)])
-    wp.overload(combine_values, [wp.array(dtype=_t), wp.array(dtype=wp.int32), wp.array(dtype=_t)])
+    if _t is not wp.mat33:
+        wp.overload(combine_values, [wp.array(dtype=_t), wp.array(dtype=wp.int32), wp.array(dtype=_t)])

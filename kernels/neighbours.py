@@ -178,5 +178,5 @@ def gather(src: wp.array(dtype=Any), order: wp.array(dtype=wp.int32), dst: wp.ar
     dst[i] = src[order[i]]
 
 
-for _t in (float, wp.int32, wp.vec3):  # declared up front (subdomains permute from several threads)
+for _t in (float, wp.int32, wp.vec3, wp.mat33):  # declared up front (subdomains permute from several threads)
     wp.overload(gather, [wp.array(dtype=_t), wp.array(dtype=wp.int32), wp.array(dtype=_t)])

@@ -158,6 +158,7 @@ class DFSPHSolver:
             sim.launch(compute_gradient_correction, sim.num_fluid,
                        [sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume, sim.support_radius,
                         self.gradient_correction, self.corrected_factor])
+            sim.exchange(self.gradient_correction)  # L_j of the pressure force
 
     # -- Algorithm 1: the two projection loops -------------------------------------------
     def correct_divergence(self):
