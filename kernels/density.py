@@ -8,6 +8,16 @@ from .sph_kernel import cubic_kernel, cubic_kernel_gradient, cubic_kernel_zero
 wp.set_module_options({"enable_backward": False})
 
 
+@wp.func
+def dfsph_factor(grad_sum: wp.vec3, grad_sq: float, support_radius: float):
+    """1 / (|sum_j V_j grad W_ij|^2 + sum_j |V_j grad W_ij|^2) from those two sums (Bender & Koschier 2017), 0 when
+    the denominator is tiny (a particle with almost no neighbours)."""
+    denominator = wp.dot(grad_sum, grad_sum) + grad_sq
+    if denominator > 1.0e-6 / (support_radius * support_radius):
+        return 1.0 / denominator
+    return 0.0
+
+
 @wp.kernel
 def compute_density_and_factor(
     x: wp.array(dtype=wp.vec3),
@@ -54,8 +64,4 @@ def compute_density_and_factor(
     if concentration_gradient.shape[0] > 0:
         concentration_gradient[i] = grad_sum
     if factor.shape[0] > 0:
-        denominator = wp.dot(grad_sum, grad_sum) + grad_sq
-        if denominator > 1.0e-6 / (support_radius * support_radius):
-            factor[i] = 1.0 / denominator
-        else:
-            factor[i] = 0.0
+        factor[i] = dfsph_factor(grad_sum, grad_sq, support_radius)

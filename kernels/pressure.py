@@ -8,6 +8,7 @@ value accumulated over a step is a physical pressure that warm-starts the next s
 
 import warp as wp
 
+from .density import dfsph_factor
 from .free_surface import BAND, SURFACE
 from .particles import Boundary, Neighbours, boundary_velocity, separation
 from .sph_kernel import cubic_kernel_gradient
@@ -73,10 +74,7 @@ def compute_gradient_correction(
         g = fluid_volume * (li * cubic_kernel_gradient(separation(nb, xi, x[nb.fluid[k]]), support_radius))
         grad_sum += g
         grad_sq += wp.dot(g, g)
-    denominator = wp.dot(grad_sum, grad_sum) + grad_sq
-    factor[i] = 0.0
-    if denominator > 1.0e-6 / (support_radius * support_radius):
-        factor[i] = 1.0 / denominator
+    factor[i] = dfsph_factor(grad_sum, grad_sq, support_radius)
 
 
 @wp.func
@@ -143,22 +141,19 @@ def _pressure_acceleration_kernel(corrected: bool):
                 j = nb.fluid[k]
                 grad = cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius)
                 dv += fluid_volume * ((li + stiffness[j] * correction[j]) * grad)
-            for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
-                b = nb.boundary[k]
-                dvb = boundary.volume[b] * (li * cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius))
-                if b >= boundary.first_dynamic:
-                    wp.atomic_add(boundary.impulse, b, dt[0] * dvb)
-                dv += dvb
         else:
             for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
                 j = nb.fluid[k]
                 dv += fluid_volume * (ki + stiffness[j]) * cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius)
-            for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
-                b = nb.boundary[k]
-                dvb = boundary.volume[b] * ki * cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius)
-                if b >= boundary.first_dynamic:
-                    wp.atomic_add(boundary.impulse, b, dt[0] * dvb)
-                dv += dvb
+        for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
+            b = nb.boundary[k]
+            grad_b = cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius)
+            if wp.static(corrected):
+                grad_b = correction[i] * grad_b
+            dvb = boundary.volume[b] * ki * grad_b
+            if b >= boundary.first_dynamic:
+                wp.atomic_add(boundary.impulse, b, dt[0] * dvb)
+            dv += dvb
         v[i] = v[i] - dt[0] * dv
         if accumulate != 0:
             stiffness_sum[i] = stiffness_sum[i] + ki

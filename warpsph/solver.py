@@ -166,7 +166,7 @@ class DFSPHSolver:
         s = self.sim.scene.solver
         if not s.divergence_solver:
             return
-        self._solve(DIVERGENCE, compute_corrected_divergence_source if self.drift_by_positions else compute_divergence_source,
+        self._solve(DIVERGENCE, compute_corrected_divergence_source if self._corrected(DIVERGENCE) else compute_divergence_source,
                     self._divergence_inputs(),
                     s.divergence_max_error * 0.01, s.divergence_min_iterations, s.divergence_max_iterations)
 
@@ -192,11 +192,11 @@ class DFSPHSolver:
         s = self.sim.scene.solver
         tolerance = s.density_max_error * 0.01
         if self.drift_by_positions:
-            self._solve(DENSITY, compute_corrected_density_source, self._density_inputs(drift_weight=0.0, corrected=True),
+            self._solve(DENSITY, compute_corrected_density_source, self._density_inputs(DENSITY, drift_weight=0.0),
                         tolerance * RATE_TOLERANCE_FACTOR, s.min_iterations, s.max_iterations,
                         rate=(tolerance * RATE_TOLERANCE_PER_SECOND, tolerance * RATE_TOLERANCE_FLOOR))
             self.drift_velocity.zero_()
-            self._solve(DRIFT, compute_density_source, self._density_inputs(self.drift_velocity), tolerance,
+            self._solve(DRIFT, compute_density_source, self._density_inputs(DRIFT, self.drift_velocity), tolerance,
                         min(s.min_iterations, DRIFT_MAX_ITERATIONS), min(s.max_iterations, DRIFT_MAX_ITERATIONS),
                         velocity=self.drift_velocity)
             return
@@ -211,14 +211,13 @@ class DFSPHSolver:
     def _divergence_inputs(self):
         sim = self.sim
         return self._common() + [self._factor(DIVERGENCE), self.surface, self.free_surface, sim.fluid_volume,
-                                 sim.support_radius, sim.dt, self.gradient_correction]
+                                 sim.support_radius, sim.dt, self._correction(DIVERGENCE)]
 
-    def _density_inputs(self, velocity=None, drift_weight=1.0, corrected=False):
+    def _density_inputs(self, kind=DENSITY, velocity=None, drift_weight=1.0):
         sim = self.sim
-        return self._common(velocity) + [sim.fluid.density, self.corrected_factor if corrected else sim.fluid.factor,
-                                         self.surface, self.free_surface,
+        return self._common(velocity) + [sim.fluid.density, self._factor(kind), self.surface, self.free_surface,
                                          sim.fluid_volume, sim.rest_density, sim.support_radius, sim.dt, drift_weight,
-                                         self.gradient_correction if corrected else self.no_gradient_correction]
+                                         self._correction(kind)]
 
     def _corrected(self, kind):
         """Whether a solve of ``kind`` uses the corrected gradient: the periodic box's divergence solve and rate
@@ -230,13 +229,16 @@ class DFSPHSolver:
         pass's elsewhere."""
         return self.corrected_factor if self._corrected(kind) else self.sim.fluid.factor
 
+    def _correction(self, kind):
+        """L_i for a solve of ``kind`` where :meth:`_corrected`, else an empty array (the kernels do not read it)."""
+        return self.gradient_correction if self._corrected(kind) else self.no_gradient_correction
+
     def _apply(self, kind, accumulate, velocity):
         sim = self.sim
         corrected = self._corrected(kind)
         sim.launch(apply_corrected_pressure_acceleration if corrected else apply_pressure_acceleration, sim.num_fluid,
                    [self.stiffness, sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume,
-                    sim.support_radius, sim.dt, accumulate, self.pressure_sum[kind],
-                    self.gradient_correction if corrected else self.no_gradient_correction, velocity])
+                    sim.support_radius, sim.dt, accumulate, self.pressure_sum[kind], self._correction(kind), velocity])
 
     def _measure(self, kind, source_kernel, inputs, max_error, min_it, max_it, first, rate=(0.0, 0.0)):
         """Source, stiffness and error of the current velocities, and the loop's decision. The first
