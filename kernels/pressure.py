@@ -279,6 +279,7 @@ def warm_start_pressure(
     surface: wp.array(dtype=wp.int32),
     free_surface: wp.array(dtype=wp.int32),
     pressure_sum: wp.array(dtype=float),
+    bulk_applied: int,
     stiffness: wp.array(dtype=float),
 ):
     """Warm start: k_i = 0.5 x last step's accumulated k_i, rescaled from dt_prev to dt (dt^2 for the
@@ -290,11 +291,11 @@ def warm_start_pressure(
     pressure: still diverging, still compressed, or still expanded in the signed bulk) in the divergence
     solver, on the free surface and its band, and in a box without free surface (``free_surface[0]`` 0):
     clamped iterations cannot take back a pressure that is no longer needed where particles can separate.
-    In the bulk of a free-surface scene the density solver keeps it whole, as before the cap and sign test:
-    there it is mostly the hydrostatic load, still needed, and dropping it where a particle is momentarily
-    expanded cost the 1M dam break 0.6-0.8 density iterations a step on the H100 with no change in the
-    dam front or the hydrostatic tank (docs/notes/solver.md)."""
+    ``bulk_applied`` 1 (the density solve of a free-surface scene): the bulk's warm start was applied
+    whole before this measure (:func:`warm_start_bulk`) and is left alone here."""
     i = wp.tid()
+    if bulk_applied != 0 and surface[i] != SURFACE and surface[i] != BAND:
+        return
     h = dt[0]
     hp = dt_previous[0]
     scale = h * h
@@ -311,6 +312,32 @@ def warm_start_pressure(
     k = k * WARM_START_FACTOR / scale
     stiffness[i] = k
     pressure_sum[i] = 0.0
+
+
+@wp.kernel
+def warm_start_bulk(
+    pressure_sum: wp.array(dtype=float),
+    dt: wp.array(dtype=float),
+    dt_previous: wp.array(dtype=float),
+    surface: wp.array(dtype=wp.int32),
+    stiffness: wp.array(dtype=float),
+):
+    """The bulk's warm start of the density solve in a free-surface scene, applied before its first measure:
+    k_i = 0.5 x last step's accumulated k_i (rescaled by (dt_prev/dt)^2), whole, into ``stiffness`` and
+    ``pressure_sum``; 0 on the free surface and its band, whose warm start :func:`warm_start_pressure` tests
+    against the measured source. In the bulk it is mostly the hydrostatic load, still needed; as the first
+    iteration's stiffness, added after the measure, it agitated a resting tank at small steps (50 across,
+    dt 0.16 ms: up to 1.2 m/s), and sign-testing it cost the 1M dam break 0.6-0.8 iterations a step
+    (docs/notes/solver.md)."""
+    i = wp.tid()
+    if surface[i] == SURFACE or surface[i] == BAND:
+        stiffness[i] = 0.0
+        return
+    h = dt[0]
+    hp = dt_previous[0]
+    k = pressure_sum[i] * WARM_START_FACTOR * hp * hp / (h * h)
+    stiffness[i] = k
+    pressure_sum[i] = k
 
 
 @wp.kernel
@@ -371,3 +398,4 @@ def update_solver_status(
             max_iteration_streak[kind] = max_iteration_streak[kind] + 1
         else:
             max_iteration_streak[kind] = 0
+

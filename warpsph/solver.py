@@ -32,6 +32,7 @@ from warpsph.kernels.pressure import (
     reduce_error,
     reduce_source_sum,
     remove_mean_source,
+    warm_start_bulk,
     update_solver_status,
     warm_start_pressure,
 )
@@ -219,6 +220,11 @@ class DFSPHSolver:
                                          sim.fluid_volume, sim.rest_density, sim.support_radius, sim.dt, drift_weight,
                                          self._correction(kind)]
 
+    def _bulk_first(self, kind):
+        """Whether a solve of ``kind`` applies the bulk's warm start before its first measure (kernels/pressure.py
+        warm_start_bulk): the density solve of a free-surface scene."""
+        return kind == DENSITY and not self.fills_domain
+
     def _corrected(self, kind):
         """Whether a solve of ``kind`` uses the corrected gradient: the periodic box's divergence solve and rate
         half (correct_density)."""
@@ -256,7 +262,8 @@ class DFSPHSolver:
         if first and sim.scene.solver.warm_start:  # last step's pressure (kernels/pressure.py says where it is capped)
             sim.launch(warm_start_pressure, sim.num_fluid,
                        [self.error, self._factor(kind), sim.dt, sim.dt_previous, int(kind == DIVERGENCE),
-                        self.surface, self.free_surface, self.pressure_sum[kind], self.stiffness])
+                        self.surface, self.free_surface, self.pressure_sum[kind], int(self._bulk_first(kind)),
+                        self.stiffness])
         sim.launch(reduce_error, min(sim.num_fluid, REDUCE_THREADS), [self.error, sim.num_fluid, self.error_stats])
         sim.allreduce((self.error_stats, "sm-"))
         sim.launch(update_solver_status, 1,
@@ -270,8 +277,15 @@ class DFSPHSolver:
         ``pressure_sum[kind]`` and applies it to ``velocity`` (default: the fluid's). ``rate`` = (per second, least):
         a tolerance per unit time, rate[0] x dt within [rate[1], max_error] (none when rate[0] is 0)."""
         velocity = self.sim.fluid.v if velocity is None else velocity
-        if not self.sim.scene.solver.warm_start:
+        sim = self.sim
+        if not sim.scene.solver.warm_start:
             self.pressure_sum[kind].zero_()
+        elif self._bulk_first(kind):
+            sim.launch(warm_start_bulk, sim.num_fluid,
+                       [self.pressure_sum[kind], sim.dt, sim.dt_previous, self.surface, self.stiffness])
+            sim.exchange(self.stiffness)
+            self._apply(kind, 0, velocity)
+            sim.exchange(velocity)
         self._measure(kind, source_kernel, inputs, max_error, min_it, max_it, True, rate)
 
         def iteration():
@@ -311,10 +325,11 @@ class DFSPHSolver:
         return float(self.average_error[DIVERGENCE].numpy()[0]), float(self.average_error[DENSITY].numpy()[0])
 
     def pressure_field(self):
-        """Pressure [Pa] of the last density solve per particle (host copy): p = k rho^2 / rho0 of the
-        accumulated stiffness, with the densities of that step."""
+        """Pressure [Pa] per particle of the last step (host copy): p = k rho^2 / rho0 of the stiffness that the
+        divergence and density solves applied (together, the pressure force), with the densities of that step."""
         sim = self.sim
-        return sim.host(self.pressure_sum[DENSITY]) * sim.host(sim.fluid.density) ** 2 / sim.rest_density
+        k = sim.host(self.pressure_sum[DENSITY]) + sim.host(self.pressure_sum[DIVERGENCE])
+        return k * sim.host(sim.fluid.density) ** 2 / sim.rest_density
 
     def free_surface_count(self):
         """Fluid particles on the free surface at the last step (host read)."""
