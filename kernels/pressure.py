@@ -398,4 +398,3 @@ def update_solver_status(
             max_iteration_streak[kind] = max_iteration_streak[kind] + 1
         else:
             max_iteration_streak[kind] = 0
-

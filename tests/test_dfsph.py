@@ -137,13 +137,13 @@ def test_warm_start_saves_density_iterations(settled_tank):
 
 def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
     """The density solver's warm start (kernels/pressure.py): in the bulk of a free-surface scene half of
-    last step's pressure, whole, whatever this step's source; on the surface and its band, in the
-    divergence solver and in a box without free surface, capped and dropped where the source no longer
-    asks for it."""
+    last step's pressure, whole, whatever this step's source, applied before the first measure; on the
+    surface and its band, in the divergence solver and in a box without free surface, capped and dropped
+    where the source no longer asks for it."""
     import warp as wp
 
     from warpsph.kernels.free_surface import BAND, SURFACE
-    from warpsph.kernels.pressure import WARM_START_CAP, warm_start_pressure
+    from warpsph.kernels.pressure import WARM_START_CAP, warm_start_bulk, warm_start_pressure
 
     dt = 1e-3
     factor = 2.0
@@ -177,6 +177,21 @@ def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
                                                    arrays["stiffness"]], device=device)
         np.testing.assert_allclose(arrays["stiffness"].numpy(), expected[kind], rtol=1e-5, err_msg=kind)
         assert not arrays["pressure_sum"].numpy().any()
+
+    # the density solve of a free-surface scene: the bulk's half, whole and rescaled by (dt_prev/dt)^2, before the
+    # first measure (it stays in pressure_sum, already applied); the surface and band as above, after it
+    arrays["dt_previous"] = wp.array([2 * dt], dtype=float, device=device)
+    arrays["pressure_sum"] = wp.array(pressure, dtype=float, device=device)
+    arrays["free_surface"] = wp.array([1], dtype=wp.int32, device=device)
+    wp.launch(warm_start_bulk, 5, inputs=[arrays["pressure_sum"], arrays["dt"], arrays["dt_previous"], arrays["surface"],
+                                          arrays["stiffness"]], device=device)
+    np.testing.assert_allclose(arrays["stiffness"].numpy(), [2 * big, 2 * big, 0, 0, 0], rtol=1e-5)
+    wp.launch(warm_start_pressure, 5, inputs=[arrays["error"], arrays["factor"], arrays["dt"], arrays["dt_previous"], 0,
+                                               arrays["surface"], arrays["free_surface"], arrays["pressure_sum"], 1,
+                                               arrays["stiffness"]], device=device)
+    surface_part = [0.0, 0.0, 0.0, capped, 0.005 * big * 4]  # (dt_prev/dt)^2 = 4: the band's 4x stays capped
+    np.testing.assert_allclose(arrays["stiffness"].numpy(), [2 * big, 2 * big] + surface_part[2:], rtol=1e-5)
+    np.testing.assert_allclose(arrays["pressure_sum"].numpy(), [2 * big, 2 * big, 0, 0, 0], rtol=1e-5)
 
 
 def test_rate_tolerance_is_per_unit_time_within_its_bounds(device):

@@ -32,8 +32,8 @@ from warpsph.kernels.pressure import (
     reduce_error,
     reduce_source_sum,
     remove_mean_source,
-    warm_start_bulk,
     update_solver_status,
+    warm_start_bulk,
     warm_start_pressure,
 )
 from warpsph.kernels.shifting import apply_shift, compute_shift
@@ -248,7 +248,8 @@ class DFSPHSolver:
 
     def _measure(self, kind, source_kernel, inputs, max_error, min_it, max_it, first, rate=(0.0, 0.0)):
         """Source, stiffness and error of the current velocities, and the loop's decision. The first
-        measure of a solve replaces the stiffness by the warm start (when on): the loop's first apply uses it."""
+        measure of a solve replaces the stiffness by the warm start (when on; the bulk's of :meth:`_bulk_first`
+        is applied before it): the loop's first apply uses it."""
         sim = self.sim
         sim.launch(source_kernel, sim.num_fluid, inputs + [self.error, self.stiffness])
         # a box without free surface: the source less its mean (no-ops otherwise)
