@@ -39,7 +39,7 @@ from warpsph.kernels.pressure import (
 from warpsph.kernels.shifting import apply_shift, compute_shift
 
 DIVERGENCE, DENSITY, DRIFT = 0, 1, 2
-# In a box without free surface the density solve is split (DFSPHSolver.correct_density). Its rate half's tolerance is per unit
+# In a periodic box the density solve is split (DFSPHSolver.correct_density). Its rate half's tolerance is per unit
 # time: RATE_TOLERANCE_PER_SECOND x dt of solver.density_max_error, between RATE_TOLERANCE_FLOOR and
 # RATE_TOLERANCE_FACTOR of it; its drift half stops after at most DRIFT_MAX_ITERATIONS. Taylor-Green at 256 across: 7.5 %
 # at the full per-step tolerance, 0.67 % at 0.1 of it, 0.55 % at 0.03 (this rate); a fixed 0.03 ran into
@@ -112,9 +112,10 @@ class DFSPHSolver:
         # per solver: [iterations summed over steps, solves]
         self.totals = z("pressure", 4, dtype=wp.int64)
         self.max_iteration_streak = z("pressure", 2, dtype=wp.int32)
-        # a box the fluid fills (periodic or walled) corrects its density drift through the positions only
-        # (correct_density), and its divergence solve and rate half use the corrected kernel gradient
-        self.drift_by_positions = self.fills_domain
+        # a periodic box without walls corrects its density drift through the positions only (correct_density);
+        # the scene rejects an axis named twice, so three names are the three axes
+        self.drift_by_positions = self.fills_domain and len(sim.scene.domain.periodic) == 3
+        # ... and its divergence solve and rate half use the corrected kernel gradient (none elsewhere)
         self.gradient_correction = self.no_gradient_correction = sim.zeros("pressure", 0, dtype=wp.mat33)
         if self.drift_by_positions:  # the drift solve's velocity, and its stiffness for the warm start
             self.drift_velocity = sim.per_particle("pressure", wp.vec3)
@@ -129,7 +130,7 @@ class DFSPHSolver:
         carry = sim.state.carry  # what the next step reads: the warm start and the iteration statistics
         carry("solver/totals", self.totals)
         carry("solver/max_iteration_streak", self.max_iteration_streak)
-        # the drift half's warm start (a box without free surface) is not kept: checkpoints stay as they were
+        # the drift half's warm start (a periodic box) is not kept: checkpoints stay as they were
         for n, a in enumerate(self.pressure_sum[:2]):
             carry(f"solver/pressure_sum_{n}", a)
 
@@ -154,7 +155,7 @@ class DFSPHSolver:
         combined = sim.allreduce((self.surface_count, "s"), (self.free_surface, "m"), read=True)
         # on subdomains the regime is known on the host: a free-surface step skips the mean source's reduction
         self.free_surface_known = None if combined is None else int(combined[1][0])
-        if self.drift_by_positions:  # the box's corrected kernel gradient, for its divergence and rate solves
+        if self.drift_by_positions:  # the periodic box's corrected kernel gradient, for its divergence and rate solves
             sim.launch(compute_gradient_correction, sim.num_fluid,
                        [sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume, sim.support_radius,
                         self.gradient_correction, self.corrected_factor])
@@ -173,7 +174,7 @@ class DFSPHSolver:
     def correct_density(self):
         """v~ := v~ + dt a_proj until rho*(x + dt v~) ~ rho0 (projection).
 
-        In a box the fluid fills (periodic or walled, no free surface) the solve is split in two. The first
+        In a box periodic along x, y and z (no walls, no free surface) the solve is split in two. The first
         half drives only this step's density change, dt D(rho/rho0)/Dt of v~, to zero, at a tolerance per unit
         time (RATE_TOLERANCE_PER_SECOND): its pressure is the flow's and its velocity stays. The second drives the density error
         the step starts with, rho/rho0 - 1, to zero with a velocity of its own that moves the positions in
@@ -185,10 +186,9 @@ class DFSPHSolver:
         particle arrangement anisotropic, and there the plain SPH divergence of a divergence-free field, and the
         plain gradient of a smooth pressure, are smooth errors of order one (Taylor-Green at 16 / 24 / 32 across:
         7.00 / 4.01 / 2.88 % plain, 2.39 / 1.55 / 1.19 % corrected). The drift half keeps the plain operators of
-        the summation density it corrects. Beside walls the drift half may stop at its cap (DRIFT_MAX_ITERATIONS:
-        the Akinci walls' density is partly a standing drift); with the corrected rate half a walled box still
-        gains from the split (Lamb-Oseen at 16 / 24 / 32 across: 3.67 / 1.85 / 2.05 % with the single solve,
-        2.25 / 1.85 / 1.78 % split and corrected; the split alone, plain, was worse).
+        the summation density it corrects. With walls the drift half does not converge (the Akinci walls' density
+        is a standing drift; Lamb-Oseen ran into its cap every step at 256 across), so a walled box keeps the
+        single solve.
         """
         s = self.sim.scene.solver
         tolerance = s.density_max_error * 0.01
@@ -226,7 +226,7 @@ class DFSPHSolver:
         return kind == DENSITY and not self.fills_domain
 
     def _corrected(self, kind):
-        """Whether a solve of ``kind`` uses the corrected gradient: a box's divergence solve and rate
+        """Whether a solve of ``kind`` uses the corrected gradient: the periodic box's divergence solve and rate
         half (correct_density)."""
         return self.drift_by_positions and kind != DRIFT
 
@@ -298,7 +298,7 @@ class DFSPHSolver:
         wp.capture_while(self.condition, iteration)
 
     def shift_particles(self):
-        """After the position update: the density drift's correction (a box without free surface, see
+        """After the position update: the density drift's correction (a periodic box, see
         :meth:`correct_density`), then particle shifting down the concentration gradient of the step's
         density pass (none when ``solver.shifting`` is 0)."""
         sim, f = self.sim, self.sim.fluid
