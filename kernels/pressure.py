@@ -57,9 +57,14 @@ def compute_gradient_correction(
     i = wp.tid()
     xi = x[i]
     m = wp.mat33(0.0)
+    g_sum = wp.vec3(0.0)  # sum_f V_j grad W_ij
+    g_outer = wp.mat33(0.0)  # sum_f (V_j grad W_ij) (x) (V_j grad W_ij)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         xij = separation(nb, xi, x[nb.fluid[k]])
-        m += fluid_volume * wp.outer(-xij, cubic_kernel_gradient(xij, support_radius))
+        g = fluid_volume * cubic_kernel_gradient(xij, support_radius)
+        m += wp.outer(-xij, g)
+        g_sum += g
+        g_outer += wp.outer(g, g)
     for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
         b = nb.boundary[k]
         xib = separation(nb, xi, boundary.x[b])
@@ -68,13 +73,8 @@ def compute_gradient_correction(
     if wp.abs(wp.determinant(m)) > 0.1:
         li = wp.transpose(wp.inverse(m))
     correction[i] = li
-    grad_sum = wp.vec3(0.0)
-    grad_sq = float(0.0)
-    for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
-        g = fluid_volume * (li * cubic_kernel_gradient(separation(nb, xi, x[nb.fluid[k]]), support_radius))
-        grad_sum += g
-        grad_sq += wp.dot(g, g)
-    factor[i] = dfsph_factor(grad_sum, grad_sq, support_radius)
+    # sum_f |L_i V_j grad W_ij|^2 = L_i^T L_i : sum_f (V_j grad W_ij) (x) (V_j grad W_ij): one neighbour pass
+    factor[i] = dfsph_factor(li * g_sum, wp.ddot(wp.transpose(li) * li, g_outer), support_radius)
 
 
 @wp.func

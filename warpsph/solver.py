@@ -277,8 +277,8 @@ class DFSPHSolver:
         """One pressure solve of ``kind`` (DIVERGENCE, DENSITY or DRIFT) that accumulates its stiffness in
         ``pressure_sum[kind]`` and applies it to ``velocity`` (default: the fluid's). ``rate`` = (per second, least):
         a tolerance per unit time, rate[0] x dt within [rate[1], max_error] (none when rate[0] is 0)."""
-        velocity = self.sim.fluid.v if velocity is None else velocity
         sim = self.sim
+        velocity = sim.fluid.v if velocity is None else velocity
         if not sim.scene.solver.warm_start:
             self.pressure_sum[kind].zero_()
         elif self._bulk_first(kind):
@@ -290,9 +290,9 @@ class DFSPHSolver:
         self._measure(kind, source_kernel, inputs, max_error, min_it, max_it, True, rate)
 
         def iteration():
-            self.sim.exchange(self.stiffness)  # k_j of the apply
+            sim.exchange(self.stiffness)  # k_j of the apply
             self._apply(kind, 1, velocity)
-            self.sim.exchange(velocity)  # v_j of the next source
+            sim.exchange(velocity)  # v_j of the next source
             self._measure(kind, source_kernel, inputs, max_error, min_it, max_it, False, rate)
 
         wp.capture_while(self.condition, iteration)
@@ -318,8 +318,8 @@ class DFSPHSolver:
         return tuple(int(v) for v in self.totals.numpy())
 
     def drift_iteration_totals(self):
-        """(drift iterations, drift solves) so far: the split density solve's drift half (a box without free
-        surface; (0, 0) elsewhere)."""
+        """(drift iterations, drift solves) so far: the split density solve's drift half (a periodic box; (0, 0)
+        elsewhere)."""
         return tuple(int(v) for v in self.drift_totals.numpy()) if self.drift_by_positions else (0, 0)
 
     def last_errors(self):
