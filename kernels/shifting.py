@@ -3,7 +3,11 @@
 Under a signed pressure SPH particles pair up (tensile instability), and a disordered distribution has
 a higher summation density than the lattice at the same number density. Shifting moves each bulk
 particle down the gradient of the particle concentration C_i = sum_j V_j W_ij after the position
-update, which keeps the distribution close to uniform. Near the free surface the shift is tangential
+update, which keeps the distribution close to uniform. Only the particle-scale part of grad C moves a particle:
+grad C less its kernel-weighted mean over the neighbours. The smooth part is not a disorder but the
+curvature of the particle rows (a vortex's core reads grad C inwards on every particle); shifted out along it,
+the core was pulled back in by the density solve every step, and each such cycle added angular momentum
+(Lamb-Oseen's core spun up 10 %, docs/notes/solver.md). Near the free surface the shift is tangential
 (its component along grad C, the surface normal, removed) and on the surface it is off, so the
 surface is not pulled apart (Lind et al. 2012, section 3.3). Lind et al.'s anti-pairing factor and the
 first-order Taylor correction of the velocity to the shifted position both injected energy on
@@ -12,8 +16,9 @@ Taylor-Green (docs/notes/solver.md), so the shift is the plain -D grad C and the
 
 import warp as wp
 
-from .free_surface import BAND, SURFACE, WALL
-from .particles import wrap_into_domain
+from .free_surface import BAND, BULK, SURFACE, WALL
+from .particles import Neighbours, separation, wrap_into_domain
+from .sph_kernel import cubic_kernel, cubic_kernel_zero
 
 wp.set_module_options({"enable_backward": False})
 
@@ -30,6 +35,8 @@ def limit_length(d: wp.vec3, max_length: float):
 @wp.kernel
 def compute_shift(
     concentration_gradient: wp.array(dtype=wp.vec3),
+    x: wp.array(dtype=wp.vec3),
+    nb: Neighbours,
     surface: wp.array(dtype=wp.int32),
     free_surface: wp.array(dtype=wp.int32),
     support_radius: float,
@@ -37,12 +44,14 @@ def compute_shift(
     max_speed_sq: wp.array(dtype=float),
     coefficient: float,
     max_shift: float,
+    high_pass: int,
     shift: wp.array(dtype=wp.vec3),
 ):
-    """shift_i = -D grad C_i, D = coefficient h max|v| dt (Skillen et al. 2013 with the step's largest
-    speed, h = H / 2), |shift_i| <= max_shift; grad C_i = sum_f V_j grad W_ij + sum_b V_b grad W_ib from
-    the density pass at the step's start. In the surface band and beside walls only its part normal to
-    grad C (which is the surface's or the wall's normal there), none on the free surface. Only in a box
+    """shift_i = -D (grad C_i - <grad C>_i), D = coefficient h max|v| dt (Skillen et al. 2013 with the step's
+    largest speed, h = H / 2), |shift_i| <= max_shift; grad C_i = sum_f V_j grad W_ij + sum_b V_b grad W_ib
+    from the density pass at the step's start, <grad C>_i = sum_j W_ij grad C_j / sum_j W_ij over i and its
+    fluid neighbours. In the surface band and beside walls only its part normal to grad C_i (which is the
+    surface's or the wall's normal there), none on the free surface. Only in a box
     without free surface (``free_surface[0]`` 0): with one, the shift from the step-start grad C
     compressed a 16K dam break to 1.15 rho0 (docs/notes/solver.md)."""
     i = wp.tid()
@@ -50,6 +59,17 @@ def compute_shift(
     flag = surface[i]
     if flag != SURFACE and free_surface[0] == 0:
         grad_c = concentration_gradient[i]
+        if flag == BULK and high_pass != 0:
+            xi = x[i]
+            weight = cubic_kernel_zero(support_radius)
+            mean = weight * grad_c
+            for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
+                j = nb.fluid[k]
+                if surface[j] == BULK:
+                    w = cubic_kernel(wp.length(separation(nb, xi, x[j])), support_radius)
+                    mean += w * concentration_gradient[j]
+                    weight += w
+            grad_c = grad_c - mean / weight
         d = -coefficient * 0.5 * support_radius * wp.sqrt(max_speed_sq[0]) * dt[0] * grad_c
         if flag == BAND or flag == WALL:
             n = wp.normalize(grad_c)

@@ -27,6 +27,8 @@ def estimate_bytes(scene, num_fluid, num_boundary):
     """Device bytes a simulation of ``scene`` allocates (an estimate, slightly high)."""
     from warpsph.iisph import IISPHSolver
     from warpsph.models import plugin_of
+    from warpsph.models.viscosity import Viscosity
+    from warpsph.solver import fluid_fills_walled_box
 
     from warpsph.neighbours import grid_geometry
 
@@ -38,6 +40,8 @@ def estimate_bytes(scene, num_fluid, num_boundary):
     else:
         per_fluid = FLUID_STATE + SOLVER + SORT + NEIGHBOUR_ROWS + NEIGHBOUR_LISTS
     per_fluid += sum(p.bytes_per_particle for p in plugins)  # each model's own arrays
+    if scene.fluid.viscosity > 0.0 and fluid_fills_walled_box(scene, num_fluid):  # the corrected viscosity's gradient
+        per_fluid += Viscosity.corrected_bytes_per_particle
     per_fluid += SHARED_VORTICITY if any(p.needs_vorticity for p in plugins) else 0
     per_fluid += 4 * max(scratch)  # the scratch pool (DFSPH: if wider than its own, counted in SOLVER)
     _, dims = grid_geometry(scene.domain, 4.0 * scene.particle_radius, num_fluid + num_boundary)

@@ -77,6 +77,14 @@ def fluid_fills_domain(scene, num_fluid):
     return num_fluid * scene.particle_diameter ** 3 >= FILLED_FRACTION * volume
 
 
+def fluid_fills_walled_box(scene, num_fluid):
+    """Whether the fluid fills a domain with walls (a full tank; periodic along two axes at most): its density
+    solve is the single one, which corrects the step's density drift through the velocity. There the shift
+    keeps only its particle-scale part (:func:`compute_shift`) and the viscosity is the corrected operator
+    (kernels/viscosity.py)."""
+    return fluid_fills_domain(scene, num_fluid) and len(scene.domain.periodic) < 3
+
+
 class DFSPHSolver:
     needs_factor = True  # the density pass writes the DFSPH factor
     scratch_columns = 2  # stiffness and error live within a solve: they share the models' scratch pool
@@ -93,15 +101,15 @@ class DFSPHSolver:
         self.error = sim.scratch(float, 1)
         self.position_divergence = self.error  # written by the density pass, read before the solves
         self.shifting = sim.scene.solver.shifting
+        self.fills_domain = fluid_fills_domain(sim.scene, sim.global_count)
         self.concentration_gradient = sim.zeros("pressure", 0, dtype=wp.vec3)
-        if self.shifting > 0.0:  # grad C from the density pass; the shift after the solves (the pool is free again)
+        if self.shifting > 0.0 and self.fills_domain:  # grad C from the density pass; the shift after the solves
             self.concentration_gradient = sim.per_particle("pressure", wp.vec3)
             self.shift = sim.scratch(wp.vec3, 0)
         self.surface = sim.per_particle("pressure", wp.int32)  # BULK / BAND / SURFACE / WALL
         self.surface_count = z("pressure", 1, dtype=wp.int32)  # surface particles this step (statistics)
         # the regime: 1 = p >= 0 everywhere (a free surface), 0 = signed in the bulk (a confined box this step)
         self.free_surface = z("pressure", 1, dtype=wp.int32)
-        self.fills_domain = fluid_fills_domain(sim.scene, sim.global_count)
         self.free_surface_known = None
         # accumulated stiffness of the last solve of each kind, for the warm start
         self.pressure_sum = [sim.per_particle("pressure"), sim.per_particle("pressure")]
@@ -300,16 +308,19 @@ class DFSPHSolver:
     def shift_particles(self):
         """After the position update: the density drift's correction (a periodic box, see
         :meth:`correct_density`), then particle shifting down the concentration gradient of the step's
-        density pass (none when ``solver.shifting`` is 0)."""
+        density pass (none when ``solver.shifting`` is 0, nor where the fluid does not fill its domain: a
+        free-surface scene keeps p >= 0 and :func:`compute_shift` moves nothing there)."""
         sim, f = self.sim, self.sim.fluid
         if self.drift_by_positions:
             sim.launch(advect_positions, sim.num_fluid, [self.drift_velocity, sim.dt, sim.neighbours.lower,
                                                          sim.neighbours.period, f.x])
-        if self.shifting <= 0.0:
+        if self.shifting <= 0.0 or not self.fills_domain:  # (a free-surface scene shifts nothing)
             return
+        sim.exchange(self.concentration_gradient)  # read at the neighbours
         sim.launch(compute_shift, sim.num_fluid,
-                   [self.concentration_gradient, self.surface, self.free_surface, sim.support_radius, sim.dt, sim.max_speed_sq,
-                    self.shifting, MAX_SHIFT * sim.scene.particle_diameter, self.shift])
+                   [self.concentration_gradient, f.x, sim.neighbours.lists, self.surface, self.free_surface,
+                    sim.support_radius, sim.dt, sim.max_speed_sq, self.shifting,
+                    MAX_SHIFT * sim.scene.particle_diameter, int(not self.drift_by_positions), self.shift])
         sim.launch(apply_shift, sim.num_fluid, [self.shift, sim.neighbours.lower, sim.neighbours.period, f.x])
 
     # -- statistics (host reads, outside the step) -----------------------------------------

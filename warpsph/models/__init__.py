@@ -90,6 +90,13 @@ class ModelContext:
     dt = property(lambda self: self._sim.dt, doc="This step's dt [s], a device array of one.")
 
     @property
+    def fills_walled_box(self):
+        """Whether the fluid fills a domain with walls (a full tank; not a periodic box, no free surface)."""
+        from warpsph.solver import fluid_fills_walled_box
+
+        return fluid_fills_walled_box(self._sim.scene, self._sim.global_count)
+
+    @property
     def vorticity(self):
         """The shared vorticity of v~ (eq 6) this step, or None when no model asked for it."""
         field = self._sim.vorticity_field
