@@ -68,7 +68,9 @@ def compute_gradient_correction(
     for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
         b = nb.boundary[k]
         xib = separation(nb, xi, boundary.x[b])
-        m += boundary.volume[b] * wp.outer(-xib, cubic_kernel_gradient(xib, support_radius))
+        gb = boundary.volume[b] * cubic_kernel_gradient(xib, support_radius)
+        m += wp.outer(-xib, gb)
+        g_sum += gb
     li = wp.identity(3, dtype=float)
     if wp.abs(wp.determinant(m)) > 0.1:
         li = wp.transpose(wp.inverse(m))
@@ -125,7 +127,7 @@ def _pressure_acceleration_kernel(corrected: bool):
         the equal and opposite impulse dt V_b k_i grad W_ib (per unit mass of i). With ``accumulate``
         set, k_i is added to ``stiffness_sum`` (the pressure used in this step, for warm start).
 
-        The periodic box's :data:`apply_corrected_pressure_acceleration` takes the corrected gradient, L_i of
+        In a box the fluid fills :data:`apply_corrected_pressure_acceleration` takes the corrected gradient, L_i of
         :func:`compute_gradient_correction` (the plain kernel does not read ``correction``): v_i -= dt
         (sum_f V_j (k_i L_i + k_j L_j) grad W_ij + sum_b V_b k_i L_i grad W_ib), the negative adjoint of
         :func:`corrected_density_rate`. So the pressure does no work on a velocity whose corrected divergence is

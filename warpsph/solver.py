@@ -123,12 +123,13 @@ class DFSPHSolver:
         # a periodic box without walls corrects its density drift through the positions only (correct_density);
         # the scene rejects an axis named twice, so three names are the three axes
         self.drift_by_positions = self.fills_domain and len(sim.scene.domain.periodic) == 3
-        # ... and its divergence solve and rate half use the corrected kernel gradient (none elsewhere)
+        # a box the fluid fills (periodic or walled) solves with the corrected kernel gradient (:meth:`_corrected`)
         self.gradient_correction = self.no_gradient_correction = sim.zeros("pressure", 0, dtype=wp.mat33)
-        if self.drift_by_positions:  # the drift solve's velocity, and its stiffness for the warm start
-            self.drift_velocity = sim.per_particle("pressure", wp.vec3)
+        if self.fills_domain:
             self.gradient_correction = sim.per_particle("pressure", wp.mat33)  # L_i, recomputed every step
             self.corrected_factor = sim.per_particle("pressure")  # ... and the factor of the corrected solves
+        if self.drift_by_positions:  # the drift solve's velocity, and its stiffness for the warm start
+            self.drift_velocity = sim.per_particle("pressure", wp.vec3)
             self.pressure_sum.append(sim.per_particle("pressure"))
             self.average_error.append(z("pressure", 1))
             # its statistics apart: a drift solve that stops at its cap leaves the rest to the next step, so
@@ -163,7 +164,7 @@ class DFSPHSolver:
         combined = sim.allreduce((self.surface_count, "s"), (self.free_surface, "m"), read=True)
         # on subdomains the regime is known on the host: a free-surface step skips the mean source's reduction
         self.free_surface_known = None if combined is None else int(combined[1][0])
-        if self.drift_by_positions:  # the periodic box's corrected kernel gradient, for its divergence and rate solves
+        if self.fills_domain:  # the corrected kernel gradient of a box the fluid fills (:meth:`_corrected`)
             sim.launch(compute_gradient_correction, sim.num_fluid,
                        [sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume, sim.support_radius,
                         self.gradient_correction, self.corrected_factor])
@@ -195,8 +196,12 @@ class DFSPHSolver:
         plain gradient of a smooth pressure, are smooth errors of order one (Taylor-Green at 16 / 24 / 32 across:
         7.00 / 4.01 / 2.88 % plain, 2.39 / 1.55 / 1.19 % corrected). The drift half keeps the plain operators of
         the summation density it corrects. With walls the drift half does not converge (the Akinci walls' density
-        is a standing drift; Lamb-Oseen ran into its cap every step at 256 across), so a walled box keeps the
-        single solve.
+        is a standing drift; Lamb-Oseen ran into its cap every step at 256 across), so a box with walls that the
+        fluid fills keeps the single solve, with the corrected gradient: the plain one's pressure force, on the
+        arrangement a vortex shears, has a part along the streamlines that took 2-3 % of the angular momentum
+        inside Lamb-Oseen's core region by T and grew with resolution (L1 0.92 / 1.33 / 2.17 % at 128 / 256 / 512
+        across; corrected 0.69 / 0.39 / 0.19 %, docs/notes/solver.md). Free-surface scenes keep the plain
+        operators.
         """
         s = self.sim.scene.solver
         tolerance = s.density_max_error * 0.01
@@ -209,8 +214,8 @@ class DFSPHSolver:
                         min(s.min_iterations, DRIFT_MAX_ITERATIONS), min(s.max_iterations, DRIFT_MAX_ITERATIONS),
                         velocity=self.drift_velocity)
             return
-        self._solve(DENSITY, compute_density_source, self._density_inputs(), tolerance, s.min_iterations,
-                    s.max_iterations)
+        self._solve(DENSITY, compute_corrected_density_source if self._corrected(DENSITY) else compute_density_source,
+                    self._density_inputs(), tolerance, s.min_iterations, s.max_iterations)
 
     # -------------------------------------------------------------------------------------
     def _common(self, velocity=None):
@@ -234,9 +239,9 @@ class DFSPHSolver:
         return kind == DENSITY and not self.fills_domain
 
     def _corrected(self, kind):
-        """Whether a solve of ``kind`` uses the corrected gradient: the periodic box's divergence solve and rate
-        half (correct_density)."""
-        return self.drift_by_positions and kind != DRIFT
+        """Whether a solve of ``kind`` uses the corrected gradient: every solve of a box the fluid fills but the
+        periodic box's drift half (correct_density)."""
+        return self.fills_domain and kind != DRIFT
 
     def _factor(self, kind):
         """The DFSPH factor of a solve of ``kind``: the corrected one where :meth:`_corrected`, the density
