@@ -3,11 +3,13 @@
 Under a signed pressure SPH particles pair up (tensile instability), and a disordered distribution has
 a higher summation density than the lattice at the same number density. Shifting moves each bulk
 particle down the gradient of the particle concentration C_i = sum_j V_j W_ij after the position
-update, which keeps the distribution close to uniform. Only the particle-scale part of grad C moves a particle:
-grad C less its kernel-weighted mean over the neighbours. The smooth part is not a disorder but the
-curvature of the particle rows (a vortex's core reads grad C inwards on every particle); shifted out along it,
-the core was pulled back in by the density solve every step, and each such cycle added angular momentum
-(Lamb-Oseen's core spun up 10 %, docs/notes/solver.md). Near the free surface the shift is tangential
+update, which keeps the distribution close to uniform. In a full tank (walls, no free surface) only the
+particle-scale part of grad C moves a bulk particle: grad C less its kernel-weighted mean over the bulk
+neighbours. The smooth part is not a disorder but the curvature of the particle rows (a vortex's core reads
+grad C inwards on every particle); shifted out along it, the core was pulled back in by the density solve,
+which corrects the drift through the velocity there, and each cycle added angular momentum. Lamb-Oseen on the
+CPU at 16 / 24 / 32 across: 2.62 / 1.44 / 1.32 % with it, 4.59 / 2.25 / 1.52 % with the whole grad C
+(docs/notes/solver.md). The periodic box corrects its drift through the positions and keeps the whole grad C. Near the free surface the shift is tangential
 (its component along grad C, the surface normal, removed) and on the surface it is off, so the
 surface is not pulled apart (Lind et al. 2012, section 3.3). Lind et al.'s anti-pairing factor and the
 first-order Taylor correction of the velocity to the shifted position both injected energy on
@@ -47,11 +49,12 @@ def compute_shift(
     high_pass: int,
     shift: wp.array(dtype=wp.vec3),
 ):
-    """shift_i = -D (grad C_i - <grad C>_i), D = coefficient h max|v| dt (Skillen et al. 2013 with the step's
-    largest speed, h = H / 2), |shift_i| <= max_shift; grad C_i = sum_f V_j grad W_ij + sum_b V_b grad W_ib
-    from the density pass at the step's start, <grad C>_i = sum_j W_ij grad C_j / sum_j W_ij over i and its
-    fluid neighbours. In the surface band and beside walls only its part normal to grad C_i (which is the
-    surface's or the wall's normal there), none on the free surface. Only in a box
+    """shift_i = -D grad C_i, D = coefficient h max|v| dt (Skillen et al. 2013 with the step's largest speed,
+    h = H / 2), |shift_i| <= max_shift; grad C_i = sum_f V_j grad W_ij + sum_b V_b grad W_ib from the density
+    pass at the step's start. With ``high_pass`` (a full tank) a bulk particle takes grad C_i - <grad C>_i,
+    <grad C>_i = sum_j W_ij grad C_j / sum_j W_ij over i and its bulk fluid neighbours. In the surface band and
+    beside walls only its part normal to grad C_i (which is the surface's or the wall's normal there), none on
+    the free surface. Only in a box
     without free surface (``free_surface[0]`` 0): with one, the shift from the step-start grad C
     compressed a 16K dam break to 1.15 rho0 (docs/notes/solver.md)."""
     i = wp.tid()

@@ -18,11 +18,11 @@ class Viscosity(Model):
 
     Where the fluid fills a box with walls (``ctx.fills_walled_box``: a full tank) the Laplacian is the
     corrected one (:data:`add_corrected_viscosity_acceleration`), which takes a velocity-gradient pass and a
-    mat33 a particle; elsewhere eq 4. With the shift's particle-scale part only (kernels/shifting.py) it takes
-    Lamb-Oseen on the CPU from 3.67 / 1.85 / 2.05 % to 3.49 / 0.90 / 0.71 % at 16 / 24 / 32 across
-    (docs/notes/solver.md). The periodic box keeps eq 4: there the corrected operator did not fall from 128 to
-    256 across on the GPU (Taylor-Green 0.33 / 0.34 %, eq 4 0.33 / 0.26 %). Free-surface scenes keep eq 4:
-    the dam front is the same with either, and the 1M-particle step has no neighbour pass to spare."""
+    mat33 a particle; elsewhere eq 4. Lamb-Oseen on the H200 at 64 / 128 / 256 across: 0.97 / 0.69 / 0.39 % with
+    it, 1.90 / 1.52 / 1.12 % with eq 4 (peak vorticity 2-4 % high; docs/notes/solver.md). The periodic box keeps
+    eq 4: there the corrected operator did not fall from 128 to 256 across (Taylor-Green 0.33 / 0.34 %, eq 4
+    0.33 / 0.26 %). Free-surface scenes keep eq 4: the dam front is the same with either, and the 1M-particle
+    step has no neighbour pass to spare."""
 
     computes_vorticity = True  # fills the shared vorticity field (ctx.vorticity) in the same pass when it exists
     corrected_bytes_per_particle = 36  # the velocity gradient, where the operator is the corrected one
