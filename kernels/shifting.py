@@ -1,19 +1,19 @@
 """Particle shifting of the pressure solver (Lind, Xu, Stansby & Rogers 2012; Skillen et al. 2013).
 
-Under a signed pressure SPH particles pair up (tensile instability), and a disordered distribution has
-a higher summation density than the lattice at the same number density. Shifting moves each bulk
-particle down the gradient of the particle concentration C_i = sum_j V_j W_ij after the position
-update, which keeps the distribution close to uniform. In a full tank (walls, no free surface) only the
-particle-scale part of grad C moves a bulk particle: grad C less its kernel-weighted mean over the bulk
-neighbours. The smooth part is not a disorder but the curvature of the particle rows (a vortex's core reads
-grad C inwards on every particle); shifted out along it, the core was pulled back in by the density solve,
-which corrects the drift through the velocity there, and each cycle added angular momentum. Lamb-Oseen on the
-CPU at 16 / 24 / 32 across: 2.62 / 1.44 / 1.32 % with it, 4.59 / 2.25 / 1.52 % with the whole grad C
-(docs/notes/solver.md). The periodic box corrects its drift through the positions and keeps the whole grad C. Near the free surface the shift is tangential
-(its component along grad C, the surface normal, removed) and on the surface it is off, so the
-surface is not pulled apart (Lind et al. 2012, section 3.3). Lind et al.'s anti-pairing factor and the
-first-order Taylor correction of the velocity to the shifted position both injected energy on
-Taylor-Green (docs/notes/solver.md), so the shift is the plain -D grad C and the velocity stays.
+Under a signed pressure SPH particles pair up (tensile instability), and a disordered distribution has a higher
+summation density than the lattice at the same number density. Shifting moves each bulk particle down the
+gradient of the particle concentration C_i = sum_j V_j W_ij after the position update, which keeps the
+distribution close to uniform. In a full tank (walls, no free surface) only the particle-scale part of grad C
+moves a bulk particle: grad C less its kernel-weighted mean over the bulk neighbours. The smooth part is not a
+disorder but the curvature of the particle rows (a vortex's core reads grad C inwards on every particle);
+shifted out along it, the core was pulled back in by the density solve, which corrects the drift through the
+velocity there, and each cycle added angular momentum. Lamb-Oseen on the CPU at 16 / 24 / 32 across:
+2.62 / 1.44 / 1.32 % with it, 4.59 / 2.25 / 1.52 % with the whole grad C (docs/notes/solver.md). The periodic
+box corrects its drift through the positions and keeps the whole grad C. Near the free surface the shift is tangential (its
+component along grad C, the surface normal, removed) and on the surface it is off, so the surface is not pulled
+apart (Lind et al. 2012, section 3.3). Lind et al.'s anti-pairing factor and the first-order Taylor correction
+of the velocity to the shifted position both injected energy on Taylor-Green (docs/notes/solver.md), so the
+shift is the plain -D grad C and the velocity stays.
 """
 
 import warp as wp

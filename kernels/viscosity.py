@@ -124,7 +124,8 @@ def _viscosity_acceleration_kernel(corrected: bool):
                 b = nb.boundary[k]
                 x_ib = separation(nb, xi, boundary.x[b])
                 gw = cubic_kernel_gradient(x_ib, support_radius)
-                term = boundary_viscosity * artificial_laplacian(vi - boundary_velocity(boundary, b), x_ib, gw, boundary.volume[b], support_radius)
+                term = boundary_viscosity * artificial_laplacian(vi - boundary_velocity(boundary, b), x_ib, gw,
+                                                                 boundary.volume[b], support_radius)
                 if b >= boundary.first_dynamic:
                     wp.atomic_add(boundary.impulse, b, -dt[0] * term)
                 friction += term

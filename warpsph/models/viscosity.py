@@ -41,9 +41,11 @@ class Viscosity(Model):
             ctx.launch(compute_velocity_gradient, ctx.num_fluid, [f.x, f.v, f.density, ctx.neighbour_lists,
                                                                   ctx.particle_mass, ctx.support_radius, self.gradient])
             ctx.exchange(self.gradient)
-        ctx.launch(add_corrected_viscosity_acceleration if self.corrected else add_viscosity_acceleration, ctx.num_fluid,
+        kernel = add_corrected_viscosity_acceleration if self.corrected else add_viscosity_acceleration
+        ctx.launch(kernel, ctx.num_fluid,
                    [f.x, f.v, f.density, ctx.neighbour_lists, ctx.particle_mass, ctx.scene.fluid.viscosity,
                     ctx.support_radius, ctx.boundary_samples, ctx.scene.fluid.boundary_viscosity, ctx.dt,
-                    int(with_vorticity), self.gradient, f.acceleration, vorticity if with_vorticity else self._empty_vec3])
+                    int(with_vorticity), self.gradient, f.acceleration,
+                    vorticity if with_vorticity else self._empty_vec3])
         if with_vorticity:
             ctx.exchange(vorticity)
