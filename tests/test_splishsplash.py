@@ -463,7 +463,6 @@ def test_fluid_volume_is_splishsplash_219s(scenes):
 
 
 def test_density_error_is_splishsplashs_measure_and_max_error_maps_one_to_one(scenes):
-    from warpsph.kernels.density_solver import compute_density_source
     from warpsph.solver import DENSITY
 
     scene = load_quiet(write(scenes, DAM_BREAK))
@@ -481,7 +480,7 @@ def test_density_error_is_splishsplashs_measure_and_max_error_maps_one_to_one(sc
     solver = sim.pressure_solver
     solver.detect_free_surface()
     assert solver.free_surface_count() > 0  # free-surface flow: p >= 0 everywhere, as in SPlisHSPlasH
-    solver._measure(DENSITY, compute_density_source, solver._density_inputs(), 1e-4, 2, 100, True)
+    solver._measure(DENSITY, solver._density_inputs(), 1e-4, 2, 100, True)
     ours = solver.last_errors()[1]
 
     xb = sim.boundary.x.numpy().astype(np.float64)

@@ -176,9 +176,8 @@ class DFSPHSolver:
         s = self.sim.scene.solver
         if not s.divergence_solver:
             return
-        self._solve(DIVERGENCE, compute_corrected_divergence_source if self._corrected(DIVERGENCE) else compute_divergence_source,
-                    self._divergence_inputs(),
-                    s.divergence_max_error * 0.01, s.divergence_min_iterations, s.divergence_max_iterations)
+        self._solve(DIVERGENCE, self._divergence_inputs(), s.divergence_max_error * 0.01, s.divergence_min_iterations,
+                    s.divergence_max_iterations)
 
     def correct_density(self):
         """v~ := v~ + dt a_proj until rho*(x + dt v~) ~ rho0 (projection).
@@ -206,16 +205,15 @@ class DFSPHSolver:
         s = self.sim.scene.solver
         tolerance = s.density_max_error * 0.01
         if self.drift_by_positions:
-            self._solve(DENSITY, compute_corrected_density_source, self._density_inputs(DENSITY, drift_weight=0.0),
+            self._solve(DENSITY, self._density_inputs(DENSITY, drift_weight=0.0),
                         tolerance * RATE_TOLERANCE_FACTOR, s.min_iterations, s.max_iterations,
                         rate=(tolerance * RATE_TOLERANCE_PER_SECOND, tolerance * RATE_TOLERANCE_FLOOR))
             self.drift_velocity.zero_()
-            self._solve(DRIFT, compute_density_source, self._density_inputs(DRIFT, self.drift_velocity), tolerance,
+            self._solve(DRIFT, self._density_inputs(DRIFT, self.drift_velocity), tolerance,
                         min(s.min_iterations, DRIFT_MAX_ITERATIONS), min(s.max_iterations, DRIFT_MAX_ITERATIONS),
                         velocity=self.drift_velocity)
             return
-        self._solve(DENSITY, compute_corrected_density_source if self._corrected(DENSITY) else compute_density_source,
-                    self._density_inputs(), tolerance, s.min_iterations, s.max_iterations)
+        self._solve(DENSITY, self._density_inputs(), tolerance, s.min_iterations, s.max_iterations)
 
     # -------------------------------------------------------------------------------------
     def _common(self, velocity=None):
@@ -243,6 +241,13 @@ class DFSPHSolver:
         periodic box's drift half (correct_density)."""
         return self.fills_domain and kind != DRIFT
 
+    def _source(self, kind):
+        """The source kernel of a solve of ``kind``: the divergence's or the predicted density's, corrected where
+        :meth:`_corrected`."""
+        if kind == DIVERGENCE:
+            return compute_corrected_divergence_source if self._corrected(kind) else compute_divergence_source
+        return compute_corrected_density_source if self._corrected(kind) else compute_density_source
+
     def _factor(self, kind):
         """The DFSPH factor of a solve of ``kind``: the corrected one where :meth:`_corrected`, the density
         pass's elsewhere."""
@@ -259,12 +264,12 @@ class DFSPHSolver:
                    [self.stiffness, sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume,
                     sim.support_radius, sim.dt, accumulate, self.pressure_sum[kind], self._correction(kind), velocity])
 
-    def _measure(self, kind, source_kernel, inputs, max_error, min_it, max_it, first, rate=(0.0, 0.0)):
+    def _measure(self, kind, inputs, max_error, min_it, max_it, first, rate=(0.0, 0.0)):
         """Source, stiffness and error of the current velocities, and the loop's decision. The first
         measure of a solve replaces the stiffness by the warm start (when on; the bulk's of :meth:`_bulk_first`
         is applied before it): the loop's first apply uses it."""
         sim = self.sim
-        sim.launch(source_kernel, sim.num_fluid, inputs + [self.error, self.stiffness])
+        sim.launch(self._source(kind), sim.num_fluid, inputs + [self.error, self.stiffness])
         # a box without free surface: the source less its mean (no-ops otherwise)
         sim.launch(reduce_source_sum, min(sim.num_fluid, REDUCE_THREADS),
                    [self.error, sim.num_fluid, self.free_surface, self.error_stats])
@@ -286,7 +291,7 @@ class DFSPHSolver:
                     self.iterations, *((self.drift_totals, self.drift_streak) if kind == DRIFT
                                        else (self.totals, self.max_iteration_streak))])
 
-    def _solve(self, kind, source_kernel, inputs, max_error, min_it, max_it, velocity=None, rate=(0.0, 0.0)):
+    def _solve(self, kind, inputs, max_error, min_it, max_it, velocity=None, rate=(0.0, 0.0)):
         """One pressure solve of ``kind`` (DIVERGENCE, DENSITY or DRIFT) that accumulates its stiffness in
         ``pressure_sum[kind]`` and applies it to ``velocity`` (default: the fluid's). ``rate`` = (per second, least):
         a tolerance per unit time, rate[0] x dt within [rate[1], max_error] (none when rate[0] is 0)."""
@@ -300,13 +305,13 @@ class DFSPHSolver:
             sim.exchange(self.stiffness)
             self._apply(kind, 0, velocity)
             sim.exchange(velocity)
-        self._measure(kind, source_kernel, inputs, max_error, min_it, max_it, True, rate)
+        self._measure(kind, inputs, max_error, min_it, max_it, True, rate)
 
         def iteration():
             sim.exchange(self.stiffness)  # k_j of the apply
             self._apply(kind, 1, velocity)
             sim.exchange(velocity)  # v_j of the next source
-            self._measure(kind, source_kernel, inputs, max_error, min_it, max_it, False, rate)
+            self._measure(kind, inputs, max_error, min_it, max_it, False, rate)
 
         wp.capture_while(self.condition, iteration)
 
