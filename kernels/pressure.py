@@ -44,6 +44,7 @@ def compute_gradient_correction(
     x: wp.array(dtype=wp.vec3),
     nb: Neighbours,
     boundary: Boundary,
+    surface: wp.array(dtype=wp.int32),
     fluid_volume: float,
     support_radius: float,
     correction: wp.array(dtype=wp.mat33),
@@ -51,7 +52,9 @@ def compute_gradient_correction(
 ):
     """L_i = M_i^-T, M_i = sum_f V_j (x_j - x_i) (x) grad W_ij + sum_b V_b (x_b - x_i) (x) grad W_ib (Bonet & Lok
     1999): with it :func:`corrected_density_rate` is the divergence of every linear field exactly, whatever the
-    arrangement. The identity where M_i is near singular. ``factor``: the DFSPH factor of the corrected solve,
+    arrangement. The identity where M_i is near singular and on the free surface and its band (``surface``, SURFACE or
+    BAND): there the support is cut by the surface, and the plain gradient's missing-neighbour term is the surface
+    pressure condition that DFSPH relies on. ``factor``: the DFSPH factor of the corrected solve,
     1 / (|sum_f V_j L_i grad W_ij|^2 + sum_f |V_j L_i grad W_ij|^2), the diagonal of its divergence of its
     pressure force (:func:`apply_pressure_acceleration`), as the plain factor is of the plain pair."""
     i = wp.tid()
@@ -72,7 +75,7 @@ def compute_gradient_correction(
         m += wp.outer(-xib, gb)
         g_sum += gb
     li = wp.identity(3, dtype=float)
-    if wp.abs(wp.determinant(m)) > 0.1:
+    if surface[i] != SURFACE and surface[i] != BAND and wp.abs(wp.determinant(m)) > 0.1:
         li = wp.transpose(wp.inverse(m))
     correction[i] = li
     # sum_f |L_i V_j grad W_ij|^2 = L_i^T L_i : sum_f (V_j grad W_ij) (x) (V_j grad W_ij): one neighbour pass
@@ -238,6 +241,21 @@ def reduce_source_sum(source: wp.array(dtype=float), count: int, free_surface: w
 
 
 @wp.kernel
+def reduce_density_drift(density: wp.array(dtype=float), count: int, rest_density: float,
+                         free_surface: wp.array(dtype=wp.int32), drift_sum: wp.array(dtype=float)):
+    """drift_sum[0] += sum_i (rho_i / rho0 - 1) over the fluid in a step without free surface (``free_surface[0]``
+    0; ``drift_sum`` zeroed before). Grid-stride like :func:`reduce_error`."""
+    if free_surface[0] != 0:
+        return
+    t = wp.tid()
+    threads = wp.min(count, REDUCE_THREADS)
+    s = float(0.0)
+    for i in range(t, count, threads):
+        s += density[i] / rest_density - 1.0
+    wp.atomic_add(drift_sum, 0, s)
+
+
+@wp.kernel
 def remove_mean_source(
     error_stats: wp.array(dtype=float),
     count: int,
@@ -285,7 +303,8 @@ def warm_start_pressure(
     stiffness: wp.array(dtype=float),
 ):
     """Warm start: k_i = 0.5 x last step's accumulated k_i, rescaled from dt_prev to dt (dt^2 for the
-    density solver, dt for the rate of the divergence solver). ``error`` holds this step's source before
+    density solver, dt for the rate of the divergence solver) where dt grows, never scaled up where it drops
+    (a settled tank kicked by one step at dt / 10 jumped from 0.012 to 0.23 m/s). ``error`` holds this step's source before
     any pressure; the value becomes the first iteration's stiffness, ``pressure_sum`` restarts at 0 and
     the first apply adds it.
 
@@ -311,7 +330,8 @@ def warm_start_pressure(
         k = wp.clamp(k, -limit, limit)
         if k * error[i] <= 0.0:
             k = 0.0
-    k = k * WARM_START_FACTOR / scale
+    # never more than last step's pressure: a dt drop would otherwise multiply it by (dt_prev/dt)^2
+    k = k * WARM_START_FACTOR / wp.max(scale, previous_scale)
     stiffness[i] = k
     pressure_sum[i] = 0.0
 
@@ -319,13 +339,12 @@ def warm_start_pressure(
 @wp.kernel
 def warm_start_bulk(
     pressure_sum: wp.array(dtype=float),
-    dt: wp.array(dtype=float),
-    dt_previous: wp.array(dtype=float),
     surface: wp.array(dtype=wp.int32),
     stiffness: wp.array(dtype=float),
 ):
     """The bulk's warm start of the density solve in a free-surface scene, applied before its first measure:
-    k_i = 0.5 x last step's accumulated k_i (rescaled by (dt_prev/dt)^2), whole, into ``stiffness`` and
+    k_i = 0.5 x last step's accumulated k_i, whole and not rescaled by dt (k is a pressure; scaled by (dt_prev/dt)^2,
+    a settled tank kicked by one step at dt / 10 jumped from 0.012 to 0.23 m/s), into ``stiffness`` and
     ``pressure_sum``; 0 on the free surface and its band, whose warm start :func:`warm_start_pressure` tests
     against the measured source. In the bulk it is mostly the hydrostatic load, still needed; as the first
     iteration's stiffness, added after the measure, it agitated a resting tank at small steps (50 across,
@@ -335,9 +354,7 @@ def warm_start_bulk(
     if surface[i] == SURFACE or surface[i] == BAND:
         stiffness[i] = 0.0
         return
-    h = dt[0]
-    hp = dt_previous[0]
-    k = pressure_sum[i] * WARM_START_FACTOR * hp * hp / (h * h)
+    k = pressure_sum[i] * WARM_START_FACTOR
     stiffness[i] = k
     pressure_sum[i] = k
 

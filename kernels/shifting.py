@@ -60,7 +60,7 @@ def compute_shift(
     i = wp.tid()
     d = wp.vec3(0.0)
     flag = surface[i]
-    if flag != SURFACE and free_surface[0] == 0:
+    if flag != SURFACE:
         grad_c = concentration_gradient[i]
         if flag == BULK and high_pass != 0:
             xi = x[i]

@@ -4,6 +4,7 @@ tank the componentwise (Morris et al. 1997) Laplacian with eq 4 on its gradient-
 
 import warp as wp
 
+from .free_surface import BAND, SURFACE
 from .particles import Boundary, Neighbours, boundary_velocity, separation
 from .sph_kernel import cubic_kernel_gradient
 from .vorticity import curl_term
@@ -78,6 +79,7 @@ def _viscosity_acceleration_kernel(corrected: bool):
         boundary_viscosity: float,
         dt: wp.array(dtype=float),
         with_vorticity: int,
+        surface: wp.array(dtype=wp.int32),
         gradient: wp.array(dtype=wp.mat33),
         acceleration: wp.array(dtype=wp.vec3),
         vorticity: wp.array(dtype=wp.vec3),
@@ -102,15 +104,17 @@ def _viscosity_acceleration_kernel(corrected: bool):
         lap = wp.vec3(0.0)
         curl = wp.vec3(0.0)
         gi = wp.mat33(0.0)
+        bulk = False  # the corrected operator away from the free surface and its band, eq 4 there
         if wp.static(corrected):
             gi = gradient[i]
+            bulk = surface[i] != SURFACE and surface[i] != BAND
         for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
             j = nb.fluid[k]
             x_ij = separation(nb, xi, x[j])
             volume = particle_mass / density[j]
             v_ij = vi - v[j]
             gw = cubic_kernel_gradient(x_ij, support_radius)
-            if wp.static(corrected):
+            if bulk:
                 residual = v_ij - 0.5 * ((gi + gradient[j]) * x_ij)
                 lap += componentwise_laplacian(v_ij, x_ij, gw, volume, support_radius)
                 lap += CORRECTED_STABILISER * artificial_laplacian(residual, x_ij, gw, volume, support_radius)

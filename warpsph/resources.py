@@ -12,7 +12,8 @@ from warpsph.errors import SceneError
 # on the 1M dam break, tools/results/bench_dam_break_1M_model_none_h100.json)
 FLUID_STATE = 12 + 12 + 8 + 4 + 4 + 12  # x, v, ids, density, factor, acceleration
 SOLVER = 4 * 4  # stiffness, error, two warm-start pressures
-FULL_BOX = 36 + 4 + 12  # a box the fluid fills: L_i, the corrected factor and grad C (shifting)
+CORRECTED = 36 + 4  # DFSPH's corrected kernel gradient L_i and the corrected factor
+SHIFTING = 12  # grad C (solver.shifting > 0)
 # IISPH (solver.method "iisph"): no factor; its warm-start pressure, and its scratch columns (IISPHSolver's,
 # shared with the models')
 IISPH_FLUID_STATE = FLUID_STATE - 4
@@ -29,7 +30,6 @@ def estimate_bytes(scene, num_fluid, num_boundary):
     from warpsph.iisph import IISPHSolver
     from warpsph.models import plugin_of
     from warpsph.models.viscosity import Viscosity
-    from warpsph.solver import fluid_fills_domain, fluid_fills_walled_box
 
     from warpsph.neighbours import grid_geometry
 
@@ -41,10 +41,10 @@ def estimate_bytes(scene, num_fluid, num_boundary):
     else:
         per_fluid = FLUID_STATE + SOLVER + SORT + NEIGHBOUR_ROWS + NEIGHBOUR_LISTS
     per_fluid += sum(p.bytes_per_particle for p in plugins)  # each model's own arrays
-    if scene.solver.method != "iisph" and fluid_fills_domain(scene, num_fluid):
-        per_fluid += FULL_BOX
-    if scene.fluid.viscosity > 0.0 and fluid_fills_walled_box(scene, num_fluid):  # the corrected viscosity's gradient
-        per_fluid += Viscosity.corrected_bytes_per_particle
+    if scene.solver.method != "iisph":
+        per_fluid += CORRECTED + (SHIFTING if scene.solver.shifting > 0.0 else 0)
+        if scene.fluid.viscosity > 0.0:  # the corrected viscosity's velocity gradient
+            per_fluid += Viscosity.corrected_bytes_per_particle
     per_fluid += SHARED_VORTICITY if any(p.needs_vorticity for p in plugins) else 0
     per_fluid += 4 * max(scratch)  # the scratch pool (DFSPH: if wider than its own, counted in SOLVER)
     _, dims = grid_geometry(scene.domain, 4.0 * scene.particle_radius, num_fluid + num_boundary)

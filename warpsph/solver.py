@@ -29,6 +29,7 @@ from warpsph.kernels.pressure import (
     apply_corrected_pressure_acceleration,
     apply_pressure_acceleration,
     compute_gradient_correction,
+    reduce_density_drift,
     reduce_error,
     reduce_source_sum,
     remove_mean_source,
@@ -61,28 +62,12 @@ FREE_SURFACE_DENSITY = 0.95
 MAX_SHIFT = 0.1
 
 
-# a fluid filling at least this fraction of its domain's volume, without emitters, sinks or an open face, has no
-# free surface to keep: its bulk pressure is signed while no particle is on a surface
-FILLED_FRACTION = 0.9
-
-
-def fluid_fills_domain(scene, num_fluid):
-    """Whether the fluid fills its domain (periodic boxes, full tanks). Elsewhere the solver keeps p >= 0 in
-    every step: a pool at rest pulls its surface particles to about rho0, where the per-step test no longer
-    finds them (the small falling-blocks scene lost all of them after ~3 s), and the signed, confined regime
-    it switched to then took a settled tank from 0.0025 J to 6.2 J in 0.1 s."""
-    if scene.emitters or scene.sinks or scene.domain.is_open:
-        return False
-    volume = float(np.prod(np.subtract(scene.domain.max, scene.domain.min)))
-    return num_fluid * scene.particle_diameter ** 3 >= FILLED_FRACTION * volume
-
-
-def fluid_fills_walled_box(scene, num_fluid):
-    """Whether the fluid fills a domain with walls (a full tank; periodic along two axes at most): its density
-    solve is the single one, which corrects the step's density drift through the velocity. There the shift
-    keeps only its particle-scale part (:func:`compute_shift`) and the viscosity is the corrected operator
-    (kernels/viscosity.py)."""
-    return fluid_fills_domain(scene, num_fluid) and len(scene.domain.periodic) < 3
+def fully_periodic(scene):
+    """Whether the domain is periodic along x, y and z (no walls): the only box whose pressure problem is singular
+    (pure Neumann: a constant pressure moves nothing), so only there is the mean of the source removed and the
+    density solve split (:meth:`DFSPHSolver.correct_density`). Akinci walls push on a constant pressure: a walled
+    box, full or not, solves for its real mean compression. The scene rejects an axis named twice."""
+    return len(scene.domain.periodic) == 3
 
 
 class DFSPHSolver:
@@ -101,14 +86,15 @@ class DFSPHSolver:
         self.error = sim.scratch(float, 1)
         self.position_divergence = self.error  # written by the density pass, read before the solves
         self.shifting = sim.scene.solver.shifting
-        self.fills_domain = fluid_fills_domain(sim.scene, sim.global_count)
+        # the periodic box (no walls): its density drift is corrected through the positions (correct_density)
+        self.drift_by_positions = fully_periodic(sim.scene)
         self.concentration_gradient = sim.zeros("pressure", 0, dtype=wp.vec3)
-        if self.shifting > 0.0 and self.fills_domain:  # grad C from the density pass; the shift after the solves
+        if self.shifting > 0.0:  # grad C from the density pass; the shift after the solves
             self.concentration_gradient = sim.per_particle("pressure", wp.vec3)
             self.shift = sim.scratch(wp.vec3, 0)
         self.surface = sim.per_particle("pressure", wp.int32)  # BULK / BAND / SURFACE / WALL
         self.surface_count = z("pressure", 1, dtype=wp.int32)  # surface particles this step (statistics)
-        # the regime: 1 = p >= 0 everywhere (a free surface), 0 = signed in the bulk (a confined box this step)
+        # this step: 1 = a free surface exists, p >= 0 everywhere; 0 = none, signed in the bulk (clamped())
         self.free_surface = z("pressure", 1, dtype=wp.int32)
         self.free_surface_known = None
         # accumulated stiffness of the last solve of each kind, for the warm start
@@ -120,14 +106,13 @@ class DFSPHSolver:
         # per solver: [iterations summed over steps, solves]
         self.totals = z("pressure", 4, dtype=wp.int64)
         self.max_iteration_streak = z("pressure", 2, dtype=wp.int32)
-        # a periodic box without walls corrects its density drift through the positions only (correct_density);
-        # the scene rejects an axis named twice, so three names are the three axes
-        self.drift_by_positions = self.fills_domain and len(sim.scene.domain.periodic) == 3
-        # a box the fluid fills (periodic or walled) solves with the corrected kernel gradient (:meth:`_corrected`)
-        self.gradient_correction = self.no_gradient_correction = sim.zeros("pressure", 0, dtype=wp.mat33)
-        if self.fills_domain:
-            self.gradient_correction = sim.per_particle("pressure", wp.mat33)  # L_i, recomputed every step
-            self.corrected_factor = sim.per_particle("pressure")  # ... and the factor of the corrected solves
+        # the corrected kernel gradient of every bulk particle (:meth:`_corrected`), recomputed every step
+        self.gradient_correction = sim.per_particle("pressure", wp.mat33)  # L_i
+        self.corrected_factor = sim.per_particle("pressure")  # ... and the factor of the corrected solves
+        self.no_gradient_correction = sim.zeros("pressure", 0, dtype=wp.mat33)
+        self.no_drift = sim.zeros("pressure", 0)
+        # sum of rho/rho0 - 1 in a walled step without free surface, whose mean the density solve leaves alone
+        self.drift_sum = z("pressure", 0 if self.drift_by_positions else 1)
         if self.drift_by_positions:  # the drift solve's velocity, and its stiffness for the warm start
             self.drift_velocity = sim.per_particle("pressure", wp.vec3)
             self.pressure_sum.append(sim.per_particle("pressure"))
@@ -156,7 +141,7 @@ class DFSPHSolver:
         the density pass's divergence of position and density."""
         sim = self.sim
         self.surface_count.zero_()
-        self.free_surface.fill_(0 if self.fills_domain else 1)
+        self.free_surface.zero_()
         sim.exchange(self.position_divergence)  # read at the neighbours (the band)
         sim.launch(classify_free_surface, sim.num_fluid,
                    [self.position_divergence, sim.fluid.density, sim.neighbours.lists, FREE_SURFACE_THRESHOLD,
@@ -164,11 +149,17 @@ class DFSPHSolver:
         combined = sim.allreduce((self.surface_count, "s"), (self.free_surface, "m"), read=True)
         # on subdomains the regime is known on the host: a free-surface step skips the mean source's reduction
         self.free_surface_known = None if combined is None else int(combined[1][0])
-        if self.fills_domain:  # the corrected kernel gradient of a box the fluid fills (:meth:`_corrected`)
-            sim.launch(compute_gradient_correction, sim.num_fluid,
-                       [sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume, sim.support_radius,
-                        self.gradient_correction, self.corrected_factor])
-            sim.exchange(self.gradient_correction)  # L_j of the pressure force
+        if not self.drift_by_positions:  # the mean density error a sealed box cannot change (compute_density_source)
+            self.drift_sum.zero_()
+            sim.launch(reduce_density_drift, min(sim.num_fluid, REDUCE_THREADS),
+                       [sim.fluid.density, sim.num_fluid, sim.rest_density, self.free_surface, self.drift_sum])
+            if self.free_surface_known != 1:
+                sim.allreduce((self.drift_sum, "s"))
+        # L_i of the corrected solves (:meth:`_corrected`): the identity on the surface and its band
+        sim.launch(compute_gradient_correction, sim.num_fluid,
+                   [sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, self.surface, sim.fluid_volume,
+                    sim.support_radius, self.gradient_correction, self.corrected_factor])
+        sim.exchange(self.gradient_correction)  # L_j of the pressure force
 
     # -- Algorithm 1: the two projection loops -------------------------------------------
     def correct_divergence(self):
@@ -229,17 +220,18 @@ class DFSPHSolver:
         sim = self.sim
         return self._common(velocity) + [sim.fluid.density, self._factor(kind), self.surface, self.free_surface,
                                          sim.fluid_volume, sim.rest_density, sim.support_radius, sim.dt, drift_weight,
+                                         self.drift_sum if kind == DENSITY else self.no_drift, sim.global_count,
                                          self._correction(kind)]
 
     def _bulk_first(self, kind):
         """Whether a solve of ``kind`` applies the bulk's warm start before its first measure (kernels/pressure.py
         warm_start_bulk): the density solve of a free-surface scene."""
-        return kind == DENSITY and not self.fills_domain
+        return kind == DENSITY and not self.drift_by_positions
 
     def _corrected(self, kind):
-        """Whether a solve of ``kind`` uses the corrected gradient: every solve of a box the fluid fills but the
-        periodic box's drift half (correct_density)."""
-        return self.fills_domain and kind != DRIFT
+        """Whether a solve of ``kind`` uses the corrected gradient (L_i, the identity on the free surface and its
+        band): every solve but the periodic box's drift half (correct_density)."""
+        return kind != DRIFT
 
     def _source(self, kind):
         """The source kernel of a solve of ``kind``: the divergence's or the predicted density's, corrected where
@@ -270,14 +262,14 @@ class DFSPHSolver:
         is applied before it): the loop's first apply uses it."""
         sim = self.sim
         sim.launch(self._source(kind), sim.num_fluid, inputs + [self.error, self.stiffness])
-        # a box without free surface: the source less its mean (no-ops otherwise)
-        sim.launch(reduce_source_sum, min(sim.num_fluid, REDUCE_THREADS),
-                   [self.error, sim.num_fluid, self.free_surface, self.error_stats])
-        if self.free_surface_known != 1:  # (error_stats[2] stays 0 with a free surface)
-            sim.allreduce((self.error_stats, "--s"))
-        sim.launch(remove_mean_source, sim.num_fluid,
-                   [self.error_stats, sim.global_count, self.free_surface, self._factor(kind), sim.dt,
-                    int(kind == DIVERGENCE), self.error, self.stiffness])
+        if self.drift_by_positions:  # the periodic box without free surface: the source less its mean
+            sim.launch(reduce_source_sum, min(sim.num_fluid, REDUCE_THREADS),
+                       [self.error, sim.num_fluid, self.free_surface, self.error_stats])
+            if self.free_surface_known != 1:  # (error_stats[2] stays 0 with a free surface)
+                sim.allreduce((self.error_stats, "--s"))
+            sim.launch(remove_mean_source, sim.num_fluid,
+                       [self.error_stats, sim.global_count, self.free_surface, self._factor(kind), sim.dt,
+                        int(kind == DIVERGENCE), self.error, self.stiffness])
         if first and sim.scene.solver.warm_start:  # last step's pressure (kernels/pressure.py says where it is capped)
             sim.launch(warm_start_pressure, sim.num_fluid,
                        [self.error, self._factor(kind), sim.dt, sim.dt_previous, int(kind == DIVERGENCE),
@@ -300,8 +292,7 @@ class DFSPHSolver:
         if not sim.scene.solver.warm_start:
             self.pressure_sum[kind].zero_()
         elif self._bulk_first(kind):
-            sim.launch(warm_start_bulk, sim.num_fluid,
-                       [self.pressure_sum[kind], sim.dt, sim.dt_previous, self.surface, self.stiffness])
+            sim.launch(warm_start_bulk, sim.num_fluid, [self.pressure_sum[kind], self.surface, self.stiffness])
             sim.exchange(self.stiffness)
             self._apply(kind, 0, velocity)
             sim.exchange(velocity)
@@ -324,7 +315,7 @@ class DFSPHSolver:
         if self.drift_by_positions:
             sim.launch(advect_positions, sim.num_fluid, [self.drift_velocity, sim.dt, sim.neighbours.lower,
                                                          sim.neighbours.period, f.x])
-        if self.shifting <= 0.0 or not self.fills_domain:  # (a free-surface scene shifts nothing)
+        if self.shifting <= 0.0:
             return
         sim.exchange(self.concentration_gradient)  # read at the neighbours
         sim.launch(compute_shift, sim.num_fluid,

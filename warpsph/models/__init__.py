@@ -90,11 +90,10 @@ class ModelContext:
     dt = property(lambda self: self._sim.dt, doc="This step's dt [s], a device array of one.")
 
     @property
-    def fills_walled_box(self):
-        """Whether the fluid fills a domain with walls (a full tank; not a periodic box, no free surface)."""
-        from warpsph.solver import fluid_fills_walled_box
-
-        return fluid_fills_walled_box(self._sim.scene, self._sim.global_count)
+    def surface_flags(self):
+        """Per particle, this step: BULK, BAND, SURFACE or WALL (kernels/free_surface.py), or None where the
+        pressure solver does not detect the free surface (IISPH)."""
+        return getattr(self._sim.pressure_solver, "surface", None)
 
     @property
     def vorticity(self):

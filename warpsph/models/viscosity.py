@@ -30,7 +30,8 @@ class Viscosity(Model):
     def __init__(self, ctx, params=None):
         super().__init__(ctx, params)
         self._empty_vec3 = wp.empty(0, dtype=wp.vec3, device=ctx.device)
-        self.corrected = ctx.fills_walled_box and ctx.scene.fluid.viscosity > 0.0
+        self.corrected = ctx.surface_flags is not None and ctx.scene.fluid.viscosity > 0.0
+        self._empty_flags = wp.empty(0, dtype=wp.int32, device=ctx.device)
         self.gradient = (ctx.per_particle("viscosity", wp.mat33) if self.corrected
                          else wp.empty(0, dtype=wp.mat33, device=ctx.device))
 
@@ -45,7 +46,8 @@ class Viscosity(Model):
         ctx.launch(kernel, ctx.num_fluid,
                    [f.x, f.v, f.density, ctx.neighbour_lists, ctx.particle_mass, ctx.scene.fluid.viscosity,
                     ctx.support_radius, ctx.boundary_samples, ctx.scene.fluid.boundary_viscosity, ctx.dt,
-                    int(with_vorticity), self.gradient, f.acceleration,
+                    int(with_vorticity), ctx.surface_flags if self.corrected else self._empty_flags, self.gradient,
+                    f.acceleration,
                     vorticity if with_vorticity else self._empty_vec3])
         if with_vorticity:
             ctx.exchange(vorticity)
