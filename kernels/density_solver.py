@@ -51,10 +51,10 @@ def _density_source_kernel(corrected: bool):
         predicted = density[i] / rest_density + h * rate
         if drift_weight != 1.0:
             predicted -= (1.0 - drift_weight) * (density[i] / rest_density - 1.0)
-        if drift_sum.shape[0] > 0 and free_surface[0] == 0:  # a walled box without free surface
-            predicted -= drift_sum[0] / float(count)
         s = pressure_source(predicted - 1.0, is_clamped)
         error[i] = s
+        if drift_sum.shape[0] > 0 and free_surface[0] == 0:  # a walled box without free surface
+            error[i] = s - drift_sum[0] / float(count)
         stiffness[i] = relaxed_stiffness(s, is_clamped, factor[i], h * h)
 
     return compute_density_source

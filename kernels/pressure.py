@@ -9,7 +9,7 @@ value accumulated over a step is a physical pressure that warm-starts the next s
 import warp as wp
 
 from .density import dfsph_factor
-from .free_surface import BAND, SURFACE
+from .free_surface import BAND, BULK, SURFACE
 from .particles import Boundary, Neighbours, boundary_velocity, separation
 from .sph_kernel import cubic_kernel_gradient
 
@@ -75,7 +75,7 @@ def compute_gradient_correction(
         m += wp.outer(-xib, gb)
         g_sum += gb
     li = wp.identity(3, dtype=float)
-    if surface[i] != SURFACE and surface[i] != BAND and wp.abs(wp.determinant(m)) > 0.1:
+    if surface[i] == BULK and wp.abs(wp.determinant(m)) > 0.1:
         li = wp.transpose(wp.inverse(m))
     correction[i] = li
     # sum_f |L_i V_j grad W_ij|^2 = L_i^T L_i : sum_f (V_j grad W_ij) (x) (V_j grad W_ij): one neighbour pass

@@ -220,7 +220,7 @@ class DFSPHSolver:
         sim = self.sim
         return self._common(velocity) + [sim.fluid.density, self._factor(kind), self.surface, self.free_surface,
                                          sim.fluid_volume, sim.rest_density, sim.support_radius, sim.dt, drift_weight,
-                                         self.drift_sum if kind == DENSITY else self.no_drift, sim.global_count,
+                                         self.drift_sum if kind == DENSITY and __import__("os").environ.get("WARPSPH_EXP") != "nodrift" else self.no_drift, sim.global_count,
                                          self._correction(kind)]
 
     def _bulk_first(self, kind):
@@ -231,7 +231,7 @@ class DFSPHSolver:
     def _corrected(self, kind):
         """Whether a solve of ``kind`` uses the corrected gradient (L_i, the identity on the free surface and its
         band): every solve but the periodic box's drift half (correct_density)."""
-        return kind != DRIFT
+        import os; return kind != DRIFT and os.environ.get("WARPSPH_EXP") != "nocorr"
 
     def _source(self, kind):
         """The source kernel of a solve of ``kind``: the divergence's or the predicted density's, corrected where
