@@ -287,6 +287,10 @@ def remove_mean_source(
 # divergence solver): SPlisHSPlasH caps k dt^2 at 0.00025 m^2, 0.042 of density error at its radius 25 mm.
 WARM_START_FACTOR = wp.constant(0.5)
 WARM_START_CAP = wp.constant(0.05)
+# ... and at most this many times the density error (or its rate) this step's source still has there: dropped
+# whole when the source changed sign, a particle's warm start jumped with the last bit of its source (a clamped
+# source at 0 against 1e-9), and two runs rounding apart took other paths within 4 steps
+WARM_START_RAMP = wp.constant(4.0)
 
 
 @wp.kernel
@@ -330,6 +334,9 @@ def warm_start_pressure(
         k = wp.clamp(k, -limit, limit)
         if k * error[i] <= 0.0:
             k = 0.0
+        else:  # no more than WARM_START_RAMP x this source: continuous where the source passes 0
+            ramp = WARM_START_RAMP * wp.abs(error[i]) * factor[i]
+            k = wp.clamp(k, -ramp, ramp)
     # never more than last step's pressure: a dt drop would otherwise multiply it by (dt_prev/dt)^2
     k = k * WARM_START_FACTOR / wp.max(scale, previous_scale)
     stiffness[i] = k

@@ -38,12 +38,18 @@ def compute_velocity_gradient(
     nb: Neighbours,
     particle_mass: float,
     support_radius: float,
+    surface: wp.array(dtype=wp.int32),
     gradient: wp.array(dtype=wp.mat33),
 ):
     """grad v_i = (sum_f V_j (v_j - v_i) (x) grad W_ij) M_i^-1, M_i = sum_f V_j (x_j - x_i) (x) grad W_ij
     (Bonet & Lok 1999: exact for a linear field), V_j = m / rho_j; the plain sum where M_i is too thin to
-    invert (|det M_i| <= 0.1). Fluid neighbours only: the walls enter through M_i's renormalisation."""
+    invert (|det M_i| <= 0.1). Fluid neighbours only: the walls enter through M_i's renormalisation. Zero on the
+    free surface (``surface``): only bulk particles take the corrected operator, and their neighbours are bulk or
+    band; a splash's thin M_i, near the threshold, turned rounding into jumps of the operator."""
     i = wp.tid()
+    if surface[i] == SURFACE:
+        gradient[i] = wp.mat33(0.0)
+        return
     xi = x[i]
     vi = v[i]
     g = wp.mat33(0.0)

@@ -143,21 +143,22 @@ def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
     import warp as wp
 
     from warpsph.kernels.free_surface import BAND, SURFACE
-    from warpsph.kernels.pressure import WARM_START_CAP, warm_start_bulk, warm_start_pressure
+    from warpsph.kernels.pressure import WARM_START_RAMP, warm_start_bulk, warm_start_pressure
 
     dt = 1e-3
     factor = 2.0
-    big = 10 * WARM_START_CAP * factor / dt**2  # pressure_sum whose k dt^2 is 10x the cap
+    big = 100 * WARM_START_RAMP * 1e-3 * factor / dt**2  # pressure_sum whose k dt^2 is 100x the ramp's bound
     # particles: bulk expanded, bulk compressed, surface expanded, band compressed, surface compressed small
     surface = [0, 0, SURFACE, BAND, SURFACE]
     source = [-1e-3, 1e-3, -1e-3, 1e-3, 1e-3]
-    pressure = [big, big, big, big, 0.01 * big]
-    capped = 0.5 * WARM_START_CAP * factor / dt**2
-    capped_rate = 0.5 * WARM_START_CAP * factor / dt  # the divergence solver's k is per dt, not dt^2
+    pressure = [big, big, big, big, 0.005 * big]
+    # where capped: at most WARM_START_RAMP x this step's source (here below WARM_START_CAP), halved
+    ramped = 0.5 * WARM_START_RAMP * 1e-3 * factor / dt**2
+    ramped_rate = 0.5 * WARM_START_RAMP * 1e-3 * factor / dt  # the divergence solver's k is per dt, not dt^2
     expected = {
-        "density": [0.5 * big, 0.5 * big, 0.0, capped, 0.005 * big],
-        "density, no free surface": [0.0, capped, 0.0, capped, 0.005 * big],
-        "divergence": [0.0, capped_rate, 0.0, capped_rate, capped_rate],
+        "density": [0.5 * big, 0.5 * big, 0.0, ramped, 0.0025 * big],
+        "density, no free surface": [0.0, ramped, 0.0, ramped, 0.0025 * big],
+        "divergence": [0.0, ramped_rate, 0.0, ramped_rate, ramped_rate],
     }
     for kind, per_unit_time, free_surface in (("density", 0, 1), ("density, no free surface", 0, 0),
                                               ("divergence", 1, 1)):
@@ -178,20 +179,22 @@ def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
         np.testing.assert_allclose(arrays["stiffness"].numpy(), expected[kind], rtol=1e-5, err_msg=kind)
         assert not arrays["pressure_sum"].numpy().any()
 
-    # the density solve of a free-surface scene: the bulk's half, whole and rescaled by (dt_prev/dt)^2, before the
-    # first measure (it stays in pressure_sum, already applied); the surface and band as above, after it
+    # the density solve of a free-surface scene after dt halved: the bulk's half, whole and not rescaled (a pressure;
+    # (dt_prev/dt)^2 = 4 kicked settled tanks), before the first measure (it stays in pressure_sum, already
+    # applied); the surface and band as above, after it, never scaled up by the drop
     arrays["dt_previous"] = wp.array([2 * dt], dtype=float, device=device)
     arrays["pressure_sum"] = wp.array(pressure, dtype=float, device=device)
     arrays["free_surface"] = wp.array([1], dtype=wp.int32, device=device)
-    wp.launch(warm_start_bulk, 5, inputs=[arrays["pressure_sum"], arrays["dt"], arrays["dt_previous"], arrays["surface"],
-                                          arrays["stiffness"]], device=device)
-    np.testing.assert_allclose(arrays["stiffness"].numpy(), [2 * big, 2 * big, 0, 0, 0], rtol=1e-5)
+    wp.launch(warm_start_bulk, 5, inputs=[arrays["pressure_sum"], arrays["surface"], arrays["stiffness"]],
+              device=device)
+    np.testing.assert_allclose(arrays["stiffness"].numpy(), [0.5 * big, 0.5 * big, 0, 0, 0], rtol=1e-5)
     wp.launch(warm_start_pressure, 5, inputs=[arrays["error"], arrays["factor"], arrays["dt"], arrays["dt_previous"], 0,
                                                arrays["surface"], arrays["free_surface"], arrays["pressure_sum"], 1,
                                                arrays["stiffness"]], device=device)
-    surface_part = [0.0, 0.0, 0.0, capped, 0.005 * big * 4]  # (dt_prev/dt)^2 = 4: the band's 4x stays capped
-    np.testing.assert_allclose(arrays["stiffness"].numpy(), [2 * big, 2 * big] + surface_part[2:], rtol=1e-5)
-    np.testing.assert_allclose(arrays["pressure_sum"].numpy(), [2 * big, 2 * big, 0, 0, 0], rtol=1e-5)
+    # k dt_prev^2 of the band is ramped, then divided by the larger of dt^2 and dt_prev^2; the small surface one too
+    np.testing.assert_allclose(arrays["stiffness"].numpy(), [0.5 * big, 0.5 * big, 0.0, ramped / 4, ramped / 4],
+                               rtol=1e-5)
+    np.testing.assert_allclose(arrays["pressure_sum"].numpy(), [0.5 * big, 0.5 * big, 0, 0, 0], rtol=1e-5)
 
 
 def test_rate_tolerance_is_per_unit_time_within_its_bounds(device):
@@ -244,8 +247,10 @@ def _strained_periodic_box(device):
     sim.update_densities()
     correction = wp.zeros(sim.num_fluid, dtype=wp.mat33, device=sim.device)
     factor = wp.zeros(sim.num_fluid, dtype=float, device=sim.device)
+    bulk = wp.zeros(sim.num_fluid, dtype=wp.int32, device=sim.device)  # every particle in the bulk
     sim.launch(compute_gradient_correction, sim.num_fluid, [sim.fluid.x, sim.neighbours.lists, sim.boundary.samples,
-                                                            sim.fluid_volume, sim.support_radius, correction, factor])
+                                                            bulk, sim.fluid_volume, sim.support_radius, correction,
+                                                            factor])
     return sim, x, correction, wp.zeros(0, dtype=wp.mat33, device=sim.device)
 
 

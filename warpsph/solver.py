@@ -220,7 +220,7 @@ class DFSPHSolver:
         sim = self.sim
         return self._common(velocity) + [sim.fluid.density, self._factor(kind), self.surface, self.free_surface,
                                          sim.fluid_volume, sim.rest_density, sim.support_radius, sim.dt, drift_weight,
-                                         self.drift_sum if kind == DENSITY and __import__("os").environ.get("WARPSPH_EXP") != "nodrift" else self.no_drift, sim.global_count,
+                                         self.drift_sum if kind == DENSITY else self.no_drift, sim.global_count,
                                          self._correction(kind)]
 
     def _bulk_first(self, kind):
@@ -231,7 +231,7 @@ class DFSPHSolver:
     def _corrected(self, kind):
         """Whether a solve of ``kind`` uses the corrected gradient (L_i, the identity on the free surface and its
         band): every solve but the periodic box's drift half (correct_density)."""
-        import os; return kind != DRIFT and os.environ.get("WARPSPH_EXP") != "nocorr"
+        return kind != DRIFT
 
     def _source(self, kind):
         """The source kernel of a solve of ``kind``: the divergence's or the predicted density's, corrected where
@@ -317,7 +317,7 @@ class DFSPHSolver:
                                                          sim.neighbours.period, f.x])
         if self.shifting <= 0.0:
             return
-        sim.exchange(self.concentration_gradient)  # read at the neighbours
+        sim.exchange(self.concentration_gradient, self.surface)  # read at the neighbours
         sim.launch(compute_shift, sim.num_fluid,
                    [self.concentration_gradient, f.x, sim.neighbours.lists, self.surface, self.free_surface,
                     sim.support_radius, sim.dt, sim.max_speed_sq, self.shifting,

@@ -39,8 +39,9 @@ class Viscosity(Model):
         f, vorticity = ctx.fluid, ctx.vorticity
         with_vorticity = vorticity is not None
         if self.corrected:
-            ctx.launch(compute_velocity_gradient, ctx.num_fluid, [f.x, f.v, f.density, ctx.neighbour_lists,
-                                                                  ctx.particle_mass, ctx.support_radius, self.gradient])
+            ctx.launch(compute_velocity_gradient, ctx.num_fluid,
+                       [f.x, f.v, f.density, ctx.neighbour_lists, ctx.particle_mass, ctx.support_radius,
+                        ctx.surface_flags, self.gradient])
             ctx.exchange(self.gradient)
         kernel = add_corrected_viscosity_acceleration if self.corrected else add_viscosity_acceleration
         ctx.launch(kernel, ctx.num_fluid,
