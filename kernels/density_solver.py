@@ -24,18 +24,13 @@ def _density_source_kernel(corrected: bool):
         support_radius: float,
         dt: wp.array(dtype=float),
         drift_weight: float,
-        drift_sum: wp.array(dtype=float),
-        count: int,
         correction: wp.array(dtype=wp.mat33),
         error: wp.array(dtype=float),
         stiffness: wp.array(dtype=float),
     ):
         """Predicted density rho*_i/rho0 = rho_i/rho0 + dt D(rho_i/rho0)/Dt (Bender & Koschier 2017, eq 11), with the
         step's starting error rho_i/rho0 - 1 weighted by ``drift_weight`` (1; 0 and 1 in the two halves of the
-        split solve of a periodic box, warpsph/solver.py). In a walled box without free surface (``free_surface[0]``
-        0) the mean of that starting error, ``drift_sum[0] / count`` (:func:`reduce_density_drift`), is left out: no
-        velocity in a sealed box changes the mean density, and a solve that chased it never converged (Lamb-Oseen's
-        box at +0.4 %), while the rate's mean (a wall compressed under gravity) is real and kept. In a box the fluid fills (the single solve of a walled
+        split solve of a periodic box, warpsph/solver.py). In a box the fluid fills (the single solve of a walled
         box, the periodic box's rate half) :data:`compute_corrected_density_source` takes the rate with the
         corrected gradient ``correction``, L_i of :func:`compute_gradient_correction` (the plain kernel does not
         read it). Source s_i = rho*_i/rho0 - 1, clamped at >= 0 at the free surface and signed in the bulk
@@ -53,8 +48,6 @@ def _density_source_kernel(corrected: bool):
             predicted -= (1.0 - drift_weight) * (density[i] / rest_density - 1.0)
         s = pressure_source(predicted - 1.0, is_clamped)
         error[i] = s
-        if drift_sum.shape[0] > 0 and free_surface[0] == 0:  # a walled box without free surface
-            error[i] = s - drift_sum[0] / float(count)
         stiffness[i] = relaxed_stiffness(s, is_clamped, factor[i], h * h)
 
     return compute_density_source

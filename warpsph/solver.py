@@ -29,7 +29,6 @@ from warpsph.kernels.pressure import (
     apply_corrected_pressure_acceleration,
     apply_pressure_acceleration,
     compute_gradient_correction,
-    reduce_density_drift,
     reduce_error,
     reduce_source_sum,
     remove_mean_source,
@@ -56,17 +55,18 @@ PEAK_ERROR_RATIO = 100.0
 # Divergence of position below which a particle is on the free surface: DualSPHysics' 3D value
 # (2.75 between the bulk's 3 and a flat surface's 2.2 for the cubic spline at support 4r).
 FREE_SURFACE_THRESHOLD = 2.75
-# ... and density (rho / rho0) below which (kernels/free_surface.py says why both)
+# ... and density (rho / rho0) below which, or |grad C| above which, in units of 1 / particle spacing
+# (kernels/free_surface.py says why)
 FREE_SURFACE_DENSITY = 0.95
+FREE_SURFACE_GRADIENT = 0.25
 # largest shift a step, in particle spacings
 MAX_SHIFT = 0.1
 
 
 def fully_periodic(scene):
     """Whether the domain is periodic along x, y and z (no walls): the only box whose pressure problem is singular
-    (pure Neumann: a constant pressure moves nothing), so only there is the mean of the source removed and the
-    density solve split (:meth:`DFSPHSolver.correct_density`). Akinci walls push on a constant pressure: a walled
-    box, full or not, solves for its real mean compression. The scene rejects an axis named twice."""
+    (pure Neumann: a constant pressure moves nothing): its density solve is split (:meth:`DFSPHSolver.correct_density`).
+    The scene rejects an axis named twice."""
     return len(scene.domain.periodic) == 3
 
 
@@ -88,9 +88,9 @@ class DFSPHSolver:
         self.shifting = sim.scene.solver.shifting
         # the periodic box (no walls): its density drift is corrected through the positions (correct_density)
         self.drift_by_positions = fully_periodic(sim.scene)
-        self.concentration_gradient = sim.zeros("pressure", 0, dtype=wp.vec3)
-        if self.shifting > 0.0:  # grad C from the density pass; the shift after the solves
-            self.concentration_gradient = sim.per_particle("pressure", wp.vec3)
+        # grad C from the density pass: the free-surface test and the shift (after the solves)
+        self.concentration_gradient = sim.per_particle("pressure", wp.vec3)
+        if self.shifting > 0.0:
             self.shift = sim.scratch(wp.vec3, 0)
         self.surface = sim.per_particle("pressure", wp.int32)  # BULK / BAND / SURFACE / WALL
         self.surface_count = z("pressure", 1, dtype=wp.int32)  # surface particles this step (statistics)
@@ -110,9 +110,6 @@ class DFSPHSolver:
         self.gradient_correction = sim.per_particle("pressure", wp.mat33)  # L_i
         self.corrected_factor = sim.per_particle("pressure")  # ... and the factor of the corrected solves
         self.no_gradient_correction = sim.zeros("pressure", 0, dtype=wp.mat33)
-        self.no_drift = sim.zeros("pressure", 0)
-        # sum of rho/rho0 - 1 in a walled step without free surface, whose mean the density solve leaves alone
-        self.drift_sum = z("pressure", 0 if self.drift_by_positions else 1)
         if self.drift_by_positions:  # the drift solve's velocity, and its stiffness for the warm start
             self.drift_velocity = sim.per_particle("pressure", wp.vec3)
             self.pressure_sum.append(sim.per_particle("pressure"))
@@ -142,19 +139,16 @@ class DFSPHSolver:
         sim = self.sim
         self.surface_count.zero_()
         self.free_surface.zero_()
-        sim.exchange(self.position_divergence)  # read at the neighbours (the band)
+        sim.exchange(self.position_divergence, self.concentration_gradient)  # read at the neighbours (the band)
         sim.launch(classify_free_surface, sim.num_fluid,
-                   [self.position_divergence, sim.fluid.density, sim.neighbours.lists, FREE_SURFACE_THRESHOLD,
-                    FREE_SURFACE_DENSITY * sim.rest_density, self.surface, self.surface_count, self.free_surface])
+                   [self.position_divergence, sim.fluid.density, self.concentration_gradient, self._down(),
+                    sim.neighbours.lists,
+                    FREE_SURFACE_THRESHOLD, FREE_SURFACE_DENSITY * sim.rest_density,
+                    FREE_SURFACE_GRADIENT / sim.scene.particle_diameter, self.surface, self.surface_count,
+                    self.free_surface])
         combined = sim.allreduce((self.surface_count, "s"), (self.free_surface, "m"), read=True)
         # on subdomains the regime is known on the host: a free-surface step skips the mean source's reduction
         self.free_surface_known = None if combined is None else int(combined[1][0])
-        if not self.drift_by_positions:  # the mean density error a sealed box cannot change (compute_density_source)
-            self.drift_sum.zero_()
-            sim.launch(reduce_density_drift, min(sim.num_fluid, REDUCE_THREADS),
-                       [sim.fluid.density, sim.num_fluid, sim.rest_density, self.free_surface, self.drift_sum])
-            if self.free_surface_known != 1:
-                sim.allreduce((self.drift_sum, "s"))
         # L_i of the corrected solves (:meth:`_corrected`): the identity on the surface and its band
         sim.launch(compute_gradient_correction, sim.num_fluid,
                    [sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, self.surface, sim.fluid_volume,
@@ -220,13 +214,26 @@ class DFSPHSolver:
         sim = self.sim
         return self._common(velocity) + [sim.fluid.density, self._factor(kind), self.surface, self.free_surface,
                                          sim.fluid_volume, sim.rest_density, sim.support_radius, sim.dt, drift_weight,
-                                         self.drift_sum if kind == DENSITY else self.no_drift, sim.global_count,
                                          self._correction(kind)]
+
+    def _down(self):
+        """The unit vector of gravity now (zero without it): the free-surface test's direction."""
+        g = np.asarray(self.sim.gravity, dtype=np.float64)
+        return wp.vec3(*(g / np.linalg.norm(g) if g.any() else g))
+
+    def _removes_mean(self):
+        """Whether a step without free surface solves for its source less the source's mean: in a fully periodic
+        box, or without gravity (gravity now: a ramp sets it between steps). There the pressure problem is
+        singular or nearly so: a constant pressure moves nothing, or only the particles beside the walls, and a
+        source with a non-zero mean (the density drift of a disordered arrangement, which no velocity in a sealed
+        box changes) has no solution; Jacobi drifts. Under gravity the mean is the fluid's real compression
+        against the floor: removed, a tank filled to its lid blew up within ~20 steps; kept, it stays at rest."""
+        return self.drift_by_positions or not any(self.sim.gravity)
 
     def _bulk_first(self, kind):
         """Whether a solve of ``kind`` applies the bulk's warm start before its first measure (kernels/pressure.py
         warm_start_bulk): the density solve of a free-surface scene."""
-        return kind == DENSITY and not self.drift_by_positions
+        return kind == DENSITY and not self._removes_mean()
 
     def _corrected(self, kind):
         """Whether a solve of ``kind`` uses the corrected gradient (L_i, the identity on the free surface and its
@@ -262,7 +269,7 @@ class DFSPHSolver:
         is applied before it): the loop's first apply uses it."""
         sim = self.sim
         sim.launch(self._source(kind), sim.num_fluid, inputs + [self.error, self.stiffness])
-        if self.drift_by_positions:  # the periodic box without free surface: the source less its mean
+        if self._removes_mean():  # a step without free surface (on the device): the source less its mean
             sim.launch(reduce_source_sum, min(sim.num_fluid, REDUCE_THREADS),
                        [self.error, sim.num_fluid, self.free_surface, self.error_stats])
             if self.free_surface_known != 1:  # (error_stats[2] stays 0 with a free surface)

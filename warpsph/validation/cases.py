@@ -18,6 +18,9 @@ error_units, wall_s, steps (and setup_s and the case's own measurements).
   1.5 s (0.4 m cube; resolution = particles across the cube);
 - vortex-surface: as lamb-oseen, but the box is filled to 0.88 L under gravity along -y: the vortex lies below a
   free surface (``lamb_oseen.SURFACE_FILL``);
+- standing-wave: |frequency error| of the first sloshing mode of a tank 1 m long and 0.5 m deep against linear
+  theory, w^2 = g k tanh(k h), in %; its amplitude decay against 2 nu k^2 beside it (``decay_error_pct``;
+  resolution = particles along the tank);
 - dam-front: RMS error of the front Z/a against Martin & Moyce (1952), no time shift (the best shift is
   reported beside it), in units of the column width a (not a percentage: ``error_units`` "a"; resolution =
   particles across a).
@@ -46,7 +49,7 @@ import numpy as np
 
 from .taylor_green import METHODS, PACK_STEPS
 
-CASES = ("taylor-green", "lamb-oseen", "vortex-surface", "hydrostatic", "dam-front")
+CASES = ("taylor-green", "lamb-oseen", "vortex-surface", "standing-wave", "hydrostatic", "dam-front")
 MIN_RESOLUTION = 4
 FRAMES = 10  # measurements per vortex run (and frame 0)
 
@@ -56,12 +59,13 @@ ERRORS = {
                         "peak speed at T"),
     "vortex-surface": ("%", "L1 error of u_theta (annuli of one spacing, r < 0.35 m) at T = 0.5 s, % of the analytic "
                             "peak speed at T, below a free surface under gravity"),
+    "standing-wave": ("%", "|frequency error| of the first sloshing mode against linear theory, %"),
     "hydrostatic": ("%", "|mean density error| of the particles deeper than one support radius after 1.5 s, % of rho0"),
     "dam-front": ("a", "front RMS error: RMS of Z/a against Martin & Moyce (1952), no time shift, in units of the "
                        "column width a (not a percentage)"),
 }
 RESOLUTION_MEANS = {"taylor-green": "particles across L = 1 m", "lamb-oseen": "particles across L = 1 m",
-                    "vortex-surface": "particles across L = 1 m",
+                    "vortex-surface": "particles across L = 1 m", "standing-wave": "particles along the 1 m tank",
                     "hydrostatic": "particles across the 0.4 m water cube", "dam-front": "particles across the column width a"}
 
 
@@ -158,6 +162,22 @@ def vortex_surface_row(models, resolution, device, overrides=None):
     return lamb_oseen_row(models, resolution, device, overrides, free_surface=True)
 
 
+def standing_wave_row(models, resolution, device, overrides=None):
+    from .standing_wave import standing_wave
+
+    timing = {}
+
+    def on_run(sim, run, record):
+        timing["wall_s"], _ = timed_run(sim, run, record)
+
+    start = time.perf_counter()
+    t, amplitude, sim, s = standing_wave(resolution, device, models=models, overrides=overrides, on_run=on_run)
+    total = time.perf_counter() - start
+    return {"particles": sim.num_fluid, "error_pct": abs(s["frequency_error_pct"]), "wall_s": timing["wall_s"],
+            "steps": sim.step_count, "setup_s": total - timing["wall_s"], **s,
+            "amplitude_end": float(amplitude[-1]), **density_error(sim)}
+
+
 def hydrostatic_row(models, resolution, device, overrides=None):
     from .hydrostatic import SIDE, hydrostatic
 
@@ -188,7 +208,7 @@ def dam_front_row(models, resolution, device, overrides=None):
 
 
 ROWS = {"taylor-green": taylor_green_row, "lamb-oseen": lamb_oseen_row, "vortex-surface": vortex_surface_row,
-        "hydrostatic": hydrostatic_row, "dam-front": dam_front_row}
+        "standing-wave": standing_wave_row, "hydrostatic": hydrostatic_row, "dam-front": dam_front_row}
 
 
 def warm_up(models, device, overrides=None):

@@ -31,7 +31,7 @@ G = 9.81
 NU = 0.01  # [m^2/s]: amplitude decay 2 nu k^2 = 0.197 / s, 0.40 over the run
 AMPLITUDE = 0.01  # surface amplitude a [m]: k a = 0.031, linear
 PERIODS = 4.0  # the run's length in periods of the linear theory
-DEPTH = 4  # z depth in particle spacings
+DEPTH = 6  # z depth in particle spacings (a periodic axis takes at least 3 support radii)
 SAMPLES_PER_PERIOD = 24
 
 
@@ -72,7 +72,7 @@ def amplitude(sim):
     x = sim.fluid.x.numpy().astype(np.float64)
     v = sim.fluid.v.numpy().astype(np.float64)
     m = mode(x)
-    return float((v * m).sum() / (m * m).sum())
+    return float((v * m).sum() / (m * m).sum()) / (AMPLITUDE * theory()[1])
 
 
 def fit(t, A, w_guess):
