@@ -284,9 +284,10 @@ def remove_mean_source(
 # divergence solver): SPlisHSPlasH caps k dt^2 at 0.00025 m^2, 0.042 of density error at its radius 25 mm.
 WARM_START_FACTOR = wp.constant(0.5)
 WARM_START_CAP = wp.constant(0.05)
-# ... and at most this many times the density error (or its rate) this step's source still has there: dropped
-# whole when the source changed sign, a particle's warm start jumped with the last bit of its source (a clamped
-# source at 0 against 1e-9), and two runs rounding apart took other paths within 4 steps
+# ... and where the source is clamped (p >= 0), at most this many times the density error (or its rate) this
+# step's source still has: dropped whole when the clamped source reached 0, a particle's warm start jumped with
+# the last bit of its source (0 against 1e-9), and two runs rounding apart took other paths within 4 steps. (The
+# signed bulk keeps the cap alone: ramped, the periodic box's rate half ran out of iterations at 256 across.)
 WARM_START_RAMP = wp.constant(4.0)
 
 
@@ -331,7 +332,7 @@ def warm_start_pressure(
         k = wp.clamp(k, -limit, limit)
         if k * error[i] <= 0.0:
             k = 0.0
-        else:  # no more than WARM_START_RAMP x this source: continuous where the source passes 0
+        elif clamped(surface[i], free_surface):  # at most WARM_START_RAMP x this source: continuous at its clamp
             ramp = WARM_START_RAMP * wp.abs(error[i]) * factor[i]
             k = wp.clamp(k, -ramp, ramp)
     # never more than last step's pressure: a dt drop would otherwise multiply it by (dt_prev/dt)^2
@@ -343,12 +344,16 @@ def warm_start_pressure(
 @wp.kernel
 def warm_start_bulk(
     pressure_sum: wp.array(dtype=float),
+    dt: wp.array(dtype=float),
+    dt_previous: wp.array(dtype=float),
     surface: wp.array(dtype=wp.int32),
     stiffness: wp.array(dtype=float),
 ):
     """The bulk's warm start of the density solve in a free-surface scene, applied before its first measure:
-    k_i = 0.5 x last step's accumulated k_i, whole and not rescaled by dt (k is a pressure; scaled by (dt_prev/dt)^2,
-    a settled tank kicked by one step at dt / 10 jumped from 0.012 to 0.23 m/s), into ``stiffness`` and
+    k_i = 0.5 x last step's accumulated k_i, whole, times (dt_prev/dt)^2 where dt grew (a step at dt / 10 corrects
+    its density error with 100x the pressure, which the next step must not apply whole) and never scaled up where
+    it dropped (k is a pressure: scaled by 100, a settled tank kicked by one step at dt / 10 jumped from 0.012 to
+    0.23 m/s), into ``stiffness`` and
     ``pressure_sum``; 0 on the free surface and its band, whose warm start :func:`warm_start_pressure` tests
     against the measured source. In the bulk it is mostly the hydrostatic load, still needed; as the first
     iteration's stiffness, added after the measure, it agitated a resting tank at small steps (50 across,
@@ -358,7 +363,9 @@ def warm_start_bulk(
     if surface[i] == SURFACE or surface[i] == BAND:
         stiffness[i] = 0.0
         return
-    k = pressure_sum[i] * WARM_START_FACTOR
+    h = dt[0]
+    hp = dt_previous[0]
+    k = pressure_sum[i] * WARM_START_FACTOR * wp.min(hp * hp / (h * h), 1.0)
     stiffness[i] = k
     pressure_sum[i] = k
 

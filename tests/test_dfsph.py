@@ -179,14 +179,14 @@ def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
         np.testing.assert_allclose(arrays["stiffness"].numpy(), expected[kind], rtol=1e-5, err_msg=kind)
         assert not arrays["pressure_sum"].numpy().any()
 
-    # the density solve of a free-surface scene after dt halved: the bulk's half, whole and not rescaled (a pressure;
+    # the density solve of a free-surface scene after dt halved: the bulk's half, whole and not scaled up (a pressure;
     # (dt_prev/dt)^2 = 4 kicked settled tanks), before the first measure (it stays in pressure_sum, already
     # applied); the surface and band as above, after it, never scaled up by the drop
     arrays["dt_previous"] = wp.array([2 * dt], dtype=float, device=device)
     arrays["pressure_sum"] = wp.array(pressure, dtype=float, device=device)
     arrays["free_surface"] = wp.array([1], dtype=wp.int32, device=device)
-    wp.launch(warm_start_bulk, 5, inputs=[arrays["pressure_sum"], arrays["surface"], arrays["stiffness"]],
-              device=device)
+    wp.launch(warm_start_bulk, 5, inputs=[arrays["pressure_sum"], arrays["dt"], arrays["dt_previous"], arrays["surface"],
+                                          arrays["stiffness"]], device=device)
     np.testing.assert_allclose(arrays["stiffness"].numpy(), [0.5 * big, 0.5 * big, 0, 0, 0], rtol=1e-5)
     wp.launch(warm_start_pressure, 5, inputs=[arrays["error"], arrays["factor"], arrays["dt"], arrays["dt_previous"], 0,
                                                arrays["surface"], arrays["free_surface"], arrays["pressure_sum"], 1,

@@ -299,7 +299,8 @@ class DFSPHSolver:
         if not sim.scene.solver.warm_start:
             self.pressure_sum[kind].zero_()
         elif self._bulk_first(kind):
-            sim.launch(warm_start_bulk, sim.num_fluid, [self.pressure_sum[kind], self.surface, self.stiffness])
+            sim.launch(warm_start_bulk, sim.num_fluid,
+                       [self.pressure_sum[kind], sim.dt, sim.dt_previous, self.surface, self.stiffness])
             sim.exchange(self.stiffness)
             self._apply(kind, 0, velocity)
             sim.exchange(velocity)
