@@ -143,7 +143,7 @@ def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
     import warp as wp
 
     from warpsph.kernels.free_surface import BAND, SURFACE
-    from warpsph.kernels.pressure import WARM_START_RAMP, warm_start_bulk, warm_start_pressure
+    from warpsph.kernels.pressure import WARM_START_CAP, WARM_START_RAMP, warm_start_bulk, warm_start_pressure
 
     dt = 1e-3
     factor = 2.0
@@ -152,12 +152,13 @@ def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
     surface = [0, 0, SURFACE, BAND, SURFACE]
     source = [-1e-3, 1e-3, -1e-3, 1e-3, 1e-3]
     pressure = [big, big, big, big, 0.005 * big]
-    # where capped: at most WARM_START_RAMP x this step's source (here below WARM_START_CAP), halved
+    # where capped and clamped: at most WARM_START_RAMP x this step's source (here below WARM_START_CAP), halved
     ramped = 0.5 * WARM_START_RAMP * 1e-3 * factor / dt**2
+    capped = 0.5 * WARM_START_CAP * factor / dt**2
     ramped_rate = 0.5 * WARM_START_RAMP * 1e-3 * factor / dt  # the divergence solver's k is per dt, not dt^2
     expected = {
         "density": [0.5 * big, 0.5 * big, 0.0, ramped, 0.0025 * big],
-        "density, no free surface": [0.0, ramped, 0.0, ramped, 0.0025 * big],
+        "density, no free surface": [0.0, capped, 0.0, ramped, 0.0025 * big],  # the signed bulk: the cap alone
         "divergence": [0.0, ramped_rate, 0.0, ramped_rate, ramped_rate],
     }
     for kind, per_unit_time, free_surface in (("density", 0, 1), ("density, no free surface", 0, 0),

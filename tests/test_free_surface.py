@@ -68,9 +68,9 @@ def test_periodic_box_corrects_its_density_drift_through_the_positions_only(devi
 
 def test_a_pool_whose_surface_is_no_longer_detected_stays_at_rest(device, monkeypatch):
     """A pool at rest pulls its surface particles to about rho0, where the density test stops finding them (the
-    small falling-blocks scene lost all of them after ~3 s). A fluid that does not fill its domain keeps the
-    clamped regime: switching to the signed, confined one then (mean-free source, shifting) took a settled
-    tank from 0.0025 J to 6.2 J in 0.1 s (cpu)."""
+    small falling-blocks scene lost all of them after ~3 s). Its one-sided grad C along gravity still finds them
+    (kernels/free_surface.py). And with both tests off the pool stays at rest in the signed regime: under gravity
+    the source's mean is not removed (removed, a settled tank went from 0.0025 J to 6.2 J in 0.1 s)."""
     import warpsph.solver as solver
 
     sim = make_sim(tank_scene(radius=0.02, domain=(0.4, 0.6, 0.4), block=(0.4, 0.3, 0.4),
@@ -79,6 +79,9 @@ def test_a_pool_whose_surface_is_no_longer_detected_stays_at_rest(device, monkey
     settled = sim.kinetic_energy()
     assert sim.pressure_solver.free_surface_count() > 0
     monkeypatch.setattr(solver, "FREE_SURFACE_DENSITY", 0.0)  # no particle passes the density test any more
+    sim.run(until_time=0.9)
+    assert sim.pressure_solver.free_surface_count() > 0  # grad C along gravity
+    monkeypatch.setattr(solver, "FREE_SURFACE_GRADIENT", 1e9)  # nor the gradient test
     sim.run(until_time=1.0)
     assert sim.pressure_solver.free_surface_count() == 0
     assert sim.kinetic_energy() < 2.0 * settled
