@@ -124,7 +124,7 @@ def combine_values(other: wp.array(dtype=Any), ops: wp.array(dtype=wp.int32), va
 
 # the row types a step carries or exchanges, declared up front: the subdomains' threads must not create
 # overloads of a generic kernel at the same time (Warp's registry of them is not thread-safe)
-# (mat33: the corrected gradient of a box the fluid fills; its rows move and are exchanged, never combined)
+# (mat33: the corrected kernel gradient and the velocity gradient; their rows move and are exchanged, never combined)
 ROW_TYPES = (float, wp.int32, wp.vec3, wp.mat33)
 for _t in ROW_TYPES:
     wp.overload(gather_rows, [wp.array(dtype=_t), wp.array(dtype=wp.int32), int, wp.array(dtype=_t)])

@@ -30,8 +30,8 @@ def _divergence_source_kernel(corrected: bool):
         stiffness: wp.array(dtype=float),
     ):
         """Source s_i = D(rho_i/rho0)/Dt (Bender & Koschier 2017, eq 9), clamped at >= 0 at the free
-        surface and signed in the bulk (:func:`pressure_source`), and k_i from :func:`relaxed_stiffness`. In a box
-        the fluid fills :data:`compute_corrected_divergence_source` takes the rate with the corrected gradient
+        surface and signed in the bulk (:func:`pressure_source`), and k_i from :func:`relaxed_stiffness`. The solver
+        launches :data:`compute_corrected_divergence_source`, which takes the rate with the corrected gradient
         ``correction`` (:func:`compute_gradient_correction`); the plain kernel does not read it."""
         i = wp.tid()
         count = nb.fluid_offsets[i + 1] - nb.fluid_offsets[i] + nb.boundary_offsets[i + 1] - nb.boundary_offsets[i]

@@ -142,7 +142,7 @@ def _pressure_acceleration_kernel(corrected: bool):
         the equal and opposite impulse dt V_b k_i grad W_ib (per unit mass of i). With ``accumulate``
         set, k_i is added to ``stiffness_sum`` (the pressure used in this step, for warm start).
 
-        In a box the fluid fills :data:`apply_corrected_pressure_acceleration` takes the corrected gradient, L_i of
+        :data:`apply_corrected_pressure_acceleration` (every solve but the periodic box's drift half) takes L_i of
         :func:`compute_gradient_correction` (the plain kernel does not read ``correction``): v_i -= dt
         (sum_f V_j (k_i L_i + k_j L_j) grad W_ij + sum_b V_b k_i L_i grad W_ib), the negative adjoint of
         :func:`corrected_density_rate`. So the pressure does no work on a velocity whose corrected divergence is
@@ -263,9 +263,10 @@ def remove_mean_source(
     error: wp.array(dtype=float),
     stiffness: wp.array(dtype=float),
 ):
-    """Compatibility condition of a box without free surface (``free_surface[0]`` 0; periodic or walled
-    all round): the pressure problem is pure Neumann, a constant pressure moves nothing, so a source with
-    a non-zero sum has no solution and Jacobi drifts. s_i := s_i - mean(s) (mean = error_stats[2] / count,
+    """Compatibility condition of a step without free surface (``free_surface[0]`` 0) where the solver removes
+    the source's mean (a periodic box, or a sealed box without gravity: DFSPHSolver._removes_mean): the pressure
+    problem is (nearly) pure Neumann, a constant pressure moves nothing, so a source with a non-zero sum has no
+    solution and Jacobi drifts. s_i := s_i - mean(s) (mean = error_stats[2] / count,
     from :func:`reduce_source_sum`), and k_i again from :func:`relaxed_stiffness`."""
     if free_surface[0] != 0:
         return

@@ -3,8 +3,8 @@
 Under a signed pressure SPH particles pair up (tensile instability), and a disordered distribution has a higher
 summation density than the lattice at the same number density. Shifting moves each bulk particle down the
 gradient of the particle concentration C_i = sum_j V_j W_ij after the position update, which keeps the
-distribution close to uniform. In a full tank (walls, no free surface) only the particle-scale part of grad C
-moves a bulk particle: grad C less its kernel-weighted mean over the bulk neighbours. The smooth part is not a
+distribution close to uniform. Outside the periodic box only the particle-scale part of grad C moves a bulk
+particle: grad C less its kernel-weighted mean over the bulk neighbours. The smooth part is not a
 disorder but the curvature of the particle rows (a vortex's core reads grad C inwards on every particle);
 shifted out along it, the core was pulled back in by the density solve, which corrects the drift through the
 velocity there, and each cycle added angular momentum. Lamb-Oseen on the CPU at 16 / 24 / 32 across:
@@ -51,12 +51,11 @@ def compute_shift(
 ):
     """shift_i = -D grad C_i, D = coefficient h max|v| dt (Skillen et al. 2013 with the step's largest speed,
     h = H / 2), |shift_i| <= max_shift; grad C_i = sum_f V_j grad W_ij + sum_b V_b grad W_ib from the density
-    pass at the step's start. With ``high_pass`` (a full tank) a bulk particle takes grad C_i - <grad C>_i,
-    <grad C>_i = sum_j W_ij grad C_j / sum_j W_ij over i and its bulk fluid neighbours. In the surface band and
-    beside walls only its part normal to grad C_i (which is the surface's or the wall's normal there), none on
-    the free surface. Only in a box
-    without free surface (``free_surface[0]`` 0): with one, the shift from the step-start grad C
-    compressed a 16K dam break to 1.15 rho0 (docs/notes/solver.md)."""
+    pass at the step's start. With ``high_pass`` (every box but the periodic one) a bulk particle takes
+    grad C_i - <grad C>_i, <grad C>_i = sum_j W_ij grad C_j / sum_j W_ij over i and its bulk fluid neighbours (the
+    whole grad C in a free-surface scene compressed a 16K dam break to 1.15 rho0, docs/notes/solver.md). In the
+    surface band and beside walls only its part normal to grad C_i (which is the surface's or the wall's normal
+    there), none on the free surface. ``free_surface`` is not read."""
     i = wp.tid()
     d = wp.vec3(0.0)
     flag = surface[i]

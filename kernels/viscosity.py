@@ -1,5 +1,5 @@
-"""The viscous Laplacian: the artificial viscosity of the VR paper (eq 4, after Koschier et al. 2019), and in a full
-tank the componentwise (Morris et al. 1997) Laplacian with eq 4 on its gradient-corrected residual.
+"""The viscous Laplacian: the artificial viscosity of the VR paper (eq 4, after Koschier et al. 2019), and away from the
+free surface the componentwise (Morris et al. 1997) Laplacian with eq 4 on its gradient-corrected residual.
 """
 
 import warp as wp
@@ -97,7 +97,8 @@ def _viscosity_acceleration_kernel(corrected: bool):
         When a turbulence model needs it, the same neighbour loop also yields the vorticity
         zeta_i = sum_j (m_j/rho_j)(v_i - v_j) x grad W_ij (eq 6): one pass instead of two.
 
-        :data:`add_corrected_viscosity_acceleration` (a full tank) takes the Laplacian componentwise
+        :data:`add_corrected_viscosity_acceleration` takes, away from the free surface and its band (``surface``),
+        the Laplacian componentwise
         and adds eq 4 of the residual v_ij - (grad v_i + grad v_j) x_ij / 2 (``gradient`` from
         :func:`compute_velocity_gradient`; the plain kernel does not read it), weighted CORRECTED_STABILISER.
         Eq 4 acts as nu on an isotropic neighbourhood, but as 0.7 nu on a shear along particle rows and 1.4 nu

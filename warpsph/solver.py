@@ -6,13 +6,15 @@ tolerance and the minimum iterations are done, or the maximum is reached. The de
 is made on the device (:func:`update_solver_status`) and the loop is a
 ``wp.capture_while``: on CUDA inside a captured graph no iteration waits on the host.
 
-One solver serves free-surface and confined flow. Each step the free surface is detected per
-particle (:func:`classify_free_surface`, from the divergence of position and the density of the
-density pass). A scene with free-surface particles keeps p >= 0 everywhere, as SPlisHSPlasH does
-(:func:`clamped` says why). A box without free surface (periodic or walled all round) has signed
-pressure (relaxed Jacobi), so a vortex keeps its low-pressure core, and the mean of its source is
-removed. Particle shifting (:func:`compute_shift`, Lind et al. 2012) there keeps the particles from
-pairing up under negative pressure; beside walls it is tangential.
+One solver serves every scene, decided per particle each step. The density pass's divergence of position,
+density and concentration gradient classify each particle as surface, band, wall or bulk
+(:func:`classify_free_surface`). Bulk particles solve with the corrected kernel gradient L_i
+(:func:`compute_gradient_correction`, blended to the identity towards the band), the others with the plain one.
+A step with free-surface particles keeps p >= 0 everywhere, as SPlisHSPlasH does (:func:`clamped` says why); a
+step without one has signed pressure (relaxed Jacobi), so a vortex keeps its low-pressure core. The source's
+mean is removed where the problem is singular or nearly so (:meth:`DFSPHSolver._removes_mean`). Particle shifting
+(:func:`compute_shift`, Lind et al. 2012) keeps the bulk's arrangement even; beside walls and in the band it is
+tangential, on the surface off.
 """
 
 from __future__ import annotations
@@ -180,12 +182,12 @@ class DFSPHSolver:
         plain gradient of a smooth pressure, are smooth errors of order one (Taylor-Green at 16 / 24 / 32 across:
         7.00 / 4.01 / 2.88 % plain, 2.39 / 1.55 / 1.19 % corrected). The drift half keeps the plain operators of
         the summation density it corrects. With walls the drift half does not converge (the Akinci walls' density
-        is a standing drift; Lamb-Oseen ran into its cap every step at 256 across), so a box with walls that the
-        fluid fills keeps the single solve, with the corrected gradient: the plain one's pressure force, on the
-        arrangement a vortex shears, has a part along the streamlines that took 2-3 % of the angular momentum
-        inside Lamb-Oseen's core region by T and grew with resolution (L1 0.92 / 1.33 / 2.17 % at 128 / 256 / 512
-        across; corrected 0.69 / 0.39 / 0.19 %, docs/notes/solver.md). Free-surface scenes keep the plain
-        operators.
+        is a standing drift; Lamb-Oseen ran into its cap every step at 256 across), so every other box keeps the
+        single solve, with the corrected gradient in the bulk: the plain one's pressure force, on the arrangement a
+        vortex shears, has a part along the streamlines that took 2-3 % of the angular momentum inside Lamb-Oseen's
+        core region by T and grew with resolution (L1 0.92 / 1.33 / 2.17 % at 128 / 256 / 512 across; corrected
+        0.69 / 0.39 / 0.19 %), and below a free surface it lost 38 % of u_theta at every resolution (0.36 % at 256
+        across corrected; docs/notes/solver.md).
         """
         s = self.sim.scene.solver
         tolerance = s.density_max_error * 0.01

@@ -1,5 +1,5 @@
-"""Viscosity, the fluid's own non-pressure force: the artificial viscosity of the VR paper (eq 4), and where the
-fluid fills a box with walls the corrected operator of kernels/viscosity.py."""
+"""Viscosity, the fluid's own non-pressure force: the artificial viscosity of the VR paper (eq 4) on the free surface
+and its band, and the corrected operator of kernels/viscosity.py elsewhere."""
 
 import warp as wp
 
@@ -16,13 +16,12 @@ from . import Model, register
 class Viscosity(Model):
     """a_i += nu laplacian(v)_i; enabled whenever the scene's fluid viscosity is > 0.
 
-    Where the fluid fills a box with walls (``ctx.fills_walled_box``: a full tank) the Laplacian is the
-    corrected one (:data:`add_corrected_viscosity_acceleration`), which takes a velocity-gradient pass and a
-    mat33 a particle; elsewhere eq 4. Lamb-Oseen on the H200 at 64 / 128 / 256 across: 0.97 / 0.69 / 0.39 % with
-    it, 1.90 / 1.52 / 1.12 % with eq 4 (peak vorticity 2-4 % high; docs/notes/solver.md). The periodic box keeps
-    eq 4: there the corrected operator did not fall from 128 to 256 across (Taylor-Green 0.33 / 0.34 %, eq 4
-    0.33 / 0.26 %). Free-surface scenes keep eq 4: the dam front is the same with either, and the 1M-particle
-    step has no neighbour pass to spare."""
+    Away from the free surface and its band (``ctx.surface_flags``) the Laplacian is the corrected one
+    (:data:`add_corrected_viscosity_acceleration`), which takes a velocity-gradient pass and a mat33 a particle;
+    eq 4 on the surface and its band, with IISPH (no surface flags) and in a periodic box. Lamb-Oseen on the H200 at
+    64 / 128 / 256 across: 0.97 / 0.69 / 0.39 % with it, 1.90 / 1.52 / 1.12 % with eq 4 (peak vorticity 2-4 %
+    high; docs/notes/solver.md). In the periodic box the corrected operator did not fall from 128 to 256 across
+    (Taylor-Green 0.33 / 0.34 %, eq 4 0.33 / 0.26 %)."""
 
     computes_vorticity = True  # fills the shared vorticity field (ctx.vorticity) in the same pass when it exists
     corrected_bytes_per_particle = 36  # the velocity gradient, where the operator is the corrected one
