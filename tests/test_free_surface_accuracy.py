@@ -37,13 +37,14 @@ def _max_speed(sim):
 def test_sealed_tank_under_gravity_stays_at_rest(device):
     """A closed box of water filled to the lid under gravity. The mean of the density source used to be removed in
     every box without free surface; with Akinci walls that mean is real compression and the tank blew up within
-    ~20 steps. Measured: mean density 1.0002 rho0 and max |v| 6e-3 m/s (5 sqrt(gH) x 1e-3) after 1 s."""
+    ~20 steps. Measured: mean density 1.0001 rho0 and max |v| 9.7e-3 m/s (7.8e-3 sqrt(gH); the goal of #37 is
+    1e-3 sqrt(gH), not reached) after 1 s."""
     sim, side = _sealed_tank(device)
     sim.run(until_time=1.0)
     assert sim.pressure_solver.free_surface_count() == 0
     density = sim.host(sim.fluid.density) / sim.rest_density
     assert abs(density.mean() - 1.0) < 1e-3
-    assert _max_speed(sim) < 0.015 * np.sqrt(9.81 * side)
+    assert _max_speed(sim) < 0.012 * np.sqrt(9.81 * side)
 
 
 def test_a_dt_drop_does_not_kick_a_settled_tank(device):
