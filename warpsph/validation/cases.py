@@ -155,6 +155,7 @@ def lamb_oseen_row(models, resolution, device, overrides=None, free_surface=Fals
             "omega_decay_exact": s["omega_decay_exact"], "nu_effective": s["nu_effective"], "r_peak": s["r_peak_end"],
             "r_peak_exact": s["r_peak_exact_end"], "ke_ratio": s["ke_ratio_end"],
             "ke_exact_ratio": s["ke_exact_ratio_end"], "centre_offset": s["centre_offset_end"],
+            "angular_momentum_ratio": s["angular_momentum_ratio_end"],
             "error_pct_frames": [100.0 * r["l1_relative"] for r in rows], **density_error(sim)}
 
 

@@ -164,10 +164,12 @@ def measure(sim, p, edges, t):
     omega_curl = float(zeta[axis].mean()) if axis.any() else float("nan")
     core = mid & (r < 2 * p["core_radius_0"]) & (zeta > 0)
     offset = (np.average(x[core, :2], axis=0, weights=zeta[core]) - centre[:2]) if core.any() else np.zeros(2)
+    # total angular momentum about the box centre's z axis per unit mass (walls and surface included)
+    angular = float(((x[:, 0] - centre[0]) * v[:, 1] - (x[:, 1] - centre[1]) * v[:, 0]).sum())
     inside = r < edges[-1]
     kinetic_exact = float((analytic_u_theta(r[inside], t, p["gamma"], p["nu"], p["t0"]) ** 2).sum())
     return {"time": t, "u_theta": u_bins.tolist(), "u_theta_exact": exact_u.tolist(),
-            "ke_exact_ratio": float((v[inside] ** 2).sum()) / kinetic_exact,
+            "ke_exact_ratio": float((v[inside] ** 2).sum()) / kinetic_exact, "angular_momentum": angular,
             "l1_error": float(err.mean()), "l1_relative": float(err.mean() / u_peak_exact),
             "r_peak": peak_radius(r_bins[full], u_bins[full]),
             "r_peak_exact": float(analytic_peak_radius(t, p["nu"], p["t0"])),
@@ -243,6 +245,7 @@ def summary(rows, nu):
             "omega_decay_exact": last["omega_exact"] / first["omega_exact"],
             "r_peak_end": last["r_peak"], "r_peak_exact_end": last["r_peak_exact"],
             "ke_ratio_end": last["ke_ratio"], "ke_exact_ratio_end": last["ke_exact_ratio"],
+            "angular_momentum_ratio_end": last["angular_momentum"] / first["angular_momentum"],
             "centre_offset_end": last["centre_offset"]}
 
 
