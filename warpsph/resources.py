@@ -42,7 +42,7 @@ def estimate_bytes(scene, num_fluid, num_boundary):
     per_fluid += sum(p.bytes_per_particle for p in plugins)  # each model's own arrays
     if scene.solver.method != "iisph":
         per_fluid += CORRECTED
-        if scene.fluid.viscosity > 0.0 and len(scene.domain.periodic) < 3:  # the corrected viscosity's gradient
+        if Viscosity.takes_corrected_operator(scene):  # the corrected viscosity's velocity gradient
             per_fluid += Viscosity.corrected_bytes_per_particle
     per_fluid += SHARED_VORTICITY if any(p.needs_vorticity for p in plugins) else 0
     per_fluid += 4 * max(scratch)  # the scratch pool (DFSPH: if wider than its own, counted in SOLVER)

@@ -57,7 +57,7 @@ PEAK_ERROR_RATIO = 100.0
 # Divergence of position below which a particle is on the free surface: DualSPHysics' 3D value
 # (2.75 between the bulk's 3 and a flat surface's 2.2 for the cubic spline at support 4r).
 FREE_SURFACE_THRESHOLD = 2.75
-# ... and density (rho / rho0) below which, or |grad C| above which, in units of 1 / particle spacing
+# ... and density (rho / rho0) below which, or grad C along gravity above which (in units of 1 / particle spacing)
 # (kernels/free_surface.py says why)
 FREE_SURFACE_DENSITY = 0.95
 FREE_SURFACE_GRADIENT = 0.25

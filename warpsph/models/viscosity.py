@@ -26,13 +26,17 @@ class Viscosity(Model):
     computes_vorticity = True  # fills the shared vorticity field (ctx.vorticity) in the same pass when it exists
     corrected_bytes_per_particle = 36  # the velocity gradient, where the operator is the corrected one
 
+    @staticmethod
+    def takes_corrected_operator(scene):
+        """Whether ``scene`` runs the corrected operator away from the free surface: with DFSPH (IISPH detects no
+        surface), a viscosity, and walls (the periodic box keeps eq 4: there the corrected operator did not fall
+        from 128 to 256 across, Taylor-Green 0.33 / 0.34 % against eq 4's 0.33 / 0.26 %)."""
+        return scene.solver.method != "iisph" and scene.fluid.viscosity > 0.0 and len(scene.domain.periodic) < 3
+
     def __init__(self, ctx, params=None):
         super().__init__(ctx, params)
         self._empty_vec3 = wp.empty(0, dtype=wp.vec3, device=ctx.device)
-        # the periodic box keeps eq 4: there the corrected operator did not fall from 128 to 256 across (Taylor-Green
-        # 0.33 / 0.34 %, eq 4 0.33 / 0.26 %) and blew Taylor-Green up at 256 across within 56 steps
-        self.corrected = (ctx.surface_flags is not None and ctx.scene.fluid.viscosity > 0.0
-                          and len(ctx.scene.domain.periodic) < 3)
+        self.corrected = self.takes_corrected_operator(ctx.scene)
         self._empty_flags = wp.empty(0, dtype=wp.int32, device=ctx.device)
         self.gradient = (ctx.per_particle("viscosity", wp.mat33) if self.corrected
                          else wp.empty(0, dtype=wp.mat33, device=ctx.device))
