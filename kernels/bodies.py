@@ -37,14 +37,17 @@ def sum_body_impulses(
     body_count: int,
     totals: wp.array(dtype=wp.vec3),
 ):
-    """Per dynamic body: the linear impulse the fluid gave its samples this step (totals[b]) and
-    its angular impulse about the centre of mass (totals[body_count + b]); the samples' impulses
-    are cleared for the next step."""
+    """Per dynamic body: the linear impulse the fluid gave its samples this step (totals[b]), its
+    angular impulse about the centre of mass (totals[body_count + b]) and, in the x of
+    totals[2 body_count + b], how many of its samples the fluid touched (a nonzero impulse: the wetted
+    samples); the samples' impulses are cleared for the next step."""
     s = wp.tid()
     j = impulse[first + s]
     b = sample_body[s]
     wp.atomic_add(totals, b, j)
     wp.atomic_add(totals, body_count + b, wp.cross(x[first + s] - position[b], j))
+    if wp.length_sq(j) > 0.0:
+        wp.atomic_add(totals, 2 * body_count + b, wp.vec3(1.0, 0.0, 0.0))
     impulse[first + s] = wp.vec3(0.0)
 
 

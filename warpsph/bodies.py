@@ -24,10 +24,13 @@ from warpsph.scene import Motion, Obstacle
 BODY_INSET = 1.2  # particle radii between a closed mesh's surface and its samples (as the domain walls' offset)
 # Explicit (partitioned) coupling is unstable for bodies lighter than the fluid they push around
 # (the added-mass instability): a box of density 500 settling in water bounced out of it at 0.6 m/s
-# after 0.4 s. The body's response to the step's forces (fluid + gravity) is therefore divided by
-# (M + ADDED_MASS rho0 V) / M: equilibria (buoyancy = weight) are unchanged, motions toward them are
-# slower for light bodies (a heavy body, M >> rho0 V, barely notices).
+# after 0.4 s. Each step's acceleration is therefore relaxed towards the last one by the added mass
+# m_a = ADDED_MASS rho0 V w (w: the share of the body's samples the fluid touched this step):
+# (M + m_a) a = F_fluid + M g + m_a a_last. Gravity acts on the true mass, equilibria (a = 0) are
+# unchanged, and a body in air (w = 0) falls at g.
 ADDED_MASS = 1.0
+STATE_COLUMNS = 24  # a dynamic body's state row: position 3, rotation 9, velocity 3, angular velocity 3,
+# acceleration 3, angular acceleration 3
 WALL_FRICTION = 0.5  # fraction of the tangential velocity a dynamic body keeps per step in wall contact
 
 
@@ -48,7 +51,10 @@ class RigidBody:
     samples: np.ndarray  # boundary samples in body space
     reference: np.ndarray  # world position of the body-space origin at the placement
     mass: float = 0.0
-    added_mass: float = 0.0  # ADDED_MASS x the mass of fluid the body displaces
+    added_mass: float = 0.0  # ADDED_MASS x the mass of fluid the body displaces when wholly wetted
+    # the last step's linear and angular acceleration (the added-mass relaxation's lag)
+    acceleration: np.ndarray = None
+    angular_acceleration: np.ndarray = None
     inertia: np.ndarray = None  # body-space inertia tensor about the centre of mass
     # pose and rigid velocity (world)
     position: np.ndarray = None
@@ -95,7 +101,8 @@ def load_body(obstacle: Obstacle, path, spacing, domain_size, default_name, flui
     body = RigidBody(name=obstacle.name or default_name, obstacle=obstacle,
                      vertices=np.asarray(mesh.vertices, np.float64) - reference, faces=np.asarray(mesh.faces, np.int32),
                      samples=samples, reference=reference, closed=bool(mesh.is_watertight), mass=mass, added_mass=added_mass, inertia=inertia,
-                     position=reference.copy(), rotation=np.eye(3), velocity=np.zeros(3), angular_velocity=np.zeros(3))
+                     position=reference.copy(), rotation=np.eye(3), velocity=np.zeros(3), angular_velocity=np.zeros(3),
+                     acceleration=np.zeros(3), angular_acceleration=np.zeros(3))
     if kind == "dynamic":
         body.velocity = np.asarray(obstacle.dynamics.velocity, np.float64)
         body.angular_velocity = np.asarray(obstacle.dynamics.angular_velocity, np.float64)
@@ -178,9 +185,11 @@ class MovingBodies:
         self.position = sim.zeros("bodies", n, dtype=wp.vec3)
         self.velocity = sim.zeros("bodies", n, dtype=wp.vec3)
         self.angular_velocity = sim.zeros("bodies", n, dtype=wp.vec3)
-        self.totals = sim.zeros("bodies", 2 * n, dtype=wp.vec3)
-        # dynamic state for checkpoints and retried frames: position, rotation, velocity, angular velocity
-        self.state = sim.zeros("bodies", (max(len(self.dynamic), 1), 18), dtype=float)
+        self.totals = sim.zeros("bodies", 3 * n, dtype=wp.vec3)
+        self.sample_counts = np.asarray(counts, np.float64)
+        # dynamic state for checkpoints and retried frames: position, rotation, velocity, angular velocity,
+        # and the last step's accelerations
+        self.state = sim.zeros("bodies", (max(len(self.dynamic), 1), STATE_COLUMNS), dtype=float)
         if self.dynamic:
             sim.state.carry("bodies/state", self.state)
         self._store_state()
@@ -223,10 +232,15 @@ class MovingBodies:
             if body.kind != "dynamic":
                 continue
             linear, angular = totals[k], totals[n + k]
-            relax = body.mass / (body.mass + body.added_mass)  # see ADDED_MASS
-            body.velocity = body.velocity + relax * (linear / body.mass + dt * np.asarray(gravity))
+            wetted = totals[2 * n + k][0] / sim.particle_mass / self.sample_counts[k]
+            relax = body.mass / (body.mass + wetted * body.added_mass)  # see ADDED_MASS
             inertia_world = body.rotation @ body.inertia @ body.rotation.T
-            body.angular_velocity = body.angular_velocity + relax * np.linalg.solve(inertia_world, angular)
+            body.acceleration = (relax * (linear / (dt * body.mass) + np.asarray(gravity))
+                                 + (1.0 - relax) * body.acceleration)
+            body.angular_acceleration = (relax * np.linalg.solve(inertia_world, angular / dt)
+                                         + (1.0 - relax) * body.angular_acceleration)
+            body.velocity = body.velocity + dt * body.acceleration
+            body.angular_velocity = body.angular_velocity + dt * body.angular_acceleration
             body.position = body.position + dt * body.velocity
             w = body.angular_velocity
             angle = float(np.linalg.norm(w)) * dt
@@ -262,7 +276,8 @@ class MovingBodies:
     def _store_state(self):
         if not self.dynamic:
             return
-        rows = [np.concatenate([b.position, b.rotation.ravel(), b.velocity, b.angular_velocity]) for b in self.dynamic]
+        rows = [np.concatenate([b.position, b.rotation.ravel(), b.velocity, b.angular_velocity, b.acceleration,
+                                b.angular_acceleration]) for b in self.dynamic]
         self.state.assign(np.asarray(rows, np.float32))
 
     def load_state(self):
@@ -272,3 +287,4 @@ class MovingBodies:
         for row, body in zip(self.state.numpy().astype(np.float64), self.dynamic):
             body.position, body.rotation = row[0:3].copy(), row[3:12].reshape(3, 3).copy()
             body.velocity, body.angular_velocity = row[12:15].copy(), row[15:18].copy()
+            body.acceleration, body.angular_acceleration = row[18:21].copy(), row[21:24].copy()

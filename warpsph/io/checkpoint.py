@@ -16,6 +16,7 @@ import os
 from pathlib import Path
 
 import h5py
+import numpy as np
 import warp as wp
 
 from warpsph.errors import SceneError
@@ -123,7 +124,11 @@ def load_checkpoint(path, scene=None, device=None):
             raise SceneError(path, "", "particle count differs from the scene's")
         try:
             for name, a in sim.state_arrays().items():
-                a.assign(f[name][...])
+                stored = f[name][...]
+                if len(a.shape) == 2 and stored.ndim == 2 and stored.shape[:1] == a.shape[:1] and stored.shape[1] < a.shape[1]:
+                    # a row that has grown columns since (a dynamic body's accelerations): they start at zero
+                    stored = np.pad(stored, ((0, 0), (0, a.shape[1] - stored.shape[1])))
+                a.assign(stored)
         except (KeyError, ValueError, TypeError) as exc:
             raise SceneError(path, "", f"damaged checkpoint ({exc!r})") from None
         sim.restore_flags({k[5:]: v for k, v in f.attrs.items() if k.startswith("flag:")})
