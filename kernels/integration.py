@@ -2,7 +2,7 @@
 
 import warp as wp
 
-from .particles import wrap_into_domain
+from .particles import keep_in_domain
 from .pressure import REDUCE_THREADS
 
 wp.set_module_options({"enable_backward": False})
@@ -68,11 +68,21 @@ def advect_positions(
     dt: wp.array(dtype=float),
     lower: wp.vec3,
     period: wp.vec3,
+    inside_lo: wp.vec3,
+    inside_hi: wp.vec3,
     x: wp.array(dtype=wp.vec3),
 ):
-    """x^{n+1} = x^n + dt v (after the density solve), wrapped into the domain along periodic axes."""
+    """x^{n+1} = x^n + dt v (after the density solve), wrapped into the domain along periodic axes and held
+    inside its walled faces, where the velocity into the wall is removed."""
     i = wp.tid()
-    x[i] = wrap_into_domain(x[i] + dt[0] * v[i], lower, period)
+    moved = x[i] + dt[0] * v[i]
+    kept = keep_in_domain(moved, lower, period, inside_lo, inside_hi)
+    vi = v[i]
+    for k in range(3):
+        if (moved[k] < inside_lo[k] and vi[k] < 0.0) or (moved[k] > inside_hi[k] and vi[k] > 0.0):
+            vi[k] = 0.0
+    v[i] = vi
+    x[i] = kept
 
 
 @wp.kernel

@@ -38,6 +38,20 @@ def wrap_into_domain(p: wp.vec3, lower: wp.vec3, period: wp.vec3):
 
 
 @wp.func
+def keep_in_domain(p: wp.vec3, lower: wp.vec3, period: wp.vec3, inside_lo: wp.vec3, inside_hi: wp.vec3):
+    """Point p wrapped along the periodic axes and held within [inside_lo, inside_hi] along the walled
+    ones (the domain's faces: a particle never crosses a wall, whatever its speed). NaN stays NaN, for the
+    health check to find."""
+    out = wrap_into_domain(p, lower, period)
+    for k in range(3):
+        if out[k] < inside_lo[k]:
+            out[k] = inside_lo[k]
+        elif out[k] > inside_hi[k]:
+            out[k] = inside_hi[k]
+    return out
+
+
+@wp.func
 def separation(nb: Neighbours, a: wp.vec3, b: wp.vec3):
     """x_ab = a - b, through the periodic boundaries where the domain has them."""
     return periodic_offset(a - b, nb.period)

@@ -19,7 +19,7 @@ shift is the plain -D grad C and the velocity stays.
 import warp as wp
 
 from .free_surface import BAND, BULK, SURFACE, WALL
-from .particles import Neighbours, separation, wrap_into_domain
+from .particles import Neighbours, keep_in_domain, separation
 from .sph_kernel import cubic_kernel, cubic_kernel_zero
 
 wp.set_module_options({"enable_backward": False})
@@ -85,8 +85,10 @@ def apply_shift(
     shift: wp.array(dtype=wp.vec3),
     lower: wp.vec3,
     period: wp.vec3,
+    inside_lo: wp.vec3,
+    inside_hi: wp.vec3,
     x: wp.array(dtype=wp.vec3),
 ):
-    """x_i += shift_i, wrapped into the domain along periodic axes."""
+    """x_i += shift_i, wrapped into the domain along periodic axes and held inside its walled faces."""
     i = wp.tid()
-    x[i] = wrap_into_domain(x[i] + shift[i], lower, period)
+    x[i] = keep_in_domain(x[i] + shift[i], lower, period, inside_lo, inside_hi)

@@ -153,6 +153,10 @@ class Simulation:
                 first_dynamic=first_dynamic if has_dynamic else self.num_boundary)
             self.moving_bodies = MovingBodies(self, moving, first_moving) if moving else None
             self.neighbours = NeighbourSearch(self, self.boundary.x)
+            # the walled faces hold every fluid particle (periodic axes wrap; an open domain lets them leave)
+            walled = [scene.domain.walls and "xyz"[k] not in scene.domain.periodic for k in range(3)]
+            self.inside_lo = wp.vec3(*[scene.domain.min[k] if walled[k] else -1e30 for k in range(3)])
+            self.inside_hi = wp.vec3(*[scene.domain.max[k] if walled[k] else 1e30 for k in range(3)])
             if self.num_boundary:  # V_b once: static samples together, each moving body on its own
                 sample_body = wp.array(body, dtype=wp.int32, device=self.device)
                 first_moving_body = int(body[first_moving]) if moving else len(self.bodies) + 1
@@ -433,7 +437,8 @@ class Simulation:
         with t("density_solve"):  # projection: rho*(x + dt v_adv) -> rho0 (IISPH: its whole pressure solve)
             self.pressure_solver.correct_density()
         with t("integration"):  # x^{n+1} = x^n + dt v
-            self.launch(advect_positions, n, [f.v, self.dt, self.neighbours.lower, self.neighbours.period, f.x])
+            self.launch(advect_positions, n, [f.v, self.dt, self.neighbours.lower, self.neighbours.period, self.inside_lo,
+                                              self.inside_hi, f.x])
             self.pressure_solver.shift_particles()  # particle shifting (no-op when off)
             self.launch(advance_clock, 1, [self.dt, self.time_device, self.steps_device])
         with t("health"):  # NaN/inf, escaped particles, runaway density: counted on the device

@@ -319,12 +319,12 @@ class DFSPHSolver:
     def shift_particles(self):
         """After the position update: the density drift's correction (a periodic box, see
         :meth:`correct_density`), then particle shifting down the concentration gradient of the step's
-        density pass (none when ``solver.shifting`` is 0, nor where the fluid does not fill its domain: a
-        free-surface scene keeps p >= 0 and :func:`compute_shift` moves nothing there)."""
+        density pass (none when ``solver.shifting`` is 0; tangential beside walls and in the surface band, none on
+        the free surface: :func:`compute_shift`)."""
         sim, f = self.sim, self.sim.fluid
         if self.drift_by_positions:
             sim.launch(advect_positions, sim.num_fluid, [self.drift_velocity, sim.dt, sim.neighbours.lower,
-                                                         sim.neighbours.period, f.x])
+                                                         sim.neighbours.period, sim.inside_lo, sim.inside_hi, f.x])
         if self.shifting <= 0.0:
             return
         sim.exchange(self.concentration_gradient, self.surface)  # read at the neighbours
@@ -332,7 +332,8 @@ class DFSPHSolver:
                    [self.concentration_gradient, f.x, sim.neighbours.lists, self.surface, self.free_surface,
                     sim.support_radius, sim.dt, sim.max_speed_sq, self.shifting,
                     MAX_SHIFT * sim.scene.particle_diameter, int(not self.drift_by_positions), self.shift])
-        sim.launch(apply_shift, sim.num_fluid, [self.shift, sim.neighbours.lower, sim.neighbours.period, f.x])
+        sim.launch(apply_shift, sim.num_fluid, [self.shift, sim.neighbours.lower, sim.neighbours.period, sim.inside_lo,
+                                                sim.inside_hi, f.x])
 
     # -- statistics (host reads, outside the step) -----------------------------------------
     def iteration_totals(self):
