@@ -66,3 +66,40 @@ def mark_fluid_clear_of_mesh(
         closest = wp.mesh_eval_position(mesh, query.face, query.u, query.v)
         if query.sign < 0.0 or wp.length(x[i] - closest) < clearance:
             keep[i] = 0
+
+
+@wp.kernel
+def measure_body_contacts(
+    local: wp.array(dtype=wp.vec3),
+    sample_body: wp.array(dtype=wp.int32),
+    rotation: wp.array(dtype=wp.mat33),
+    position: wp.array(dtype=wp.vec3),
+    meshes: wp.array(dtype=wp.uint64),
+    closed: wp.array(dtype=wp.int32),
+    reach: float,
+    body_count: int,
+    depth: wp.array(dtype=float),
+    push: wp.array(dtype=wp.vec3),
+):
+    """Launched over (dynamic body samples, bodies): how deep sample s of body b lies within ``reach`` of body o's
+    mesh surface (inside a closed mesh counts from the surface inward). depth[b body_count + o] takes the largest
+    such depth, push[b body_count + o] the depth-weighted sum of the world directions that move b out of o."""
+    s, o = wp.tid()
+    b = sample_body[s]
+    if b == o:
+        return
+    x = rotation[b] * local[s] + position[b]
+    p = wp.transpose(rotation[o]) * (x - position[o])
+    query = wp.mesh_query_point_sign_winding_number(meshes[o], p, 1.0e6)
+    if not query.result:
+        return
+    offset = p - wp.mesh_eval_position(meshes[o], query.face, query.u, query.v)
+    distance = wp.length(offset)
+    direction = offset / wp.max(distance, 1.0e-9)
+    d = reach - distance
+    if closed[o] != 0 and query.sign < 0.0:
+        d = reach + distance
+        direction = -direction
+    if d > 0.0:
+        wp.atomic_max(depth, b * body_count + o, d)
+        wp.atomic_add(push, b * body_count + o, d * (rotation[o] * direction))

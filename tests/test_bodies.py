@@ -216,3 +216,28 @@ def test_checkpoint_of_a_body_without_its_accelerations_loads(tmp_path):
     body = restored.moving_bodies.dynamic[0]
     np.testing.assert_allclose(body.position, sim.moving_bodies.dynamic[0].position, atol=1e-6)
     np.testing.assert_allclose(body.acceleration, 0.0)
+
+
+def _box(name, y, density=None):
+    box = {"mesh": "meshes/unit_box.obj", "scale": [0.2, 0.2, 0.2], "translation": [0.45, y, 0.2], "name": name}
+    if density is not None:
+        box["dynamics"] = {"density": density}
+    return box
+
+
+@pytest.mark.parametrize("lower_density", [800.0, None])  # dynamic, static
+def test_a_dropped_box_comes_to_rest_on_another(lower_density):
+    """A 0.2 m box dropped in air onto a dynamic box on the floor (or onto a static one) stops on it: no body passes
+    through another (before, both dynamic boxes ended at the floor, one inside the other)."""
+    low = 0.1 if lower_density else 0.15
+    data = tank_scene(radius=0.02, domain=(0.7, 1.0, 0.4), block=(0.12, 0.12, 0.4), output={"fps": 10},
+                      obstacles=[_box("low", low, lower_density), _box("high", 0.6, 800.0)])
+    sim = make_sim(data, base_dir=SCENES_DIR)
+    high = [b for b in sim.moving_bodies.bodies if b.name == "high"][0]
+    gaps = []
+    while sim.time < 0.8:
+        sim.step()
+        lower = [b.position[1] for b in sim.moving_bodies.bodies if b.name == "low"] or [low]
+        gaps.append(high.position[1] - lower[0] - 0.2)  # the boxes' faces apart
+    assert min(gaps) > -0.5 * 0.02  # never deeper than half a radius into each other; measured 0.000
+    assert abs(gaps[-1]) < 0.01 and abs(high.velocity[1]) < 0.05  # resting on it (measured gap 0.000)

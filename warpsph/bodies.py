@@ -18,7 +18,7 @@ import warp as wp
 
 from warpsph import sampling
 from warpsph.errors import SceneError
-from warpsph.kernels.bodies import place_body_samples, sum_body_impulses
+from warpsph.kernels.bodies import measure_body_contacts, place_body_samples, sum_body_impulses
 from warpsph.scene import Motion, Obstacle
 
 BODY_INSET = 1.2  # particle radii between a closed mesh's surface and its samples (as the domain walls' offset)
@@ -166,7 +166,7 @@ class MovingBodies:
     """The moving bodies' samples on the device and their poses; boundary samples from
     ``first_sample`` on are theirs, kinematic bodies first, then dynamic ones."""
 
-    def __init__(self, sim, bodies, first_sample):
+    def __init__(self, sim, bodies, first_sample, obstacles=()):
         self.sim = sim
         self.bodies = bodies
         self.first_sample = first_sample
@@ -193,6 +193,21 @@ class MovingBodies:
         if self.dynamic:
             sim.state.carry("bodies/state", self.state)
         self._store_state()
+        self._contacts = self._contact_arrays(list(obstacles)) if self.dynamic and n + len(obstacles) > 1 else None
+
+    def _contact_arrays(self, obstacles):
+        """Body-space meshes and poses of every body a dynamic one can touch: the moving bodies (their own
+        order), then the static ``obstacles`` (placed once)."""
+        sim, bodies = self.sim, self.bodies + obstacles
+        meshes = [wp.Mesh(points=sim.array("bodies", b.vertices.astype(np.float32), wp.vec3),
+                          indices=sim.array("bodies", b.faces.ravel().astype(np.int32), wp.int32)) for b in bodies]
+        m = len(bodies)
+        return {"bodies": bodies, "meshes": meshes, "count": m,
+                "ids": sim.array("bodies", np.array([mesh.id for mesh in meshes], np.uint64), wp.uint64),
+                "closed": sim.array("bodies", np.array([int(b.closed) for b in bodies], np.int32), wp.int32),
+                "rotation": sim.array("bodies", np.stack([b.rotation for b in bodies]).astype(np.float32), wp.mat33),
+                "position": sim.array("bodies", np.stack([b.position for b in bodies]).astype(np.float32), wp.vec3),
+                "depth": sim.zeros("bodies", m * m), "push": sim.zeros("bodies", m * m, dtype=wp.vec3)}
 
     # -- poses -------------------------------------------------------------------------------------------
     def place(self, time):
@@ -247,7 +262,60 @@ class MovingBodies:
             if angle > 0.0:
                 body.rotation = orthonormalize(sampling.rotation_matrix(w, angle) @ body.rotation)
             self._wall_contact(body, np.add(domain_lo, margin), np.subtract(domain_hi, margin), periodic)
+        self._body_contact()
         self._store_state()
+
+    def _body_contact(self):
+        """Keeps dynamic bodies out of each other and out of every other body (their samples BODY_INSET r
+        inside their surface may come no closer than that to another body's surface): each touching pair is
+        pushed apart along the depth-weighted direction (by inverse mass between two dynamic bodies), their
+        approach along it removed (momentum-conserving, inelastic), and the touching bodies' tangential and
+        angular motion damped as at a wall."""
+        c = self._contacts
+        if c is None:
+            return
+        sim, m = self.sim, c["count"]
+        n = len(self.bodies)
+        c["rotation"][:n].assign(np.stack([b.rotation for b in self.bodies]).astype(np.float32))
+        c["position"][:n].assign(np.stack([b.position for b in self.bodies]).astype(np.float32))
+        c["depth"].zero_()
+        c["push"].zero_()
+        dynamic_local = self.first_dynamic - self.first_sample
+        sim.launch(measure_body_contacts, (self.num_samples - dynamic_local, m),
+                   [self.local[dynamic_local:], self._dynamic_sample_body, c["rotation"], c["position"], c["ids"],
+                    c["closed"], BODY_INSET * sim.scene.particle_radius, m, c["depth"], c["push"]])
+        depth = c["depth"].numpy().reshape(m, m).astype(np.float64)
+        push = c["push"].numpy().reshape(m, m, 3).astype(np.float64)
+        bodies = c["bodies"]
+        for a in range(n):
+            for o in range(m):
+                first = bodies[a].kind == "dynamic"
+                both = first and o < n and bodies[o].kind == "dynamic"
+                if not first or (both and o < a) or max(depth[a, o], depth[o, a] if both else 0.0) <= 0.0:
+                    continue
+                direction = push[a, o] - (push[o, a] if both else 0.0)
+                if not np.any(direction):
+                    continue
+                self._separate(bodies[a], bodies[o], direction / np.linalg.norm(direction),
+                               max(depth[a, o], depth[o, a] if both else 0.0), both)
+
+    @staticmethod
+    def _separate(body, other, normal, depth, both):
+        """Moves ``body`` out of ``other`` along ``normal`` by ``depth``, removes their approach along it and
+        damps their tangential slip by WALL_FRICTION (see :meth:`_body_contact`); ``both``: the other body is
+        dynamic and takes its share (impulses between them are equal and opposite)."""
+        inv, inv_other = 1.0 / body.mass, (1.0 / other.mass if both else 0.0)
+        body.position = body.position + inv / (inv + inv_other) * depth * normal
+        relative = body.velocity - other.velocity
+        approach = min(float(relative @ normal), 0.0)
+        slip = relative - float(relative @ normal) * normal
+        impulse = (-approach * normal - (1.0 - WALL_FRICTION) * slip) / (inv + inv_other)
+        body.velocity = body.velocity + inv * impulse
+        body.angular_velocity = WALL_FRICTION * body.angular_velocity
+        if both:
+            other.position = other.position - inv_other / (inv + inv_other) * depth * normal
+            other.velocity = other.velocity - inv_other * impulse
+            other.angular_velocity = WALL_FRICTION * other.angular_velocity
 
     def _wall_contact(self, body, lo, hi, periodic):
         """Keeps the body's samples inside [lo, hi] (the domain less the samples' inset, so the mesh

@@ -151,7 +151,8 @@ class Simulation:
                 volume=z("boundary", self.num_boundary), body=body,
                 impulse=z("bodies", self.num_boundary if has_dynamic else 0, dtype=wp.vec3), first_moving=first_moving,
                 first_dynamic=first_dynamic if has_dynamic else self.num_boundary)
-            self.moving_bodies = MovingBodies(self, moving, first_moving) if moving else None
+            self.moving_bodies = MovingBodies(self, moving, first_moving,
+                                              [b for b in self.bodies if b.kind == "static"]) if moving else None
             self.neighbours = NeighbourSearch(self, self.boundary.x)
             # the walled faces hold every fluid particle (periodic axes wrap; an open domain lets them leave)
             walled = [scene.domain.walls and "xyz"[k] not in scene.domain.periodic for k in range(3)]
