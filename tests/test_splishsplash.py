@@ -118,20 +118,24 @@ def test_defaults_are_splishsplashs(scenes):
     assert (scene.solver.max_iterations, scene.solver.density_max_error, scene.solver.divergence_max_iterations) == (100, 0.01, 100)
 
 
-def test_flat_pre_216_form_is_read_when_no_block_gives_the_value(scenes):
+def test_flat_pre_216_keys_are_ignored_as_splishsplash_219_ignores_them(scenes):
+    """SPlisHSPlasH 2.19 reads a method's parameters only from its block: flat keys give its defaults (the same
+    file ran nu 0.03 / max error 0.05 % in warpsph and 0.01 / 0.01 % in SPlisHSPlasH), and a note names each."""
     data = copy.deepcopy(DAM_BREAK)
     config = data["Configuration"]
     config.update(config.pop("DFSPH"))
     data["Materials"][0] = {"id": "Fluid", "density0": 998, "viscosityMethod": 1, "viscosity": 0.03,
                             "vorticityMethod": 1, "vorticity": 0.2, "viscosityOmega": 0.07, "inertiaInverse": 0.6}
     scene = load_quiet(write(scenes, data))
-    assert scene.solver.max_iterations == 80 and scene.solver.density_max_error == 0.05
-    assert scene.fluid.density == 998 and scene.fluid.viscosity == 0.03
-    assert scene.models[0].transfer_coefficient == 0.2 and scene.models[0].inverse_inertia == 0.6
-    mapped = "\n".join(conversion_of(scene).mapped)
-    assert "Materials[0].viscosity -> fluid.viscosity = 0.03 (flat, the pre-2.16 form" in mapped
-    assert "Configuration.maxIterations -> solver.max_iterations = 80 (flat" in mapped
-    # the block wins over the flat key, as in SPlisHSPlasH 2.19
+    assert scene.solver.max_iterations == 100 and scene.solver.density_max_error == 0.01  # SPlisHSPlasH's defaults
+    assert scene.fluid.density == 998 and scene.fluid.viscosity == 0.01
+    assert (scene.models[0].transfer_coefficient, scene.models[0].inverse_inertia) == (0.01, 0.5)
+    notes = [n for n in conversion_of(scene).notes if n.startswith("flat (pre-2.16) parameters")]
+    assert len(notes) == 1
+    for key in ("Configuration.maxIterations = 80", "Configuration.maxError = 0.05", "Materials[0].viscosity = 0.03",
+                "Materials[0].vorticity = 0.2", "Materials[0].inertiaInverse = 0.6"):
+        assert key in notes[0]
+    # the block gives the value, as in SPlisHSPlasH 2.19
     data["Materials"][0]["Standard viscosity"] = {"viscosity": 0.004}
     assert load_quiet(write(scenes, data)).fluid.viscosity == 0.004
 

@@ -11,8 +11,8 @@ How SPlisHSPlasH 2.19 reads a scene (Simulator/SimulatorBase.cpp, Utilities/Scen
 * a material applies to the fluid blocks, models and emitters with its ``id`` (default "Fluid").
 
 Files written for SPlisHSPlasH before 2.16 have the same parameters flat (in "Configuration" or the
-material); they are read when the block does not give the value (SPlisHSPlasH 2.19 itself would
-ignore them and use its defaults), and each such reading is named in :attr:`Conversion.mapped`.
+material); SPlisHSPlasH 2.19 ignores them and uses its defaults, and so does warpsph, naming each
+ignored key and its value in one of :attr:`Conversion.notes` (printed as a warning).
 
 Every key ends up in one of three lists of a :class:`Conversion`: ``mapped`` (key -> warpsph
 value), ``refused`` (physics warpsph does not simulate: the key and what it would have changed)
@@ -301,6 +301,7 @@ class _Reader:
     def __init__(self, data, file):
         self.data, self.file, self.base = data, Path(file), Path(file).parent
         self.c = Conversion(file=str(file))
+        self.ignored_flat = []  # pre-2.16 flat keys a block's default overrides (SPlisHSPlasH 2.19 ignores them)
 
     # bookkeeping
     def mapped(self, key, ours, value, flat=False, default=False):
@@ -356,6 +357,9 @@ class _Reader:
                       "iterations) is not mapped: warpsph integrates its bodies itself")
         other = [k for k in d if k not in TOP_KNOWN and k not in joints and k not in pbd_models]
         self.no_effect("", other, "not read by SPlisHSPlasH either")
+        if self.ignored_flat:
+            self.note("flat (pre-2.16) parameters, which SPlisHSPlasH 2.19 ignores for its defaults, ignored too: "
+                      + ", ".join(self.ignored_flat))
         return c
 
     # ---------------------------------------------------------------------------------------------
@@ -381,10 +385,10 @@ class _Reader:
         for theirs, (ours, default) in keys.items():
             if theirs in block:
                 value, flat, dflt = block[theirs], False, False
-            elif supported and theirs in config:
-                value, flat, dflt = config[theirs], True, False
             else:
                 value, flat, dflt = default, False, True
+                if supported and theirs in config:
+                    self.ignored_flat.append(f"Configuration.{theirs} = {_fmt(config[theirs])}")
             if ours == "divergence_solver":
                 value = bool(value)
             solver[ours] = value
@@ -509,11 +513,11 @@ class _Reader:
             for p, default in defaults.items():
                 if p in section:
                     out[p] = (section[p], f"{where}.{block}.{p}", False, False)
-                elif p in m:
-                    out[p] = (m[p], f"{where}.{p}", True, False)
-                    used.add(p)
                 else:
                     out[p] = (default, f"{where}.{block}.{p}", False, True)
+                    if p in m:
+                        self.ignored_flat.append(f"{where}.{p} = {_fmt(m[p])}")
+                        used.add(p)
             self.no_effect(f"{where}.{block}", [k for k in section if k not in defaults], "not read by SPlisHSPlasH either")
             return out
 
