@@ -93,3 +93,18 @@ def test_standing_wave_frequency_and_decay_follow_linear_theory():
     assert amps[0] == pytest.approx(1.0, rel=0.01)
     assert abs(s["frequency_error_pct"]) < 5.4
     assert 1.0 < s["decay_rate"] / s["decay_rate_theory"] < 4.0
+
+
+def test_tanks_rest_for_five_seconds():
+    """`warpsph validate tank-at-rest` at 6 across: a sealed box and pools (5 of 6 layers) rest under gravity for 5 s.
+    Measured: the largest speed of the last second 0.90 % of sqrt(gH) sealed, 0.33 % in the pools (the goal of #37 is
+    0.1 %, not reached); mean density error 0.010 / 0.015 %; no surface particle in the sealed box, 32 in a pool."""
+    from warpsph.validation.cases import validate
+
+    row = validate("tank-at-rest", [6])["rows"][0]
+    assert not row.get("unstable") and len(row["tanks"]) == 4
+    sealed, pools = row["tanks"][0], row["tanks"][1:]
+    assert sealed["surface_particles_end"] == 0 and all(p["surface_particles_end"] > 0 for p in pools)
+    assert sealed["max_speed_over_sqrt_gH"] < 0.014
+    assert all(p["max_speed_over_sqrt_gH"] < 0.005 for p in pools)
+    assert all(abs(t["density_error_mean_pct"]) < 0.025 for t in row["tanks"])

@@ -863,7 +863,7 @@ def build_parser():
 
     check = sub.add_parser("validate", help="validation cases with the default solver: error, particles, steps and "
                                             "wall time per method and resolution (JSON and a table)")
-    check.add_argument("case", metavar="CASE", help="taylor-green, lamb-oseen, vortex-surface, standing-wave, hydrostatic or dam-front")
+    check.add_argument("case", metavar="CASE", help="taylor-green, lamb-oseen, vortex-surface, standing-wave, hydrostatic, dam-front or tank-at-rest")
     check.add_argument("--resolutions", nargs="+", required=True, metavar="N",
                        help="integers >= 4: particles across L (vortices), along the tank (standing-wave), across the water cube (hydrostatic) or "
                             "across the column width a (dam-front)")

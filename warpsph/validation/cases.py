@@ -23,7 +23,10 @@ error_units, wall_s, steps (and setup_s and the case's own measurements).
   resolution = particles along the tank);
 - dam-front: RMS error of the front Z/a against Martin & Moyce (1952), no time shift (the best shift is
   reported beside it), in units of the column width a (not a percentage: ``error_units`` "a"; resolution =
-  particles across a).
+  particles across a);
+- tank-at-rest: a sealed 0.4 m cube of water and pools filled to 95, 93 and 88 % resting under gravity for 5 s:
+  the largest speed over each tank's last second, in % of sqrt(g H), the worst of the four (each tank's speed,
+  density error and surface count in ``tanks``; resolution = particles across the side).
 
 Every row reports the summation density's unremoved error away from the free surface at the end
 (``density_error_mean_pct``, :func:`density_error`).
@@ -49,7 +52,7 @@ import numpy as np
 
 from .taylor_green import METHODS, PACK_STEPS
 
-CASES = ("taylor-green", "lamb-oseen", "vortex-surface", "standing-wave", "hydrostatic", "dam-front")
+CASES = ("taylor-green", "lamb-oseen", "vortex-surface", "standing-wave", "hydrostatic", "dam-front", "tank-at-rest")
 MIN_RESOLUTION = 4
 FRAMES = 10  # measurements per vortex run (and frame 0)
 
@@ -63,10 +66,13 @@ ERRORS = {
     "hydrostatic": ("%", "|mean density error| of the particles deeper than one support radius after 1.5 s, % of rho0"),
     "dam-front": ("a", "front RMS error: RMS of Z/a against Martin & Moyce (1952), no time shift, in units of the "
                        "column width a (not a percentage)"),
+    "tank-at-rest": ("%", "largest speed over the last of 5 s at rest under gravity, % of sqrt(g H), the worst of a "
+                          "sealed tank and pools filled to 95 / 93 / 88 %"),
 }
 RESOLUTION_MEANS = {"taylor-green": "particles across L = 1 m", "lamb-oseen": "particles across L = 1 m",
                     "vortex-surface": "particles across L = 1 m", "standing-wave": "particles along the 1 m tank",
-                    "hydrostatic": "particles across the 0.4 m water cube", "dam-front": "particles across the column width a"}
+                    "hydrostatic": "particles across the 0.4 m water cube", "dam-front": "particles across the column width a",
+                    "tank-at-rest": "particles across the 0.4 m tank"}
 
 
 def timed_run(sim, run, on_frame=None):
@@ -208,8 +214,27 @@ def dam_front_row(models, resolution, device, overrides=None):
             "depth": DEPTH, "T_end": T_END, **density_error(sim)}
 
 
+def tank_at_rest_row(models, resolution, device, overrides=None):
+    from .rest import FILLS, tank_at_rest
+
+    tanks, wall, steps, particles = [], 0.0, 0, 0
+    start = time.perf_counter()
+    for fill in FILLS:
+        timing = []
+        r = tank_at_rest(resolution, fill, device, models=models, overrides=overrides,
+                         on_run=lambda sim, run: timing.append(timed_run(sim, lambda cb: run())[0]))
+        sim = r.pop("sim")
+        tanks.append({**r, **density_error(sim)})
+        wall, steps, particles = wall + timing[0], steps + r["steps"], particles + r["particles"]
+    worst = max(t["max_speed_over_sqrt_gH"] for t in tanks)
+    return {"particles": particles, "error_pct": 100.0 * worst, "wall_s": wall, "steps": steps,
+            "setup_s": time.perf_counter() - start - wall, "tanks": tanks,
+            "density_error_mean_pct": max((t["density_error_mean_pct"] for t in tanks), key=abs)}
+
+
 ROWS = {"taylor-green": taylor_green_row, "lamb-oseen": lamb_oseen_row, "vortex-surface": vortex_surface_row,
-        "standing-wave": standing_wave_row, "hydrostatic": hydrostatic_row, "dam-front": dam_front_row}
+        "standing-wave": standing_wave_row, "hydrostatic": hydrostatic_row, "dam-front": dam_front_row,
+        "tank-at-rest": tank_at_rest_row}
 
 
 def warm_up(models, device, overrides=None):
