@@ -343,3 +343,41 @@ def test_a_write_error_is_a_clear_error_and_keeps_the_frames_written(tmp_path, m
     monkeypatch.setattr(cls, "write_frame", original)  # space again: the run goes on from its checkpoint
     assert run_cli("resume", out.with_suffix(".checkpoint.h5")) == 0
     assert time_samples(out) == [float(f) for f in range(6)] and stats_frames(out.with_suffix(".stats.csv")) == list(range(6))
+
+
+TINY = {"name": "tiny", "particle_radius": 0.05, "domain": {"min": [0, 0, 0], "max": [0.4, 0.4, 0.4]},
+        "fluid_blocks": [{"start": [0, 0, 0], "end": [0.2, 0.2, 0.2]}], "output": {"frames": 2}}
+
+
+def test_a_sweep_into_its_own_folder_keeps_the_users_files(tmp_path, monkeypatch, capsys):
+    """`warpsph sweep sweep.json --out .` wrote its normalised spec over sweep.json: the next identical command
+    failed ("unknown key"). The spec is now sweep.normalised.json; a table.md the sweep did not write is refused."""
+    monkeypatch.chdir(tmp_path)
+    write_scene(tmp_path, TINY, "s.json")
+    text = json.dumps({"name": "sw", "scene": "s.json", "time": 0.05, "axes": {"fluid.viscosity": [0.01, 0.02]}})
+    (tmp_path / "sweep.json").write_text(text)
+    for _ in range(2):  # the rerun finds its own outputs and replaces them
+        assert main(["sweep", "sweep.json", "--out", ".", "-q"]) == 0
+        assert (tmp_path / "sweep.json").read_text() == text
+    assert json.loads((tmp_path / "sweep.normalised.json").read_text())["sweep"]["name"] == "sw"
+    (tmp_path / "table.md").write_text("# my notes\n")
+    capsys.readouterr()
+    assert main(["sweep", "sweep.json", "--out", ".", "-q"]) == 2
+    assert "table.md" in capsys.readouterr().err and (tmp_path / "table.md").read_text() == "# my notes\n"
+
+
+@pytest.mark.parametrize("argv", [["schema", "--out"], ["validate", "taylor-green", "--resolutions", "8", "--json"],
+                                  ["plot", "slice", "no.usdc", "--out"], ["plot", "energy", "no.usdc", "--out"]])
+def test_verbs_replace_an_existing_file_only_with_overwrite(tmp_path, capsys, argv):
+    """One rule on every verb that writes a file: an existing file is kept (exit 2, named) unless --overwrite; a
+    directory is refused; missing folders are created."""
+    mine = tmp_path / "mine.txt"
+    mine.write_text("keep me")
+    assert main(argv + [str(mine)]) == 2
+    err = capsys.readouterr().err
+    assert "mine.txt" in err and "--overwrite" in err and mine.read_text() == "keep me"
+    assert main(argv + [str(tmp_path)]) == 2 and "is a directory" in capsys.readouterr().err
+    if argv[0] == "schema":
+        assert main(argv + [str(mine), "--overwrite"]) == 0 and json.loads(mine.read_text())
+        assert main(argv + [str(tmp_path / "new" / "dir" / "schema.json")]) == 0
+        assert json.loads((tmp_path / "new" / "dir" / "schema.json").read_text())

@@ -551,6 +551,26 @@ def _check_options(args):
             raise SceneError("", "--" + option.replace("_", "-"), f"expected an integer >= 0, got {getattr(args, option)}")
 
 
+def check_new_file(path, option, overwrite):
+    """The one rule for a verb's output file (``schema --out``, ``plot --out``, ``validate --json``): a directory or
+    a parent that is not a directory is refused, an existing file is replaced only with ``--overwrite``. Missing
+    parent folders are created when the file is written. Returns the path; raises :class:`SceneError` naming
+    ``option``."""
+    path = Path(path)
+    if not str(path) or path.is_dir():
+        raise SceneError(path, option, f"is a directory; {option} names the file to write")
+    parent = path.absolute().parent
+    while not parent.exists() and not parent.is_symlink():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise SceneError(path, option, f"{parent} is not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise SceneError(path, option, f"cannot write in {parent}")
+    if (path.exists() or path.is_symlink()) and not overwrite:
+        raise SceneError(path, option, "exists; pass --overwrite to replace it, or choose another name")
+    return path
+
+
 def _refusal(outputs, overwrite):
     """Why the run would not start over the existing outputs, or None."""
     foreign = outputs.foreign()
@@ -717,14 +737,18 @@ def surface_command(args):
 def plot_energy_command(args):
     from .plots import plot_energy
 
-    print(f"wrote {plot_energy(args.runs, args.out, args.labels)}")
+    out = check_new_file(args.out, "--out", args.overwrite)
+    out.absolute().parent.mkdir(parents=True, exist_ok=True)
+    print(f"wrote {plot_energy(args.runs, str(out), args.labels)}")
     return 0
 
 
 def plot_slice_command(args):
     from .plots import slice_from_cache
 
-    path, shown = slice_from_cache(args.run, args.frame, args.axis, args.out)
+    out = check_new_file(args.out, "--out", args.overwrite)
+    out.absolute().parent.mkdir(parents=True, exist_ok=True)
+    path, shown = slice_from_cache(args.run, args.frame, args.axis, str(out))
     print(f"wrote {path} ({shown} particles in the slab)")
     return 0
 
@@ -733,6 +757,8 @@ def validate_command(args):
     from .validation.cases import check_arguments, table, validate
 
     case, resolutions, out = check_arguments(args.case, args.resolutions, args.json)
+    if out is not None:
+        check_new_file(out, "--json", args.overwrite)
     device = _pick_device(args.device)
     report = validate(case, resolutions, args.methods, device, out, log=logger.info, solver=args.solver,
                       command=" ".join(["warpsph", "validate", case, "--resolutions", *map(str, resolutions),
@@ -752,8 +778,12 @@ def schema_command(args):
 
     text = reference_markdown() if args.markdown else json.dumps(scene_json_schema(), indent=2) + "\n"
     if args.out:
-        Path(args.out).write_text(text, encoding="utf-8")
-        print(f"wrote {args.out}")
+        out = check_new_file(args.out, "--out", args.overwrite)
+        out.absolute().parent.mkdir(parents=True, exist_ok=True)
+        tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, out)
+        print(f"wrote {out}")
     else:
         sys.stdout.write(text)
     return 0
@@ -838,12 +868,14 @@ def build_parser():
     energy.add_argument("runs", nargs="+", help="OUT.usdc of each run (or its OUT.stats.csv)")
     energy.add_argument("--labels", nargs="+", help="one label per run")
     energy.add_argument("--out", default="energy.png")
+    energy.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     energy.set_defaults(func=plot_energy_command)
     slab = kinds.add_parser("slice", help="particles in a thin slab coloured by vorticity magnitude")
     slab.add_argument("run", help="OUT.usdc (or the top-level OUT.usda of a --clips run)")
     slab.add_argument("--frame", type=int, default=0)
     slab.add_argument("--axis", choices=["x", "y", "z"], default="z")
     slab.add_argument("--out", default="slice.png")
+    slab.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     slab.set_defaults(func=plot_slice_command)
     mesh = sub.add_parser("surface", help="mesh the fluid surface of a finished run into a new USD file "
                                           "(it sublayers the cache), without simulating again")
@@ -873,6 +905,7 @@ def build_parser():
                        help="pressure solver (scene key solver.method; default: the scenes' default, dfsph)")
     check.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
     check.add_argument("--json", metavar="OUT.json", help="write the rows and metadata here (atomically, after every row)")
+    check.add_argument("--overwrite", action="store_true", help="replace an existing --json")
     check.set_defaults(func=validate_command)
     sweep = sub.add_parser("sweep", help="many runs (a validation case or a scene file, a sweep file's axes) over "
                                          "processes, GPUs or a Ray cluster; resumable (one file per cell, then "
@@ -909,6 +942,7 @@ def build_parser():
                                            "scene reference: every key, type, unit, default and range")
     schema.add_argument("--markdown", action="store_true", help="the scene reference as markdown instead")
     schema.add_argument("--out", help="write it to this file instead of stdout")
+    schema.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     schema.set_defaults(func=schema_command)
     for p in (run, resume):
         p.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")

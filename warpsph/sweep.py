@@ -796,6 +796,29 @@ def assemble(spec, out):
     return table
 
 
+def _json_with_keys(path, keys):
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+    return isinstance(data, dict) and keys <= set(data)
+
+
+def _sweep_markdown(path):
+    try:
+        with open(path, encoding="utf-8") as f:
+            return f.readline().startswith("# Sweep ")
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+SPEC_FILE = "sweep.normalised.json"  # the sweep as run (never named like the user's own sweep file)
+# the files a sweep writes in --out, and how to tell that a sweep wrote them
+OUTPUT_FILES = {SPEC_FILE: lambda p: p.is_file() and _json_with_keys(p, {"sweep", "source"}),
+                "table.json": lambda p: p.is_file() and _json_with_keys(p, {"sweep", "counts", "rows"}),
+                "table.md": lambda p: p.is_file() and _sweep_markdown(p)}
+
+
 def _write_text(path, text):
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     tmp.write_text(text)
@@ -1005,10 +1028,15 @@ def run_sweep(sweep, out, executor="local", workers=1, devices=None, address=Non
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise SceneError(out, "--out", "is a file; --out names the sweep's output folder")
+    for name, owned in OUTPUT_FILES.items():  # a rerun replaces its own files, never the user's
+        path = out / name
+        if (path.exists() or path.is_symlink()) and not owned(path):
+            raise SceneError(path, "--out", "exists and was not written by warpsph sweep: refusing to replace it; "
+                                            "choose another --out")
     (out / "cells").mkdir(parents=True, exist_ok=True)
     from .validation.cases import write_json
 
-    write_json({"sweep": spec, "source": str(sweep) if not isinstance(sweep, dict) else None}, out / "sweep.json")
+    write_json({"sweep": spec, "source": str(sweep) if not isinstance(sweep, dict) else None}, out / SPEC_FILE)
     all_cells = cells(spec)
     todo = [c for c in all_cells if finished(out, c) is None]
     progress = _Progress(len(all_cells), len(all_cells) - len(todo), say)
