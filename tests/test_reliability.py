@@ -381,3 +381,45 @@ def test_verbs_replace_an_existing_file_only_with_overwrite(tmp_path, capsys, ar
         assert main(argv + [str(mine), "--overwrite"]) == 0 and json.loads(mine.read_text())
         assert main(argv + [str(tmp_path / "new" / "dir" / "schema.json")]) == 0
         assert json.loads((tmp_path / "new" / "dir" / "schema.json").read_text())
+
+
+SPLISH_MICROPOLAR = {"Configuration": {"particleRadius": 0.025, "simulationMethod": 4, "stopAt": 0.1},
+                     "Materials": [{"id": "Fluid", "vorticityMethod": 1, "Bender et al. 2017": {"vorticity": 0.05}}],
+                     "FluidBlocks": [{"start": [-0.5, 0, -0.5], "end": [0, 0.5, 0]}]}
+
+
+@pytest.mark.parametrize("data, words", [
+    ({**TINY, "name": "../../x"}, "name: expected a file name"),
+    ({**TINY, "output": {"frames": 10**30}}, "output.frames"),
+    ({**TINY, "particle_radius": list(range(200_000))}, "particle_radius: expected"),
+    ({**SPLISH_MICROPOLAR, "Configuration": {"particleRadius": 0}}, "Configuration.particleRadius: expected a number > 0"),
+])
+def test_hostile_scenes_get_one_short_error_and_write_nothing(tmp_path, capsys, data, words):
+    """Each used to write outside out/, accept 1e30 frames, echo a 1.3 MB array back, or end in an OverflowError."""
+    scene = write_scene(tmp_path, data)
+    assert main(["run", str(scene), "--device", "cpu", "--dry-run"]) == 2
+    err = capsys.readouterr().err
+    assert words in err and len(err) < 600 and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == [scene]
+
+
+def test_dry_run_of_a_micropolar_splishsplash_scene(tmp_path, capsys):
+    """The disk estimate knew no size for micropolar's angular_velocity field (KeyError)."""
+    scene = write_scene(tmp_path, SPLISH_MICROPOLAR)
+    assert main(["run", str(scene), "--device", "cpu", "--dry-run"]) == 0
+    assert "would write" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("content, words", [
+    (json.dumps({"scene": "s.json", "time": 0.05, "device": "tpu:7", "axes": {"fluid.viscosity": [0.01]}}).encode(),
+     "device: unknown device 'tpu:7'"),
+    ('{"name": "caf\xe9", "scene": "s.json"}'.encode("latin-1"), "not UTF-8"),
+    (('{"axes": ' + "[" * 100_000 + "]" * 100_000 + "}").encode(), "nested too deeply"),
+])
+def test_bad_sweep_files_are_refused_before_any_cell(tmp_path, capsys, content, words):
+    write_scene(tmp_path, TINY, "s.json")
+    sweep = tmp_path / "sweep.json"
+    sweep.write_bytes(content)
+    assert main(["sweep", str(sweep), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert words in err and "Traceback" not in err and not (tmp_path / "out").exists()

@@ -603,7 +603,7 @@ def disk_bytes(scene, num_fluid, frames, particles_h5=False, fields=None, clips=
     if clips or scene.emitters or scene.sinks:
         every, once = every + once, 0
     usd = num_fluid * ((frames + 1) * every + once)
-    h5 = (frames + 1) * num_fluid * (12 + 12 + 4 + sum(FIELD_BYTES[f] for f in available[4:] if f != "vorticity_magnitude"))
+    h5 = (frames + 1) * num_fluid * (12 + 12 + 4 + sum(sizes.get(f, 4) for f in available[4:] if f != "vorticity_magnitude"))
     return usd + (h5 if particles_h5 else 0)
 
 

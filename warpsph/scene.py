@@ -175,7 +175,7 @@ class Obstacle:
         if self.motion is not None and self.dynamics is not None:
             raise SceneError(file, key, 'a body is either kinematic ("motion") or dynamic ("dynamics"), not both')
         if self.name is not None and not (self.name[:1].isalpha() and self.name.replace("_", "").isalnum()):
-            raise SceneError(file, f"{key}.name", f"expected letters, digits and _ (a USD prim name), got {json.dumps(self.name)}")
+            raise SceneError(file, f"{key}.name", f"expected letters, digits and _ (a USD prim name), got {shown(self.name)}")
 
     @property
     def moving(self):
@@ -274,12 +274,15 @@ class Solver:
             raise SceneError(file, f"{key}.min_iterations", "must not exceed max_iterations")
 
 
+MAX_FRAMES = 10_000_000  # output.frames: 4.6 days of simulated time at 25 frames a second
+
+
 @schema
 class Output:
     """The USD cache's frames."""
 
     fps: float = key(25.0, doc="frames per simulated second", unit="1/s", gt=0)
-    frames: int = key(50, doc="frames to write (the run's length)", ge=1)
+    frames: int = key(50, doc="frames to write (the run's length)", ge=1, le=MAX_FRAMES)
     up_axis: Literal["Y", "Z"] = key("Y", doc="the USD stage's up axis")
 
 
@@ -338,6 +341,10 @@ class Scene:
         return min(dt_min, dt_max), dt_max
 
     def validate(self, file, key):
+        if (not self.name or self.name in (".", "..") or any(c in self.name for c in '/\\\0')
+                or len(self.name) > 200):
+            raise SceneError(file, "name", f"expected a file name (the default output is out/NAME.usdc): no / or \\, "
+                                           f"not . or .., at most 200 characters; got {shown(self.name)}")
         if not self.fluid_blocks and not self.fluid_meshes and not self.emitters:
             raise SceneError(file, "fluid_blocks", "the scene has no fluid: give at least one block, mesh or emitter")
         for n, e in enumerate(self.emitters):
@@ -468,15 +475,24 @@ def _walk(cls, data, loc):
     return tp, value
 
 
+SHOWN_CHARACTERS = 120  # an error message shows at most this much of the offending value
+
+
+def shown(value):
+    """``value`` as JSON for an error message, cut to SHOWN_CHARACTERS (a 40 MB array is not echoed back)."""
+    text = json.dumps(value, default=str)
+    return text if len(text) <= SHOWN_CHARACTERS else f"{text[:SHOWN_CHARACTERS]}... ({len(text):,} characters)"
+
+
 def _scene_error(cls, data, error, file, prefix):
     """The SceneError for pydantic's first error: the key path, what was expected and what was there."""
     loc, kind = list(error["loc"]), error["type"]
-    got = json.dumps(error.get("input"), default=str)
+    got = shown(error.get("input"))
     # a wrong element of a fixed-length list (Vec3): name the list
     for n in range(len(loc), 0, -1):
         tp, value = _walk(cls, data, loc[:n])
         if tp is not None and _unwrap(tp) == Vec3 and (n < len(loc) or kind in ("missing", "too_long", "too_short")):
-            return SceneError(file, _path(prefix, loc[:n]), f"expected a list of 3 numbers, got {json.dumps(value, default=str)}")
+            return SceneError(file, _path(prefix, loc[:n]), f"expected a list of 3 numbers, got {shown(value)}")
     where = _path(prefix, loc) or "scene"
     parent, _ = _walk(cls, data, loc[:-1])
     parent = _unwrap(parent) if parent is not None else None
@@ -552,7 +568,7 @@ def parse_dataclass(cls, data, file=None, key=""):
     """Builds the schema class ``cls`` from a JSON object, checking every key; raises :class:`SceneError`
     naming ``file`` and the key path below ``key``."""
     if not isinstance(data, dict):
-        raise SceneError(file, key or "scene", f"expected an object, got {json.dumps(data, default=str)}")
+        raise SceneError(file, key or "scene", f"expected an object, got {shown(data)}")
     data = _drop_obsolete(cls, data, file, key)
     if cls is Scene and "source" in data:
         raise SceneError(file, "source", "unknown key (it is set on load)")
@@ -577,7 +593,7 @@ def parse_model(value, file=None, key="models[0]"):
 
     known = scene_models()
     if not isinstance(value, dict) or "type" not in value:
-        raise SceneError(file, key, f'expected an object with a "type" ({", ".join(known)}), got {json.dumps(value, default=str)}')
+        raise SceneError(file, key, f'expected an object with a "type" ({", ".join(known)}), got {shown(value)}')
     name = value["type"]
     if name not in known:
         close = difflib.get_close_matches(str(name), known, n=1)
@@ -609,6 +625,26 @@ def scene_json_schema() -> dict:
     return out
 
 
+def read_text(path, what):
+    """The UTF-8 text of the ``what`` file ``path`` (a BOM is dropped); a :class:`SceneError` that says why not."""
+    try:
+        return Path(path).read_text(encoding="utf-8-sig")
+    except OSError as exc:
+        raise SceneError(path, "", f"cannot read the {what} file ({exc.strerror})") from None
+    except UnicodeDecodeError as exc:
+        raise SceneError(path, "", f"not UTF-8 text (byte {exc.start}): save the {what} file as UTF-8") from None
+
+
+def parse_json(text, path, what):
+    """``text`` parsed as JSON; a :class:`SceneError` for invalid or too deeply nested JSON."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise SceneError(path, "", f"not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
+    except RecursionError:
+        raise SceneError(path, "", f"not a {what}: its JSON is nested too deeply") from None
+
+
 def load_scene(path, scale: float = 1.0, run_anyway=None) -> Scene:
     """Reads and validates a scene file.
 
@@ -620,18 +656,7 @@ def load_scene(path, scale: float = 1.0, run_anyway=None) -> Scene:
     path = Path(path)
     if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
         raise SceneError(path, "--scale", f"expected a number > 0, got {scale}")
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except OSError as exc:
-        raise SceneError(path, "", f"cannot read the scene file ({exc.strerror})") from None
-    except UnicodeDecodeError as exc:
-        raise SceneError(path, "", f"not UTF-8 text (byte {exc.start}): save the scene file as UTF-8 JSON") from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise SceneError(path, "", f"not valid JSON: {exc.msg} at line {exc.lineno} column {exc.colno}") from None
-    except RecursionError:
-        raise SceneError(path, "", "not a scene: its JSON is nested too deeply") from None
+    data = parse_json(read_text(path, "scene"), path, "scene")
     from .io.splishsplash import convert, is_splishsplash
 
     if is_splishsplash(data):  # a SPlisHSPlasH scene file

@@ -136,7 +136,9 @@ def _read(source):
     path = Path(source)
     if not path.is_file():
         raise SceneError(file, "", "no such sweep file")
-    text = path.read_text()
+    from .scene import parse_json, read_text
+
+    text = read_text(path, "sweep")
     if path.suffix.lower() in (".yaml", ".yml"):
         try:
             import yaml
@@ -146,10 +148,9 @@ def _read(source):
             return file, yaml.safe_load(text)
         except yaml.YAMLError as exc:
             raise SceneError(file, "", f"not valid YAML: {exc}") from None
-    try:
-        return file, json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise SceneError(file, "", f"not valid JSON: {exc}") from None
+        except RecursionError:
+            raise SceneError(file, "", "not a sweep: its YAML is nested too deeply") from None
+    return file, parse_json(text, file, "sweep")
 
 
 def _number(value, low=0.0):
@@ -1021,6 +1022,13 @@ def run_sweep(sweep, out, executor="local", workers=1, devices=None, address=Non
         raise SceneError("", "--workers", f"expected an integer >= 1, got {workers!r}")
     if devices is None:
         devices = [spec["device"] or "cpu"]
+        if spec["device"] and executor == "local":  # checked before any cell runs, as --devices is
+            from .cli import _pick_device
+
+            try:
+                devices = [_pick_device(spec["device"])]
+            except SceneError as exc:
+                raise SceneError(sweep if not isinstance(sweep, dict) else "<sweep>", "device", exc.reason) from None
     if isinstance(devices, str):
         devices = [d.strip() for d in devices.split(",") if d.strip()]
     if not devices:

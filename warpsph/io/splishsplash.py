@@ -327,7 +327,10 @@ class _Reader:
             raise SceneError(self.file, "Configuration", "expected an object")
         scene = c.scene
         scene["name"] = self.file.stem
-        self.radius = float(_num(config.get("particleRadius"), 0.025))
+        radius = _num(config.get("particleRadius"), 0.025)
+        if isinstance(radius, bool) or not isinstance(radius, (int, float)) or not (math.isfinite(radius) and radius > 0):
+            raise SceneError(self.file, "Configuration.particleRadius", f"expected a number > 0, got {_fmt(radius)}")
+        self.radius = float(radius)
         scene["particle_radius"] = self.radius
         self.mapped("Configuration.particleRadius", "particle_radius", self.radius, default="particleRadius" not in config)
         self.sim2d = bool(config.get("sim2D", False))
