@@ -423,3 +423,25 @@ def test_bad_sweep_files_are_refused_before_any_cell(tmp_path, capsys, content, 
     assert main(["sweep", str(sweep), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
     assert words in err and "Traceback" not in err and not (tmp_path / "out").exists()
+
+
+def test_a_killed_sweep_cell_is_recorded_and_the_sweep_goes_on(tmp_path, monkeypatch):
+    """SIGKILL of one cell's process used to break the whole pool (BrokenProcessPool: no table, the other cells never
+    ran). Now the cell is failed with its signal, the rest finish, and a rerun retries only that cell."""
+    from warpsph.sweep import run_sweep
+
+    monkeypatch.setenv("SWEEP_TEST_SURVIVE", str(tmp_path / "survive"))
+    monkeypatch.syspath_prepend(os.path.dirname(__file__))
+    sweep = {"name": "killed", "base": {"function": "sweep_cells:die_or_square"}, "axes": {"x": [1, 2, 3, 4]},
+             "measures": ["square"], "warm_up": False}
+    out = tmp_path / "out"
+    table = run_sweep(sweep, out, workers=2, log=lambda line: None)
+    status = {r["x"]: (r["status"], r.get("error", "")) for r in table["rows"]}
+    assert [status[x][0] for x in (1, 3, 4)] == ["done"] * 3
+    assert status[2][0] == "failed" and "signal 9 (SIGKILL)" in status[2][1]
+    assert not table["complete"] and (out / "table.md").exists()
+    (tmp_path / "survive").touch()
+    lines = []
+    table = run_sweep(sweep, out, workers=2, log=lines.append)
+    assert "[1 to run" in lines[0] and table["complete"]
+    assert {r["x"]: r["square"] for r in table["rows"]} == {1: 1, 2: 4, 3: 9, 4: 16}

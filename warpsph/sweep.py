@@ -717,10 +717,6 @@ def run_cell(cell, device="cpu"):
     return record
 
 
-def _run_cell_in_child(cell, device):
-    return run_cell(cell, device)
-
-
 # --- output --------------------------------------------------------------------------------------------
 
 def _cell_path(out, cell):
@@ -901,32 +897,71 @@ class _Progress:
 # --- executors -----------------------------------------------------------------------------------------
 
 def _local(todo, devices, workers, on_record, progress):
-    import concurrent.futures as cf
+    """Runs the cells ``workers`` at a time, each in a fresh spawned process (no Warp/CUDA state is inherited or
+    shared between cells) that ignores the terminal's SIGINT: a cell that dies (killed, out of memory) is recorded
+    as failed with its exit code or signal and the sweep goes on; Ctrl-C (or SIGTERM) stops the cells in flight
+    and is raised in the parent (their cells stay missing and run on the next invocation)."""
     import multiprocessing
+    from multiprocessing.connection import wait
 
+    context = multiprocessing.get_context("spawn")
     slots = [devices[k % len(devices)] for k in range(workers)]
     free = list(range(workers))
     queue = list(todo)
-    # a fresh process per cell (spawned: no Warp/CUDA state is inherited or shared between cells)
-    with cf.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                                max_tasks_per_child=1) as pool:
-        running = {}
+    running = {}  # process sentinel -> (process, receiving end, slot, cell)
+    try:
         while queue or running:
             while queue and free:
-                slot = free.pop(0)
-                cell = queue.pop(0)
-                running[pool.submit(_run_cell_in_child, cell, slots[slot])] = (slot, cell)
+                slot, cell = free.pop(0), queue.pop(0)
+                receive, send = context.Pipe(duplex=False)
+                process = context.Process(target=_cell_process, args=(cell, slots[slot], send), daemon=True)
+                process.start()
+                send.close()
+                running[process.sentinel] = (process, receive, slot, cell)
                 progress.running += 1
-            done, _ = cf.wait(running, return_when=cf.FIRST_COMPLETED)
-            for future in done:
-                slot, cell = running.pop(future)
-                free.append(slot)
+            for sentinel in wait(list(running)):
+                process, receive, slot, cell = running.pop(sentinel)
                 try:
-                    record = future.result()
-                except Exception as exc:  # noqa: BLE001 - the worker process died
+                    record = receive.recv() if receive.poll() else None
+                except EOFError:  # it died before sending
+                    record = None
+                process.join()
+                receive.close()
+                free.append(slot)
+                if record is None:
+                    code = process.exitcode
+                    how = (f"killed by signal {-code} ({_signal_name(-code)})" if code is not None and code < 0
+                           else f"exited with code {code}")
                     record = {"id": cell["id"], "case": cell["case"], "params": cell["params"], "device": slots[slot],
-                              "status": "failed", "error": f"{type(exc).__name__}: {exc}"}
+                              "status": "failed", "error": f"the cell's process {how} before it reported",
+                              "exit_code": code}
                 on_record(cell, record)
+    finally:
+        for process, receive, _, _ in running.values():  # interrupted: stop the cells in flight
+            process.terminate()
+        for process, receive, _, _ in running.values():
+            process.join(10)
+            receive.close()
+
+
+def _signal_name(number):
+    import signal
+
+    try:
+        return signal.Signals(number).name
+    except ValueError:
+        return "unknown"
+
+
+def _cell_process(cell, device, send):
+    """A cell's process: the terminal's Ctrl-C goes to the sweep, which stops its cells itself."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        send.send(run_cell(cell, device))
+    finally:
+        send.close()
 
 
 def _ray(todo, address, num_gpus, num_cpus, max_retries, on_record, progress, init_kwargs=None):
