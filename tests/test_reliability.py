@@ -445,3 +445,22 @@ def test_a_killed_sweep_cell_is_recorded_and_the_sweep_goes_on(tmp_path, monkeyp
     table = run_sweep(sweep, out, workers=2, log=lines.append)
     assert "[1 to run" in lines[0] and table["complete"]
     assert {r["x"]: r["square"] for r in table["rows"]} == {1: 1, 2: 4, 3: 9, 4: 16}
+
+
+def test_a_second_run_on_the_same_output_is_refused_while_the_first_writes(tmp_path, capsys):
+    """Two runs on one --out interleaved, and --overwrite deleted the first run's live cache. OUT.lock (pid, host)
+    now refuses the second, --overwrite or not; a lock whose process is gone is taken over and removed at the end."""
+    import socket
+
+    scene = write_scene(tmp_path, TINY)
+    out = tmp_path / "o.usdc"
+    lock = tmp_path / "o.usdc.lock"
+    lock.write_text(json.dumps({"pid": os.getpid(), "host": socket.gethostname()}))  # a live writer: this process
+    assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "--overwrite", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert f"pid {os.getpid()}" in err and "o.usdc.lock" in err and not out.exists()
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    lock.write_text(json.dumps({"pid": gone.pid, "host": socket.gethostname()}))  # its run is gone
+    assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "-q"]) == 0
+    assert "stale lock" in capsys.readouterr().err and out.exists() and not lock.exists()

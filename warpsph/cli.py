@@ -571,6 +571,62 @@ def check_new_file(path, option, overwrite):
     return path
 
 
+def _lock_holder(lock):
+    """Who holds ``lock`` ({"pid", "host"}), or None when it is stale (its process is gone from this host, or the
+    file is unreadable)."""
+    import json
+    import socket
+
+    try:
+        holder = json.loads(lock.read_text())
+        pid, host = int(holder["pid"]), str(holder["host"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if host == socket.gethostname():
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return None
+        except PermissionError:
+            pass  # alive, another user's
+    return {"pid": pid, "host": host}
+
+
+@contextlib.contextmanager
+def output_lock(out):
+    """Holds OUT.lock (pid and host) while a run writes OUT: a second run on the same output is refused, naming the
+    first; a lock whose process is gone from this host is taken over."""
+    import json
+    import socket
+
+    lock = Path(f"{out}.lock")
+    lock.parent.mkdir(parents=True, exist_ok=True)
+    me = {"pid": os.getpid(), "host": socket.gethostname()}
+    for attempt in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+        except FileExistsError:
+            holder = _lock_holder(lock)
+            if holder is None and attempt == 0:
+                logger.warning(f"{lock}: a stale lock (its run is gone): taken over")
+                lock.unlink(missing_ok=True)
+                continue
+            who = f"pid {holder['pid']} on {holder['host']}" if holder else "another run"
+            raise SceneError(out, "--out", f"is being written by another warpsph run ({who}; lock {lock}): wait for "
+                                           "it to end or choose another --out") from None
+        with os.fdopen(fd, "w") as f:
+            json.dump(me, f)
+        break
+    try:
+        yield lock
+    finally:
+        try:
+            if json.loads(lock.read_text()).get("pid") == me["pid"]:
+                lock.unlink()
+        except (OSError, ValueError):
+            pass
+
+
 def _refusal(outputs, overwrite):
     """Why the run would not start over the existing outputs, or None."""
     foreign = outputs.foreign()
@@ -652,6 +708,12 @@ def run_command(args):
     outputs.check()
     if args.dry_run:
         return _dry_run(scene, frames, outputs, args)
+    with output_lock(outputs.out):
+        return _run_locked(args, scene, frames, outputs, surface)
+
+
+def _run_locked(args, scene, frames, outputs, surface):
+    """run_command's part that holds the output's lock."""
     refusal = _refusal(outputs, args.overwrite)
     if refusal is not None:
         raise refusal
@@ -703,6 +765,12 @@ def resume_command(args):
     if frames < sim.frame:
         raise SceneError("", "--frames", f"the checkpoint is at frame {sim.frame}; expected {sim.frame} or more, got {frames}")
     outputs = Outputs(checkpoint.parent / Path(options["output"]).name)  # the outputs lie beside their checkpoint
+    with output_lock(outputs.out):
+        return _resume_locked(args, sim, options, frames, outputs, device)
+
+
+def _resume_locked(args, sim, options, frames, outputs, device):
+    """resume_command's part that holds the output's lock."""
     clips = bool(int(options.get("clips", 0)))
     if not (outputs.clips.is_dir() if clips else outputs.out.exists() or outputs.partial.exists()):
         raise SceneError(outputs.out, "", "the cache of this checkpoint's run is missing: it cannot be continued")
