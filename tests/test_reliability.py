@@ -464,3 +464,25 @@ def test_a_second_run_on_the_same_output_is_refused_while_the_first_writes(tmp_p
     lock.write_text(json.dumps({"pid": gone.pid, "host": socket.gethostname()}))  # its run is gone
     assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "-q"]) == 0
     assert "stale lock" in capsys.readouterr().err and out.exists() and not lock.exists()
+
+
+@pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_signal_to_the_process_group_stops_a_surface_run_cleanly(tmp_path, signum, code):
+    """Ctrl-C in a terminal reaches the whole process group: the mesher's workers took it too, and the run ended in
+    four chained tracebacks, exit 1, no checkpoint, the cache left partial. The workers now ignore it."""
+    pytest.importorskip("pysplashsurf", reason="--surface meshes with pysplashsurf (pip install 'warpsph[surface]')")
+    data = tank_scene(radius=0.03, domain=(0.6, 0.4, 0.2), block=(0.2, 0.3, 0.2), output={"fps": 50, "frames": 400})
+    scene = write_scene(tmp_path, data)
+    out = tmp_path / "long.usdc"
+    proc = subprocess.Popen([sys.executable, "-m", "warpsph.cli", "run", str(scene), "--device", "cpu", "--out", str(out),
+                             "--surface"], stderr=subprocess.PIPE, text=True, cwd=tmp_path, start_new_session=True)
+    stats = out.with_suffix(".stats.csv")
+    deadline = time.time() + 120
+    while time.time() < deadline and (not stats.exists() or len(stats.read_text().splitlines()) < 4):
+        time.sleep(0.2)
+    os.killpg(proc.pid, signum)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == code and "Traceback" not in err, err
+    assert "resume" in err and out.with_suffix(".checkpoint.h5").exists()
+    done = time_samples(out)
+    assert done == [float(f) for f in range(len(done))] and len(done) >= 3

@@ -436,9 +436,13 @@ WORKER_NICENESS = 10  # the simulation's host thread launches the GPU's work: it
 
 def _init_worker(threads):
     """A mesher worker: its share of the cores (splashsurf's rayon pool reads RAYON_NUM_THREADS when it
-    starts) at a lower CPU priority than the simulation."""
+    starts) at a lower CPU priority than the simulation. It ignores SIGINT and SIGTERM, which a terminal or a
+    process-group kill sends to the whole group: the run's process finishes the frame, saves and stops it."""
     import os
+    import signal
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     os.environ.setdefault("RAYON_NUM_THREADS", str(threads))
     if hasattr(os, "nice"):
         os.nice(WORKER_NICENESS)
