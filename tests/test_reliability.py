@@ -486,3 +486,48 @@ def test_a_signal_to_the_process_group_stops_a_surface_run_cleanly(tmp_path, sig
     assert "resume" in err and out.with_suffix(".checkpoint.h5").exists()
     done = time_samples(out)
     assert done == [float(f) for f in range(len(done))] and len(done) >= 3
+
+
+def test_a_filling_disk_stops_the_run_before_the_cache_is_damaged(tmp_path, monkeypatch, capsys):
+    """A single-file cache whose save ran out of space was truncated: USD could not open it and resume ended in a
+    traceback. The free space is now checked before each frame: the run stops with ENOSPC and the numbers, the
+    cache holds the frames before, and resume continues once there is room."""
+    import shutil
+    from collections import namedtuple
+
+    import warpsph.io.usd as usd
+
+    real = shutil.disk_usage
+    usage = namedtuple("usage", "total used free")
+    frames_seen = []
+    original = usd.UsdPointCache.write_frame
+
+    def counting(self, frame, *args, **kwargs):
+        frames_seen.append(frame)
+        return original(self, frame, *args, **kwargs)
+
+    def filling(path):  # the file system fills when frame 3 comes
+        return usage(1 << 30, 1 << 30, 1024) if frames_seen and frames_seen[-1] >= 3 else real(path)
+
+    monkeypatch.setattr(usd.UsdPointCache, "write_frame", counting)
+    monkeypatch.setattr(shutil, "disk_usage", filling)
+    scene = write_scene(tmp_path, tank_scene(radius=0.05, output={"frames": 5}))
+    out = tmp_path / "o.usdc"
+    assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "--checkpoint-every", "2", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "No space left on device" in err and "MiB free" in err and "frame 3" in err
+    assert time_samples(out) == [0.0, 1.0, 2.0]
+    monkeypatch.setattr(shutil, "disk_usage", real)
+    assert main(["resume", str(out.with_suffix(".checkpoint.h5")), "-q"]) == 0
+    assert time_samples(out) == [float(f) for f in range(6)]
+
+
+def test_resume_of_a_damaged_cache_says_so(tmp_path, capsys):
+    scene = write_scene(tmp_path, tank_scene(radius=0.05, output={"frames": 3}))
+    out = tmp_path / "o.usdc"
+    assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "--checkpoint-every", "1", "-q"]) == 0
+    data = out.read_bytes()
+    out.write_bytes(data[: len(data) // 2])  # what a save cut short by a full disk leaves
+    assert main(["resume", str(out.with_suffix(".checkpoint.h5")), "--frames", "5", "-q"]) == 2
+    err = capsys.readouterr().err
+    assert "USD cannot open this cache" in err and "Traceback" not in err and out.exists()

@@ -315,7 +315,7 @@ def _simulate(sim, outputs, frames, args, options, append):
     from .diagnostics import DiagnosticsWriter
     from .io.checkpoint import save_checkpoint
     from .io.frames import FrameWriter, WriterFailed, parse_fields
-    from .io.usd import UsdClipCache, UsdPointCache, body_meshes, run_metadata, write_host_frame
+    from .io.usd import DamagedCache, UsdClipCache, UsdPointCache, body_meshes, run_metadata, write_host_frame
 
     scene = sim.scene
     fields = parse_fields(options.get("fields") or None, sim)
@@ -329,8 +329,13 @@ def _simulate(sim, outputs, frames, args, options, append):
     else:
         if append is not None and outputs.out.exists():
             os.replace(outputs.out, outputs.partial)
-        cache = UsdPointCache(outputs.partial, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
-                              boundary_radius=scene.particle_radius, append=append, bodies=meshes, metadata=metadata)
+        try:
+            cache = UsdPointCache(outputs.partial, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
+                                  boundary_radius=scene.particle_radius, append=append, bodies=meshes, metadata=metadata)
+        except DamagedCache as exc:
+            if not outputs.out.exists():
+                os.replace(outputs.partial, outputs.out)  # left as it was found
+            raise SceneError(outputs.out, "", exc.reason) from None
     diagnostics = DiagnosticsWriter(outputs.stats, append=append, metadata=metadata)
     particles = None
     if options.get("particles_h5"):

@@ -228,6 +228,16 @@ def _write_points(points_prim, frame, points, velocities, ids, radius, fields, w
     return written
 
 
+class DamagedCache(OSError):
+    """A cache that USD cannot open (truncated by a full disk or a crash during a save)."""
+
+    def __init__(self, path, cause):
+        first = str(cause).strip().splitlines()[0] if str(cause).strip() else type(cause).__name__
+        self.reason = (f"USD cannot open this cache ({first[:200]}); its frames cannot be recovered. Start the run "
+                       "again (a --clips run keeps every frame's layer on its own)")
+        super().__init__(f"{path}: {self.reason}")
+
+
 class UsdPointCache:
     """A single file, saved after every frame (a stopped run leaves the frames done).
     ``append=K`` reopens an existing cache to continue it after frame K (later frames, from a run
@@ -240,8 +250,12 @@ class UsdPointCache:
         self.frames = 0
         self._ids = None  # the ids and particle count of the last time samples written
         self._count = None
+        self._last_written = 0
         if append is not None:
-            self.stage = Usd.Stage.Open(str(self.path))
+            try:
+                self.stage = Usd.Stage.Open(str(self.path))
+            except Exception as exc:  # pxr.Tf.ErrorException: a truncated or damaged crate file
+                raise DamagedCache(self.path, exc) from None
             self.points = UsdGeom.Points(self.stage.GetPrimAtPath("/World/Fluid"))
             for prim in self.stage.Traverse():
                 for attr in prim.GetAttributes():
@@ -270,6 +284,7 @@ class UsdPointCache:
         one (USD holds a sample until the next), so a cache in id order without emitters or sinks
         has them once; the first frame a run writes (or appends) always has them."""
         _check_directory(self.path.parent)
+        check_space(self.path.parent, frame, _frame_estimate(points, self._last_written))
         count = len(points)
         if ids is not None:
             ids = np.asarray(ids)
@@ -286,6 +301,7 @@ class UsdPointCache:
         if not self.stage.GetRootLayer().Save():
             raise OSError(f"{self.path}: USD could not save the layer")
         self._count = count
+        self._last_written = written
         self.frames += 1
         return written
 
@@ -359,6 +375,7 @@ class UsdClipCache:
         """Writes the layer of frame ``frame`` (every asked array: a clip stands on its own);
         returns the bytes of the arrays written."""
         _check_directory(self.dir)
+        check_space(self.dir, frame, _frame_estimate(points, getattr(self, "_last_written", 0)))
         stage = Usd.Stage.CreateNew(str(self.frame_path(frame)))
         stage.SetStartTimeCode(frame)  # StitchClips activates each clip at its layer's start
         stage.SetEndTimeCode(frame)
@@ -371,6 +388,7 @@ class UsdClipCache:
         if not stage.GetRootLayer().Save():
             raise OSError(f"{self.frame_path(frame)}: USD could not save the layer")
         del stage
+        self._last_written = written
         self.frames += 1
         return written
 
@@ -443,6 +461,26 @@ def _note_surface(layer, info):
     (a count), skipped_frames and a sentence saying which frames hold the mesh of an earlier one."""
     info = {k: Vt.IntArray(list(map(int, v))) if isinstance(v, (list, tuple)) else v for k, v in info.items()}
     layer.customLayerData = {**layer.customLayerData, "warpsph:surface": info}
+
+
+SPACE_HEADROOM = 64 * 2**20  # bytes kept free beyond a frame's estimate (the crate's table of contents, the stats)
+
+
+def check_space(directory, frame, estimate):
+    """Before a frame is written: ENOSPC (with the numbers) unless ``directory``'s file system has room for
+    ``estimate`` bytes (1.5x the last frame's arrays, or 4x the first frame's points) and SPACE_HEADROOM. A save that
+    runs out of space half-way leaves a single-file cache that USD cannot open; refusing before it keeps the
+    frames already written."""
+    import shutil
+
+    free = shutil.disk_usage(directory).free
+    if free < estimate + SPACE_HEADROOM:
+        raise OSError(errno.ENOSPC, f"No space left on device: {free / 2**20:.1f} MiB free in {directory}, about "
+                                    f"{(estimate + SPACE_HEADROOM) / 2**20:.1f} MiB needed to write frame {frame} safely")
+
+
+def _frame_estimate(points, last_written):
+    return int(1.5 * last_written) if last_written else 4 * np.asarray(points).nbytes
 
 
 def _check_directory(path):
