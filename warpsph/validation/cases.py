@@ -389,8 +389,9 @@ def validate(case, resolutions, methods=("dfsph",), device="cpu", out=None, log=
 # --- command-line input ---------------------------------------------------------------------------------
 
 def check_arguments(case, resolutions, json_path):
-    """The command line's CASE, --resolutions (strings) and --json checked before anything runs; returns
-    (case, [int resolutions], Path or None). Raises :class:`warpsph.errors.SceneError` naming the option."""
+    """The command line's CASE and --resolutions (strings) checked before anything runs; returns
+    (case, [int resolutions], --json as a Path or None: the CLI checks it as every verb's output file).
+    Raises :class:`warpsph.errors.SceneError` naming the option."""
     from ..errors import SceneError
 
     if case not in CASES:
@@ -406,17 +407,4 @@ def check_arguments(case, resolutions, json_path):
             raise SceneError("", "--resolutions", f"expected integers >= {MIN_RESOLUTION} ({RESOLUTION_MEANS[case]}), "
                                                   f"got {n}")
         values.append(n)
-    out = None
-    if json_path is not None:
-        out = Path(json_path)
-        if not str(json_path) or out.is_dir():
-            raise SceneError(out, "--json", "is a directory; --json names the JSON file to write, e.g. "
-                                            f"{out / 'validate.json'}")
-        parent = out.absolute().parent
-        while not parent.exists() and not parent.is_symlink():
-            parent = parent.parent
-        if not parent.is_dir():
-            raise SceneError(out, "--json", f"{parent} is not a directory")
-        if not os.access(parent, os.W_OK | os.X_OK):
-            raise SceneError(out, "--json", f"cannot write in {parent}")
-    return case, values, out
+    return case, values, None if json_path is None else Path(json_path)
