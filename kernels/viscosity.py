@@ -97,7 +97,9 @@ def _viscosity_acceleration_kernel(corrected: bool):
         When a turbulence model needs it, the same neighbour loop also yields the vorticity
         zeta_i = sum_j (m_j/rho_j)(v_i - v_j) x grad W_ij (eq 6): one pass instead of two.
 
-        :data:`add_corrected_viscosity_acceleration` takes, away from the free surface and its band (``surface``),
+        :data:`add_corrected_viscosity_acceleration` takes, between two particles both away from the free surface and
+        its band (``surface``; a pair that has one there takes eq 4 from both sides, so that the pair's forces are
+        equal and opposite: with the choice made per particle, a walled channel gained 6 % of its momentum in 0.45 s),
         the Laplacian componentwise
         and adds eq 4 of the residual v_ij - (grad v_i + grad v_j) x_ij / 2 (``gradient`` from
         :func:`compute_velocity_gradient`; the plain kernel does not read it), weighted CORRECTED_STABILISER.
@@ -121,12 +123,17 @@ def _viscosity_acceleration_kernel(corrected: bool):
             volume = particle_mass / density[j]
             v_ij = vi - v[j]
             gw = cubic_kernel_gradient(x_ij, support_radius)
-            if bulk:
+            # a pair weighs the two operators by its particles' share of the bulk, the same from both sides (equal
+            # and opposite forces: momentum is conserved)
+            share = float(0.0)
+            if wp.static(corrected):
+                share = 0.5 * (wp.where(bulk, 1.0, 0.0) + wp.where(surface[j] != SURFACE and surface[j] != BAND, 1.0, 0.0))
+            if share > 0.0:
                 residual = v_ij - 0.5 * ((gi + gradient[j]) * x_ij)
-                lap += componentwise_laplacian(v_ij, x_ij, gw, volume, support_radius)
-                lap += CORRECTED_STABILISER * artificial_laplacian(residual, x_ij, gw, volume, support_radius)
-            else:
-                lap += artificial_laplacian(v_ij, x_ij, gw, volume, support_radius)
+                lap += share * componentwise_laplacian(v_ij, x_ij, gw, volume, support_radius)
+                lap += (share * CORRECTED_STABILISER) * artificial_laplacian(residual, x_ij, gw, volume, support_radius)
+            if share < 1.0:
+                lap += (1.0 - share) * artificial_laplacian(v_ij, x_ij, gw, volume, support_radius)
             if with_vorticity != 0:
                 curl += curl_term(v_ij, gw, volume)
         friction = wp.vec3(0.0)

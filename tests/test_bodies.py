@@ -241,3 +241,24 @@ def test_a_dropped_box_comes_to_rest_on_another(lower_density):
         gaps.append(high.position[1] - lower[0] - 0.2)  # the boxes' faces apart
     assert min(gaps) > -0.5 * 0.02  # never deeper than half a radius into each other; measured 0.000
     assert abs(gaps[-1]) < 0.01 and abs(high.velocity[1]) < 0.05  # resting on it (measured gap 0.000)
+
+
+def test_a_body_and_the_fluid_keep_their_momentum():
+    """A box of density 500 thrown at 0.5 m/s along a channel periodic in x (walled in y and z, no gravity) stops in
+    the fluid; its momentum goes into the fluid. While the corrected viscosity's pairs were unequal, the total grew
+    34 % in 0.4 s. Measured: 1.2 % after 120 steps."""
+    box = {"mesh": "meshes/unit_box.obj", "scale": [0.12, 0.12, 0.12], "translation": [0.3, 0.2, 0.2], "name": "box",
+           "dynamics": {"density": 500.0, "velocity": [0.5, 0, 0]}}
+    data = tank_scene(radius=0.015, domain=(0.6, 0.4, 0.4), block=(0.6, 0.4, 0.4), obstacles=[box], gravity=[0, 0, 0])
+    data["domain"]["periodic"] = ["x"]
+    sim = make_sim(data, base_dir=SCENES_DIR)
+    body = sim.moving_bodies.dynamic[0]
+
+    def momentum():
+        return body.mass * body.velocity[0] + sim.particle_mass * sim.velocities()[:, 0].sum()
+
+    p0 = momentum()
+    for _ in range(120):
+        sim.step()
+    assert body.velocity[0] < 0.05  # it has given its momentum away
+    assert abs(momentum() / p0 - 1.0) < 0.018
