@@ -151,6 +151,7 @@ class DFSPHSolver:
         combined = sim.allreduce((self.surface_count, "s"), (self.free_surface, "m"), read=True)
         # on subdomains the regime is known on the host: a free-surface step skips the mean source's reduction
         self.free_surface_known = None if combined is None else int(combined[1][0])
+        sim.exchange(self.surface)  # read at the neighbours: L_i's blend, the viscous pairs, the shift
         # L_i of the corrected solves (:meth:`_corrected`): the identity on the surface and its band
         sim.launch(compute_gradient_correction, sim.num_fluid,
                    [sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, self.surface, sim.fluid_volume,
