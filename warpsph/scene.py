@@ -659,9 +659,19 @@ def load_scene(path, scale: float = 1.0, run_anyway=None) -> Scene:
     data = parse_json(read_text(path, "scene"), path, "scene")
     from .io.splishsplash import convert, is_splishsplash
 
+    conversion = None
     if is_splishsplash(data):  # a SPlisHSPlasH scene file
+        from .io.splishsplash import conversion_of
+
         data = convert(data, path, run_anyway=run_anyway)
-    scene = parse_dataclass(Scene, data, path)
+        conversion = conversion_of(path)
+    try:
+        scene = parse_dataclass(Scene, data, path)
+    except SceneError as exc:  # a SPlisHSPlasH value warpsph cannot take: name the user's key, not ours
+        theirs = conversion.their_key(exc.key) if conversion is not None else None
+        if theirs is None:
+            raise
+        raise SceneError(path, theirs, f"{exc.reason} (as warpsph's {exc.key})") from None
     return rescale(dataclasses.replace(scene, source=str(path)), scale)
 
 

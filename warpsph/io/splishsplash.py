@@ -217,6 +217,14 @@ class Conversion:
     def refusal_text(self):
         return "; ".join(self.refused)
 
+    def their_key(self, ours):
+        """The SPlisHSPlasH key that gave the warpsph key ``ours`` (as :attr:`mapped` records it), or None."""
+        for line in self.mapped:
+            theirs, _, rest = line.partition(" -> ")
+            if rest.split(" = ", 1)[0] == ours:
+                return theirs
+        return None
+
 
 _CONVERSIONS: dict = {}
 
@@ -434,7 +442,10 @@ class _Reader:
                 self.refuse("Configuration.cflMethod", f"{cfl_method}: not a SPlisHSPlasH CFL method")
             for theirs, ours, default in (("cflFactor", "cfl", 0.5), ("cflMinTimeStepSize", "dt_min", 0.0001),
                                           ("cflMaxTimeStepSize", "dt_max", 0.005)):
-                time[ours] = float(_num(config.get(theirs), default))
+                value = _num(config.get(theirs), default)
+                if isinstance(value, bool) or not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+                    raise SceneError(self.file, f"Configuration.{theirs}", f"expected a number > 0, got {_fmt(value)}")
+                time[ours] = float(value)
                 self.mapped(f"Configuration.{theirs}", f"time.{ours}", time[ours], default=theirs not in config)
             if time["dt_min"] > time["dt_max"]:
                 time["dt_min"] = time["dt_max"]
