@@ -151,14 +151,24 @@ def slice_from_cache(cache, frame, axis, out):
     if float(frame) not in samples:
         last = int(samples[-1]) if samples else None
         raise SceneError(cache, "--frame", f"no frame {frame} in the cache (frames 0..{last})")
-    points = points_prim.GetPointsAttr().Get(frame)
+    points = np.array(points_prim.GetPointsAttr().Get(frame))
+    finite = np.isfinite(points).all(axis=1)
+    if not finite.all():
+        raise SceneError(cache, "--frame", f"{int((~finite).sum())} of the {len(points)} particle positions of frame "
+                                           f"{frame} are NaN or infinite (an unstable run's frame): plot an earlier one")
     primvar = UsdGeom.PrimvarsAPI(points_prim.GetPrim()).GetPrimvar("vorticity_magnitude")
+    velocities = points_prim.GetVelocitiesAttr().Get(frame)
     if primvar and primvar.Get(frame) is not None:
         values, label = np.array(primvar.Get(frame)), "vorticity magnitude [1/s]"
-    else:
-        values, label = np.linalg.norm(np.array(points_prim.GetVelocitiesAttr().Get(frame)), axis=1), "speed [m/s]"
-    diameter = float(np.array(points_prim.GetWidthsAttr().Get(frame))[0])
-    return plot_slice(np.array(points), values, out, axis, thickness=2.0 * diameter, label=label,
+    elif velocities is not None:
+        values, label = np.linalg.norm(np.array(velocities), axis=1), "speed [m/s]"
+    else:  # a cache written with --fields points only
+        values, label = points[:, 1], "height [m] (no velocities in the cache)"
+    widths = points_prim.GetWidthsAttr().Get(frame)
+    if widths is None or len(widths) == 0:
+        raise SceneError(cache, "", "no particle widths in this cache: not a warpsph cache")
+    diameter = float(np.array(widths)[0])
+    return plot_slice(points, values, out, axis, thickness=2.0 * diameter, label=label,
                       title=f"{Path(cache).name}, frame {frame}")
 
 

@@ -747,6 +747,11 @@ def remesh(source, frames, out, radius, options=SurfaceOptions(), log=None, devi
     try:
         for frame in frames:
             points, velocities, vorticity = source.read(frame)
+            bad = int((~np.isfinite(np.asarray(points)).all(axis=1)).sum())
+            if bad:
+                raise SceneError(getattr(source, "path", source.usd), "--frames", f"{bad} of the {len(points)} particle positions of "
+                                 f"frame {frame} are NaN or infinite (an unstable run's frame): mesh the frames before it"
+                                 + (f" (--frames {frames[0]} {frame - 1}; those done are kept)" if frame > frames[0] else ""))
             mesh = mesh_frame(points, radius, velocities, vorticity, options, device)
             write_surface(stage, frame, mesh)
             layer.Save()
