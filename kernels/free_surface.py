@@ -20,6 +20,13 @@ WALL = wp.constant(3)  # bulk particle with boundary samples in its support: sig
 
 
 @wp.func
+def off_surface(flag: wp.int32):
+    """Whether a particle flagged ``flag`` lies away from the free surface and its band (BULK or WALL): where
+    the corrected operators act."""
+    return flag != SURFACE and flag != BAND
+
+
+@wp.func
 def on_free_surface(i: int, position_divergence: wp.array(dtype=float), density: wp.array(dtype=float),
                     concentration_gradient: wp.array(dtype=wp.vec3), down: wp.vec3, threshold: float,
                     density_threshold: float, gradient_threshold: float):

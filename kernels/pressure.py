@@ -9,7 +9,7 @@ value accumulated over a step is a physical pressure that warm-starts the next s
 import warp as wp
 
 from .density import dfsph_factor
-from .free_surface import BAND, BULK, SURFACE
+from .free_surface import BULK, off_surface
 from .particles import Boundary, Neighbours, boundary_velocity, separation
 from .sph_kernel import cubic_kernel, cubic_kernel_gradient
 
@@ -75,7 +75,7 @@ def compute_gradient_correction(
         g_outer += wp.outer(g, g)
         w = cubic_kernel(wp.length(xij), support_radius)
         weight += w
-        if surface[j] != SURFACE and surface[j] != BAND:
+        if off_surface(surface[j]):
             whole += w
     for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
         b = nb.boundary[k]
@@ -197,7 +197,7 @@ def clamped(surface: int, free_surface: wp.array(dtype=wp.int32)):
     has a free surface at all. Signed bulk pressure in free-surface flow tripled the 1M dam break's density
     iterations (6.8 -> 20.8 a step, 5.7 -> 16.6 ms on the H100) with no gain in the front or the hydrostatic
     pressure (docs/notes/solver.md), so only boxes without free surface solve for signed pressure."""
-    return surface == BAND or surface == SURFACE or free_surface[0] > 0
+    return not off_surface(surface) or free_surface[0] > 0
 
 
 @wp.func
@@ -318,7 +318,7 @@ def warm_start_pressure(
     ``bulk_applied`` 1 (the density solve of a free-surface scene): the bulk's warm start was applied
     whole before this measure (:func:`warm_start_bulk`) and is left alone here."""
     i = wp.tid()
-    if bulk_applied != 0 and surface[i] != SURFACE and surface[i] != BAND:
+    if bulk_applied != 0 and off_surface(surface[i]):
         return
     h = dt[0]
     hp = dt_previous[0]
@@ -328,7 +328,7 @@ def warm_start_pressure(
         scale = h
         previous_scale = hp
     k = pressure_sum[i] * previous_scale
-    if per_unit_time != 0 or surface[i] == SURFACE or surface[i] == BAND or free_surface[0] == 0:
+    if per_unit_time != 0 or not off_surface(surface[i]) or free_surface[0] == 0:
         limit = WARM_START_CAP * factor[i]
         k = wp.clamp(k, -limit, limit)
         if k * error[i] <= 0.0:
@@ -361,7 +361,7 @@ def warm_start_bulk(
     dt 0.16 ms: up to 1.2 m/s), and sign-testing it cost the 1M dam break 0.6-0.8 iterations a step
     (docs/notes/solver.md)."""
     i = wp.tid()
-    if surface[i] == SURFACE or surface[i] == BAND:
+    if not off_surface(surface[i]):
         stiffness[i] = 0.0
         return
     h = dt[0]

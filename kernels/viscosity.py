@@ -4,7 +4,7 @@ free surface the componentwise (Morris et al. 1997) Laplacian with eq 4 on its g
 
 import warp as wp
 
-from .free_surface import BAND, SURFACE
+from .free_surface import SURFACE, off_surface
 from .particles import Boundary, Neighbours, boundary_velocity, separation
 from .sph_kernel import cubic_kernel_gradient
 from .vorticity import curl_term
@@ -116,7 +116,7 @@ def _viscosity_acceleration_kernel(corrected: bool):
         bulk = False  # the corrected operator away from the free surface and its band, eq 4 there
         if wp.static(corrected):
             gi = gradient[i]
-            bulk = surface[i] != SURFACE and surface[i] != BAND
+            bulk = off_surface(surface[i])
         for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
             j = nb.fluid[k]
             x_ij = separation(nb, xi, x[j])
@@ -127,7 +127,7 @@ def _viscosity_acceleration_kernel(corrected: bool):
             # and opposite forces: momentum is conserved)
             share = float(0.0)
             if wp.static(corrected):
-                share = 0.5 * (wp.where(bulk, 1.0, 0.0) + wp.where(surface[j] != SURFACE and surface[j] != BAND, 1.0, 0.0))
+                share = 0.5 * (wp.where(bulk, 1.0, 0.0) + wp.where(off_surface(surface[j]), 1.0, 0.0))
             if share > 0.0:
                 residual = v_ij - 0.5 * ((gi + gradient[j]) * x_ij)
                 lap += share * componentwise_laplacian(v_ij, x_ij, gw, volume, support_radius)

@@ -287,17 +287,17 @@ class MovingBodies:
         depth = c["depth"].numpy().reshape(m, m).astype(np.float64)
         push = c["push"].numpy().reshape(m, m, 3).astype(np.float64)
         bodies = c["bodies"]
-        for a in range(n):
+        for a, body in enumerate(self.bodies):
+            if body.kind != "dynamic":
+                continue
             for o in range(m):
-                first = bodies[a].kind == "dynamic"
-                both = first and o < n and bodies[o].kind == "dynamic"
-                if not first or (both and o < a) or max(depth[a, o], depth[o, a] if both else 0.0) <= 0.0:
+                both = o < n and bodies[o].kind == "dynamic"
+                if both and o < a:  # a pair of dynamic bodies once
                     continue
-                direction = push[a, o] - (push[o, a] if both else 0.0)
-                if not np.any(direction):
-                    continue
-                self._separate(bodies[a], bodies[o], direction / np.linalg.norm(direction),
-                               max(depth[a, o], depth[o, a] if both else 0.0), both)
+                d = max(depth[a, o], depth[o, a]) if both else depth[a, o]
+                direction = push[a, o] - push[o, a] if both else push[a, o]
+                if d > 0.0 and np.any(direction):
+                    self._separate(body, bodies[o], direction / np.linalg.norm(direction), d, both)
 
     @staticmethod
     def _separate(body, other, normal, depth, both):
