@@ -197,13 +197,7 @@ class Outputs:
                                                 f"e.g. {self.out / 'NAME.usdc'}")
         if self.out.suffix.lower() not in USD_SUFFIXES:
             raise SceneError(self.out, "--out", f"expected a file name ending in {', '.join(USD_SUFFIXES)}")
-        parent = self.out.absolute().parent
-        while not parent.exists() and not parent.is_symlink():
-            parent = parent.parent
-        if not parent.is_dir():
-            raise SceneError(self.out, "--out", f"{parent} is not a directory")
-        if not os.access(parent, os.W_OK | os.X_OK):
-            raise SceneError(self.out, "--out", f"cannot write in {parent}")
+        check_writable_parent(self.out, "--out")
 
     def owned(self, path):
         """Whether warpsph wrote ``path`` (so that --overwrite may replace it)."""
@@ -556,6 +550,18 @@ def _check_options(args):
             raise SceneError("", "--" + option.replace("_", "-"), f"expected an integer >= 0, got {getattr(args, option)}")
 
 
+def check_writable_parent(path, option):
+    """Raises :class:`SceneError` naming ``option`` unless the nearest existing folder above ``path`` is a directory
+    this process can write in (the folders missing below it are made when the file is written)."""
+    parent = Path(path).absolute().parent
+    while not parent.exists() and not parent.is_symlink():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise SceneError(path, option, f"{parent} is not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise SceneError(path, option, f"cannot write in {parent}")
+
+
 def check_new_file(path, option, overwrite):
     """The one rule for a verb's output file (``schema --out``, ``plot --out``, ``validate --json``): a directory or
     a parent that is not a directory is refused, an existing file is replaced only with ``--overwrite``. Missing
@@ -564,13 +570,7 @@ def check_new_file(path, option, overwrite):
     path = Path(path)
     if not str(path) or path.is_dir():
         raise SceneError(path, option, f"is a directory; {option} names the file to write")
-    parent = path.absolute().parent
-    while not parent.exists() and not parent.is_symlink():
-        parent = parent.parent
-    if not parent.is_dir():
-        raise SceneError(path, option, f"{parent} is not a directory")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise SceneError(path, option, f"cannot write in {parent}")
+    check_writable_parent(path, option)
     if (path.exists() or path.is_symlink()) and not overwrite:
         raise SceneError(path, option, "exists; pass --overwrite to replace it, or choose another name")
     return path

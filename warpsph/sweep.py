@@ -932,9 +932,8 @@ def _local(todo, devices, workers, on_record, progress):
                     code = process.exitcode
                     how = (f"killed by signal {-code} ({_signal_name(-code)})" if code is not None and code < 0
                            else f"exited with code {code}")
-                    record = {"id": cell["id"], "case": cell["case"], "params": cell["params"], "device": slots[slot],
-                              "status": "failed", "error": f"the cell's process {how} before it reported",
-                              "exit_code": code}
+                    record = _failed(cell, f"the cell's process {how} before it reported", device=slots[slot],
+                                     exit_code=code)
                 on_record(cell, record)
     finally:
         for process, receive, _, _ in running.values():  # interrupted: stop the cells in flight
@@ -942,6 +941,11 @@ def _local(todo, devices, workers, on_record, progress):
         for process, receive, _, _ in running.values():
             process.join(10)
             receive.close()
+
+
+def _failed(cell, error, **more):
+    """The record of a cell whose process or task ended without reporting one."""
+    return {"id": cell["id"], "case": cell["case"], "params": cell["params"], **more, "status": "failed", "error": error}
 
 
 def _signal_name(number):
@@ -993,8 +997,7 @@ def _ray(todo, address, num_gpus, num_cpus, max_retries, on_record, progress, in
             try:
                 record = ray.get(ref)
             except Exception as exc:  # noqa: BLE001 - the task failed after its retries (worker lost, ...)
-                record = {"id": cell["id"], "case": cell["case"], "params": cell["params"], "status": "failed",
-                          "error": f"{type(exc).__name__}: {exc}"}
+                record = _failed(cell, f"{type(exc).__name__}: {exc}")
             on_record(cell, record)
 
 

@@ -366,6 +366,7 @@ class UsdClipCache:
                                f"moving_{n}": np.array(moving)})
             np.savez(self.bodies_file, count=len(bodies), **arrays)
         self.frames = 0
+        self._last_written = 0  # bytes of the last frame's arrays (the next one's space estimate)
 
     def frame_path(self, frame):
         return self.dir / f"frame.{frame:06d}.usdc"
@@ -375,7 +376,7 @@ class UsdClipCache:
         """Writes the layer of frame ``frame`` (every asked array: a clip stands on its own);
         returns the bytes of the arrays written."""
         _check_directory(self.dir)
-        check_space(self.dir, frame, _frame_estimate(points, getattr(self, "_last_written", 0)))
+        check_space(self.dir, frame, _frame_estimate(points, self._last_written))
         stage = Usd.Stage.CreateNew(str(self.frame_path(frame)))
         stage.SetStartTimeCode(frame)  # StitchClips activates each clip at its layer's start
         stage.SetEndTimeCode(frame)

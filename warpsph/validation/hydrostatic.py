@@ -21,6 +21,15 @@ SIDE = 0.4  # m: the water cube
 T_END = 1.5  # s: settled time (gravity ramped in over the first 0.2 s)
 
 
+def ramp_gravity(sim, ramp, g=9.81):
+    """Sets ``sim.gravity`` (along -y) to g ramped in with a smooth step over the first ``ramp`` seconds (a tank
+    started at rest does not slosh)."""
+    import warp as wp
+
+    s = min(sim.time / ramp, 1.0)
+    sim.gravity = wp.vec3(0.0, -g * (3 * s * s - 2 * s * s * s), 0.0)
+
+
 def hydrostatic(radius=0.02, T=T_END, device="cpu", ramp=0.2, models=(), overrides=None):
     """Runs the tank; returns the measurements (with ``wall_s``: the stepping alone, device synchronised, and
     ``steps``). ``overrides``: dotted scene keys to set (:func:`warpsph.scene.with_overrides`)."""
@@ -36,9 +45,8 @@ def hydrostatic(radius=0.02, T=T_END, device="cpu", ramp=0.2, models=(), overrid
 
     wp.synchronize_device(sim.device)
     start = time.perf_counter()
-    while sim.time < T:  # gravity ramped in with a smooth step over `ramp` seconds
-        s = min(sim.time / ramp, 1.0)
-        sim.gravity = wp.vec3(0.0, -9.81 * (3 * s * s - 2 * s * s * s), 0.0)
+    while sim.time < T:
+        ramp_gravity(sim, ramp)
         sim.step()
     x = sim.fluid.x.numpy()
     height = sim.num_fluid * sim.fluid_volume / side**2

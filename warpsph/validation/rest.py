@@ -12,6 +12,8 @@ how many particles the solver took for the free surface at the end (none in the 
 
 import numpy as np
 
+from .hydrostatic import ramp_gravity
+
 SIDE = 0.4  # m
 T_END = 5.0  # s
 RAMP = 0.2  # s: gravity ramped in
@@ -22,8 +24,6 @@ G = 9.81
 def tank_at_rest(resolution, fill, device="cpu", T=T_END, models=(), overrides=None, on_run=None):
     """Runs one tank (``resolution`` particles across the side) to ``T``; returns its measurements.
     ``on_run(sim, run)``: called with the simulation and a function that runs it (for timing)."""
-    import warp as wp
-
     from warpsph.scene import scene_from_dict, with_overrides
     from warpsph.simulation import Simulation
 
@@ -39,8 +39,7 @@ def tank_at_rest(resolution, fill, device="cpu", T=T_END, models=(), overrides=N
 
     def run():
         while sim.time < T:
-            s = min(sim.time / RAMP, 1.0)
-            sim.gravity = wp.vec3(0.0, -G * (3 * s * s - 2 * s * s * s), 0.0)
+            ramp_gravity(sim, RAMP, G)
             sim.step()
             if sim.time > T - 1.0 and sim.step_count % 10 == 0:
                 speeds.append(float(np.sqrt(sim.max_speed_sq.numpy()[0])))
