@@ -85,3 +85,30 @@ def test_strict_types_and_ranges_name_the_key(change, key, words):
     with pytest.raises(SceneError) as info:
         scene_from_dict({**tank_scene(), **change})
     assert key in str(info.value) and words in str(info.value), str(info.value)
+
+
+def test_a_scene_file_may_name_its_schema_for_editors(tmp_path, capsys):
+    """The "$schema" key an editor reads (VS Code, JetBrains): the loader ignores it, the schema allows it."""
+    schema_file = tmp_path / "scene.schema.json"
+    assert main(["schema", "--out", str(schema_file)]) == 0
+    schema = json.loads(schema_file.read_text())
+    assert schema["properties"]["$schema"]["type"] == "string"
+    path = tmp_path / "tank.json"
+    path.write_text(json.dumps({"$schema": "./scene.schema.json", **tank_scene()}))
+    assert Scene.load(path) == Scene.load(path)  # loads, and the key leaves no trace in the scene
+    assert Scene.load(path).name == "tank" and Scene.from_dict({"$schema": "x", **tank_scene()}).name == "tank"
+    jsonschema = pytest.importorskip("jsonschema", reason="validating against the JSON Schema needs jsonschema")
+    assert not list(jsonschema.Draft202012Validator(schema).iter_errors(json.loads(path.read_text())))
+    assert list(jsonschema.Draft202012Validator(schema).iter_errors({"$schema": 1, **tank_scene()}))
+
+
+@pytest.mark.parametrize("value", [1, None, ["./scene.schema.json"]])
+def test_a_schema_key_that_is_not_a_string_is_named(value):
+    with pytest.raises(SceneError) as info:
+        scene_from_dict({"$schema": value, **tank_scene()})
+    assert "$schema" in str(info.value) and "a string" in str(info.value), str(info.value)
+
+
+def test_a_schema_key_below_the_top_level_is_unknown():
+    with pytest.raises(SceneError, match=r"fluid\.\$schema"):
+        scene_from_dict({**tank_scene(), "fluid": {"$schema": "x"}})

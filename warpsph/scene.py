@@ -327,10 +327,12 @@ class Scene:
 
     @property
     def particle_diameter(self):
+        """The particle spacing 2r [m]."""
         return 2.0 * self.particle_radius
 
     @property
     def support_radius(self):
+        """The kernel's support 4r [m]."""
         return 4.0 * self.particle_radius
 
     @property
@@ -564,11 +566,26 @@ def _check_tree(obj, file, key):
         obj.validate(file, key)
 
 
+SCHEMA_KEY = "$schema"  # a scene file's pointer to its JSON Schema, for editors; not a scene setting
+
+
+def _without_schema_key(data, file):
+    """The scene dict without its ``"$schema"`` key (a string: the JSON Schema's path or URL, read by editors)."""
+    if SCHEMA_KEY not in data:
+        return data
+    if not isinstance(data[SCHEMA_KEY], str):
+        raise SceneError(file, SCHEMA_KEY, f"expected the path or URL of the JSON Schema (a string), got "
+                                           f"{shown(data[SCHEMA_KEY])}")
+    return {k: v for k, v in data.items() if k != SCHEMA_KEY}
+
+
 def parse_dataclass(cls, data, file=None, key=""):
     """Builds the schema class ``cls`` from a JSON object, checking every key; raises :class:`SceneError`
     naming ``file`` and the key path below ``key``."""
     if not isinstance(data, dict):
         raise SceneError(file, key or "scene", f"expected an object, got {shown(data)}")
+    if cls is Scene:
+        data = _without_schema_key(data, file)
     data = _drop_obsolete(cls, data, file, key)
     if cls is Scene and "source" in data:
         raise SceneError(file, "source", "unknown key (it is set on load)")
@@ -620,6 +637,9 @@ def scene_json_schema() -> dict:
         sub["required"] = ["type"] + sub.get("required", [])
         entries.append(sub)
     out["properties"]["models"]["items"] = {"oneOf": entries}
+    out["properties"] = {SCHEMA_KEY: {"type": "string", "description": "the path or URL of this JSON Schema, for "
+                                                                       "editors (warpsph ignores it)"},
+                         **out["properties"]}
     out["$schema"] = "https://json-schema.org/draft/2020-12/schema"
     out["title"] = "warpsph scene"
     return out
@@ -785,7 +805,9 @@ def reference_markdown() -> str:
         _reference_rows(params, "models[].", {params}, sections, title=f'models[]: "type": "{name}"')
     out = ["# Scene reference", "",
            "Every key of a scene file (JSON; SI units). Generated from the schema in `warpsph/scene.py` and the "
-           "models' `Parameters`; `warpsph schema` prints the same as JSON Schema for editors.", ""]
+           "models' `Parameters`; `warpsph schema` prints the same as JSON Schema for editors (a scene file may name "
+           'it in a top-level `"$schema"` key, which warpsph ignores: see the '
+           "[user guide](guide.md#completion-and-checking-in-an-editor)).", ""]
     for title, doc, rows in sections:
         out += [f"## {title}", "", " ".join(doc.split()), "", "| key | expects | unit | default | meaning |",
                 "|---|---|---|---|---|"]
