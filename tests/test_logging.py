@@ -148,8 +148,6 @@ CHANNEL = {"name": "channel", "particle_radius": 0.02, "domain": {"min": [0, 0, 
            "output": {"fps": 20, "frames": 2}}  # room for 0.1 s of inflow: a longer run fills it
 
 LIBRARY = f"""
-import warp as wp
-wp.config.log_level = wp.LOG_WARNING  # Warp's own messages: the program's to turn off
 import warpsph
 sim = warpsph.Simulation(warpsph.Scene.from_dict({CHANNEL!r}), device="cpu")
 sim.run(frames=5)
@@ -166,3 +164,35 @@ def test_a_library_run_logs_but_shows_nothing_by_default(tmp_path, caplog):
     assert done.returncode == 0, done.stderr
     shown = [line for line in (done.stdout + done.stderr).splitlines() if CUDA_DRIVER_WARNING not in line]
     assert shown == []
+
+
+QUIET_LIBRARY = """
+import logging, sys
+setup = sys.argv[1]
+if setup == "debug-logging":
+    logging.basicConfig(level=logging.DEBUG, stream=sys.stderr)
+if setup == "warp-first":  # the program imported Warp and chose its level before warpsph
+    import warp as wp
+    wp.config.log_level = wp.LOG_DEBUG
+import warpsph
+sim = warpsph.Simulation(warpsph.Scene.from_dict({scene!r}), device=sys.argv[2])
+sim.run(frames=1)
+import warp as wp
+print("level", wp.config.log_level, file=sys.stderr)
+"""
+
+
+@pytest.mark.parametrize("setup, banner, level", [("plain", False, 30), ("debug-logging", True, 20),
+                                                   ("warp-first", True, 10)])
+def test_the_library_prints_no_warp_banner_unless_asked(tmp_path, device, setup, banner, level):
+    """``import warpsph; warpsph.Simulation(...)`` writes nothing on stdout: Warp's banner and module-load lines
+    stay off unless the program shows warpsph's debug records or set Warp's level itself."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    script = QUIET_LIBRARY.format(scene=tank_scene(radius=0.05, output={"fps": 20, "frames": 1}))
+    done = subprocess.run([sys.executable, "-c", script, setup, device], capture_output=True, text=True, cwd=tmp_path,
+                          env={**os.environ, "PYTHONPATH": root}, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert f"level {level}\n" in done.stderr
+    assert ("Warp " in done.stdout and "initialized" in done.stdout) == banner, done.stdout
+    if not banner:
+        assert done.stdout == ""

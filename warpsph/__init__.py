@@ -18,10 +18,12 @@ __version__ = "0.1.0"
 
 import logging as _logging
 
+from . import log as _log
 from .errors import SceneError  # noqa: F401
 from .scene import Scene, load_scene, scene_from_dict  # noqa: F401
 
 _logging.getLogger(__name__).addHandler(_logging.NullHandler())  # the program decides what is shown (warpsph.log)
+_log.quiet_warp_on_import()  # and Warp prints no banner unless asked (warpsph.log.quiet_warp)
 
 __all__ = ["Scene", "Simulation", "DecomposedSimulation", "InstabilityError", "SceneError", "load_scene", "scene_from_dict", "io",
            "__version__"]

@@ -3,10 +3,17 @@
 The package logger has only a :class:`logging.NullHandler`, so a program that imports warpsph
 decides what is shown. The command line calls :func:`configure`, which shows the records on
 stderr as ``warpsph: error: ...``, ``warpsph: warning: ...`` and plain info lines.
+
+Warp's own messages (its start-up banner and a line per kernel module loaded, on stdout) are off too:
+when Warp is imported after warpsph (or at ``import warpsph`` when it already was), :func:`quiet_warp`
+sets ``warp.config.log_level`` to warnings, unless the program chose another level or shows warpsph's
+debug records (e.g. ``logging.basicConfig(level=logging.DEBUG)``). A program that wants Warp's lines sets
+``wp.config.log_level = wp.LOG_INFO`` after importing warpsph.
 """
 
 from __future__ import annotations
 
+import importlib.abc
 import logging
 import sys
 import warnings
@@ -85,3 +92,53 @@ def _show_warning(message, category, filename, lineno, file=None, line=None):
 def enabled(level):
     """Whether the ``warpsph`` logger passes records of ``level`` (a logging level)."""
     return logging.getLogger(LOGGER).isEnabledFor(level)
+
+
+def quiet_warp(wp):
+    """Warp's log level at warnings (no banner, no module-load lines on stdout) when it is still Warp's
+    default and warpsph's debug records are not shown; ``wp`` is the ``warp`` module."""
+    if wp.config.log_level == wp.LOG_INFO and not enabled(logging.DEBUG):
+        wp.config.log_level = wp.LOG_WARNING
+
+
+class _QuietWarpLoader(importlib.abc.Loader):
+    """Warp's own loader, then :func:`quiet_warp` on the imported package."""
+
+    def __init__(self, loader, finder):
+        self.loader, self.finder = loader, finder
+
+    def __getattr__(self, name):
+        return getattr(self.loader, name)
+
+    def create_module(self, spec):
+        return self.loader.create_module(spec)
+
+    def exec_module(self, module):
+        module.__loader__ = module.__spec__.loader = self.loader
+        self.loader.exec_module(module)
+        if self.finder in sys.meta_path:
+            sys.meta_path.remove(self.finder)
+        quiet_warp(module)
+
+
+class _QuietWarpFinder(importlib.abc.MetaPathFinder):
+    """Finds the ``warp`` package as the other finders do, with a loader that quiets it once imported."""
+
+    def find_spec(self, name, path=None, target=None):
+        if name != "warp":
+            return None
+        for finder in sys.meta_path:
+            spec = finder.find_spec(name, path, target) if finder is not self and hasattr(finder, "find_spec") else None
+            if spec is not None:
+                if spec.loader is not None:
+                    spec.loader = _QuietWarpLoader(spec.loader, self)
+                return spec
+        return None
+
+
+def quiet_warp_on_import():
+    """:func:`quiet_warp` now when Warp is imported, else right after its import (whoever imports it)."""
+    if "warp" in sys.modules:
+        quiet_warp(sys.modules["warp"])
+    elif not any(isinstance(f, _QuietWarpFinder) for f in sys.meta_path):
+        sys.meta_path.insert(0, _QuietWarpFinder())
