@@ -196,3 +196,46 @@ def test_the_library_prints_no_warp_banner_unless_asked(tmp_path, device, setup,
     assert ("Warp " in done.stdout and "initialized" in done.stdout) == banner, done.stdout
     if not banner:
         assert done.stdout == ""
+
+
+def test_every_command_takes_log_before_or_after_its_name():
+    parser = build_parser()
+    for words, sub in subcommands(parser):
+        assert "--log" in {o for a in sub._actions for o in a.option_strings}, words
+    for argv in COMMANDS:
+        assert parser.parse_args(argv).log is None
+        for line in (["--log", "a.log"] + argv, argv + ["--log", "a.log"]):
+            assert parser.parse_args(line).log == "a.log", line
+
+
+@pytest.mark.parametrize("flags, shown, hidden", [([], [" INFO warpsph.cli: tank on cpu: 64 fluid"], ["DEBUG"]),
+                                                  (["-v"], [" DEBUG warpsph.cli: frame 1: "], []),
+                                                  (["-q"], [" WARNING warpsph: "], ["INFO"])])
+def test_log_appends_the_records_to_a_file_and_still_shows_them(tmp_path, capsys, flags, shown, hidden):
+    """--log FILE: the records at the level -q/-v chose, timed, in FILE (missing folders made, appended to);
+    stderr shows them as without --log."""
+    log_file = tmp_path / "logs" / "run.log"
+    for n in range(2):  # each run its own scene file: Python shows a warning once per message
+        (tmp_path / str(n)).mkdir()
+        assert run_tank(tmp_path / str(n), *flags, "--log", str(log_file), solver={"clamp_pressure": False}) == 0
+        err = capsys.readouterr().err
+        assert "solver.clamp_pressure" in err and ("tank on cpu" in err) == (flags != ["-q"])
+    text = log_file.read_text()
+    lines = text.splitlines()
+    assert all(line[:4].isdigit() and line[4] == "-" for line in lines if not line.startswith(" ")), text
+    for words in shown:
+        assert sum(words in line for line in lines) == 2, (words, text)  # both runs, appended
+    for words in hidden:
+        assert f" {words} " not in text, text
+
+
+def test_a_log_file_that_cannot_be_written_is_named(tmp_path, capsys):
+    assert main(["schema", "--log", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("warpsph: error: ") and "--log" in err and "directory" in err, err
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    assert main(["--log", str(blocker / "run.log"), "schema"]) == 2
+    err = capsys.readouterr().err
+    assert "--log" in err and str(blocker) in err, err
+    assert not logging.getLogger("warpsph").handlers[1:], "no handler left behind"

@@ -8,8 +8,9 @@
     warpsph surface OUT.usdc|OUT.particles.h5 [--cube C] [--smoothing L] [--frames A B] [--out NEW.usdc]
                     [--method splashsurf|preview] [--device cpu|cuda]
 
-Every command takes -q/--quiet (warnings and errors only, no progress) and -v/--verbose (debug
-lines too, e.g. each frame's wall time), before or after its name. On a terminal with rich
+Every command takes -q/--quiet (warnings and errors only, no progress), -v/--verbose (debug
+lines too, e.g. each frame's wall time) and --log FILE (the same lines appended to FILE, timed),
+before or after its name. On a terminal with rich
 installed (pip install 'warpsph[rich]') a run shows a progress bar; otherwise a line per frame.
 
 --overwrite replaces only files warpsph wrote (a directory or anyone else's file is refused). A
@@ -1033,12 +1034,15 @@ def build_parser():
 
 
 def _verbosity_flags(parser, default):
-    """-q/--quiet and -v/--verbose on ``parser`` and on each of its subcommands (where they default
+    """-q/--quiet, -v/--verbose and --log on ``parser`` and on each of its subcommands (where they default
     to nothing, so that a flag before the subcommand holds)."""
     parser.add_argument("-q", "--quiet", action="count", default=default,
                         help="warnings and errors only: no progress, no info lines")
     parser.add_argument("-v", "--verbose", action="count", default=default,
                         help="debug lines too (e.g. each frame's wall time and steps)")
+    parser.add_argument("--log", metavar="FILE", default=None if default == 0 else default,
+                        help="also append the log lines (at the level -q/-v choose) to FILE, each with its time; "
+                             "they still go to stderr")
     for action in parser._actions:
         if isinstance(action, argparse._SubParsersAction):
             for sub in action.choices.values():
@@ -1047,7 +1051,14 @@ def _verbosity_flags(parser, default):
 
 def main(argv=None):
     args = build_parser().parse_args(argv)
-    undo = log.configure(log.verbosity(args.quiet, args.verbose))
+    level = log.verbosity(args.quiet, args.verbose)
+    try:
+        undo = log.configure(level, file=args.log)
+    except SceneError as exc:  # --log cannot be written: said on stderr alone
+        undo = log.configure(level)
+        logger.error("%s", exc)
+        undo()
+        return 2
     try:
         return args.func(args)
     except SceneError as exc:

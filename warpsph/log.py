@@ -62,22 +62,55 @@ def verbosity(quiet=0, verbose=0):
     return max(QUIET, min(VERBOSE, int(verbose or 0) - int(quiet or 0)))
 
 
-def configure(level=NORMAL):
+FILE_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
+
+class LogFileHandler(logging.FileHandler):
+    """Appends the records to a log file (``--log FILE``), each with its time, level and logger."""
+
+
+def file_handler(path):
+    """A :class:`LogFileHandler` appending to ``path`` (missing folders made); a :class:`SceneError` naming
+    ``--log`` and the file when it cannot be written."""
+    from pathlib import Path
+
+    from .errors import SceneError
+
+    path = Path(path)
+    if not str(path) or path.is_dir():
+        raise SceneError(path, "--log", "is a directory; --log names the file to append the log to")
+    try:
+        path.absolute().parent.mkdir(parents=True, exist_ok=True)
+        handler = LogFileHandler(path, mode="a", encoding="utf-8")
+    except OSError as exc:
+        raise SceneError(path, "--log", f"cannot write the log file ({exc.strerror or exc})") from None
+    handler.setFormatter(logging.Formatter(FILE_FORMAT))
+    return handler
+
+
+def configure(level=NORMAL, file=None):
     """Shows the ``warpsph`` logger's records from ``level`` (QUIET: warnings and errors, NORMAL:
-    info, VERBOSE: debug) on stderr, and Python warnings as ``warpsph: warning: ...`` lines.
-    Replaces an earlier :func:`configure`; returns a function that undoes it."""
+    info, VERBOSE: debug) on stderr, and Python warnings as ``warpsph: warning: ...`` lines;
+    with ``file``, the same records are also appended to that file (timed; see :func:`file_handler`,
+    which raises before anything changes). Replaces an earlier :func:`configure`; returns a function
+    that undoes it."""
     logger = logging.getLogger(LOGGER)
-    for old in [h for h in logger.handlers if isinstance(h, StderrHandler)]:
+    handlers = [file_handler(file)] if file is not None else []
+    for old in [h for h in logger.handlers if isinstance(h, (StderrHandler, LogFileHandler))]:
         logger.removeHandler(old)
-    handler = StderrHandler()
-    handler.setFormatter(Formatter())
+        old.close()
+    handlers.insert(0, StderrHandler())
+    handlers[0].setFormatter(Formatter())
     saved = logger.level, warnings.showwarning
-    logger.addHandler(handler)
+    for handler in handlers:
+        logger.addHandler(handler)
     logger.setLevel(LEVELS[level])
     warnings.showwarning = _show_warning
 
     def undo():
-        logger.removeHandler(handler)
+        for handler in handlers:
+            logger.removeHandler(handler)
+            handler.close()
         logger.setLevel(saved[0])
         if warnings.showwarning is _show_warning:
             warnings.showwarning = saved[1]
