@@ -90,6 +90,97 @@ def test_ray_gives_the_same_table(local, tmp_path):
     assert comparable(table) == comparable(local[1])
 
 
+class FakeRef:
+    def __init__(self, value):
+        self.value = value
+
+
+class FakeRay:
+    """Ray's calls that the executor makes, run in this process: what each task asked for is kept."""
+
+    def __init__(self, gpus):
+        self.gpus, self.options, self.started = gpus, [], False
+
+    def is_initialized(self):
+        return self.started
+
+    def init(self, **kwargs):
+        self.started = True
+
+    def cluster_resources(self):
+        return {"CPU": 2.0, **({"GPU": float(self.gpus)} if self.gpus else {})}
+
+    def remote(self, **options):
+        self.options.append(options)
+        return lambda fn: type("Remote", (), {"remote": staticmethod(lambda cell: FakeRef(fn(cell)))})
+
+    def wait(self, refs, num_returns=1):
+        return refs[:num_returns], refs[num_returns:]
+
+    def get(self, ref):
+        return ref.value
+
+
+FUNCTION_SWEEP = {"name": "squares", "base": {"function": "sweep_cells:die_or_square"}, "axes": {"x": [1, 3]},
+                  "measures": ["square"], "warm_up": False}
+
+
+@pytest.fixture
+def fake_ray(monkeypatch):
+    """A Ray with one GPU; the cells' devices are kept and the cells run on the CPU (this machine's)."""
+    import warpsph.sweep
+
+    ray, devices, run_cell = FakeRay(gpus=1), [], warpsph.sweep.run_cell
+    monkeypatch.setitem(sys.modules, "ray", ray)
+    monkeypatch.syspath_prepend(os.path.dirname(__file__))
+    monkeypatch.setattr(warpsph.sweep, "run_cell", lambda cell, device: devices.append(device) or run_cell(cell, "cpu"))
+    return ray, devices
+
+
+@pytest.mark.parametrize("sweep_device, num_gpus, asked, on", [
+    ("cuda", None, 1, "cuda:0"), ("cuda", 0.25, 0.25, "cuda:0"), ("cuda:0", 2, 2, "cuda:0"),
+    ("cpu", None, 0, "cpu"), ("cpu", 0, 0, "cpu"), (None, None, 0, "cpu"), (None, 0.5, 0.5, "cuda:0"),
+])
+def test_ray_cells_ask_for_the_sweeps_device(tmp_path, fake_ray, sweep_device, num_gpus, asked, on):
+    """The sweep file's device under Ray: cuda cells ask for num_gpus (1, or the fraction given) and run on the GPU
+    Ray assigns; cpu cells ask for none. The device was ignored: cuda cells ran on the CPU, asking for no GPU."""
+    ray, devices = fake_ray
+    ray.gpus = 2
+    sweep = {**FUNCTION_SWEEP, **({"device": sweep_device} if sweep_device else {})}
+    table = run_sweep(sweep, tmp_path / "out", executor="ray", num_gpus=num_gpus, log=lambda line: None)
+    assert table["complete"] and {r["x"]: r["square"] for r in table["rows"]} == {1: 1, 3: 9}
+    assert ray.options == [{"num_gpus": asked, "num_cpus": 1, "max_retries": 3}] and devices == [on, on]
+
+
+def test_ray_sweep_file_device_through_the_cli(tmp_path, capsys, fake_ray):
+    ray, devices = fake_ray
+    path = tmp_path / "sweep.json"
+    path.write_text(json.dumps({**FUNCTION_SWEEP, "device": "cuda"}))
+    assert main(["sweep", str(path), "--out", str(tmp_path / "out"), "--executor", "ray", "--num-gpus", "0.5"]) == 0
+    assert ray.options[0]["num_gpus"] == 0.5 and devices == ["cuda:0", "cuda:0"]
+    assert main(["sweep", str(path), "--out", str(tmp_path / "again"), "--executor", "ray"]) == 0
+    assert ray.options[1]["num_gpus"] == 1
+
+
+@pytest.mark.parametrize("sweep_device, options, gpus, key, words", [
+    ("cpu", ["--num-gpus", "0.5"], 1, "--num-gpus", "0.5 GPUs per cell, but the sweep file's device is cpu"),
+    ("cuda", ["--num-gpus", "0"], 1, "--num-gpus", "0 gives the cells no GPU"),
+    ("cuda:1", [], 1, "device", "Ray places each cell itself"),
+    ("cuda", ["--devices", "cpu", "--num-gpus", "1"], 1, "--num-gpus", "1 GPUs per cell, but --devices is cpu"),
+    ("cuda", [], 0, "--num-gpus", "the cells ask for 1 GPU each, and the Ray instance has 0"),
+])
+def test_ray_refuses_a_device_it_cannot_honour(tmp_path, capsys, fake_ray, sweep_device, options, gpus, key, words):
+    """Refused before any cell runs, naming the option or the sweep file's key."""
+    ray, devices = fake_ray
+    ray.gpus = gpus
+    path = tmp_path / "sweep.json"
+    path.write_text(json.dumps({**FUNCTION_SWEEP, "device": sweep_device}))
+    assert main(["sweep", str(path), "--out", str(tmp_path / "out"), "--executor", "ray", *options]) == 2
+    err = capsys.readouterr().err
+    assert f"{key}: {words}" in err and len(err.splitlines()) == 1, err
+    assert not ray.options and not devices
+
+
 def test_a_yaml_sweep_file_is_the_same_sweep(tmp_path):
     yaml = pytest.importorskip("yaml", reason="YAML sweep files need pyyaml")
     as_json, as_yaml = tmp_path / "s.json", tmp_path / "s.yaml"

@@ -61,8 +61,8 @@ most the cells in flight.
 Executors: ``local`` (concurrent.futures, a fresh process per cell, ``workers`` at once, the devices given to the
 worker slots in turn: ``devices=["cuda:0", "cuda:0", "cuda:1", "cuda:1"]`` packs two cells on each GPU) and
 ``ray`` (``pip install 'warpsph[ray]'``: one task per cell with ``num_gpus`` (a fraction packs several small
-cells on one GPU), ``max_retries`` for cells lost with a worker; ``address`` joins a running cluster, otherwise a
-local Ray instance starts).
+cells on one GPU; 1 by default when the sweep's device is cuda, see :func:`ray_placement`), ``max_retries`` for
+cells lost with a worker; ``address`` joins a running cluster, otherwise a local Ray instance starts).
 """
 
 from __future__ import annotations
@@ -968,11 +968,56 @@ def _cell_process(cell, device, send):
         send.close()
 
 
-def _ray(todo, address, num_gpus, num_cpus, max_retries, on_record, progress, init_kwargs=None):
+def ray_placement(devices, sweep_device, num_gpus, file="<sweep>"):
+    """(GPUs per cell, the cells' device) of a Ray sweep. The device asked (``devices``, from --device or
+    --devices, else the sweep file's ``sweep_device``) is honoured or refused here, before any cell: cpu takes
+    no GPU, cuda (or cuda:0: the GPU Ray assigns) ``num_gpus`` (default 1; a fraction packs cells on a GPU);
+    none asked: cuda when ``num_gpus`` > 0, else cpu. Raises :class:`SceneError` naming the option or key."""
+    where, asked = ("--devices", devices) if devices else ("device", [sweep_device] if sweep_device else [])
+    where_file, what = ("", "--devices") if devices else (file, "the sweep file's device")
+    if isinstance(asked, str):
+        asked = [d.strip() for d in asked.split(",") if d.strip()]
+    if num_gpus is not None and (isinstance(num_gpus, bool) or not isinstance(num_gpus, (int, float))
+                                 or not 0 <= num_gpus < math.inf):
+        raise SceneError("", "--num-gpus", f"expected a number >= 0, got {num_gpus!r}")
+    kinds = {"cpu" if d == "cpu" else "cuda" if d in ("cuda", "cuda:0") else d for d in asked if d != "auto"}
+    unknown = kinds - {"cpu", "cuda"}
+    if unknown or len(kinds) > 1:
+        raise SceneError(where_file, where, f"Ray places each cell itself: expected cpu or cuda (the GPU Ray assigns "
+                                            f"a cell), got {', '.join(asked)}")
+    kind = kinds.pop() if kinds else None
+    if kind == "cpu" and num_gpus:
+        raise SceneError("", "--num-gpus", f"{num_gpus:g} GPUs per cell, but {what} is cpu")
+    if kind == "cuda" and num_gpus == 0:
+        raise SceneError("", "--num-gpus", f"0 gives the cells no GPU, but {what} is cuda (leave --num-gpus out "
+                                           f"for 1 GPU per cell, or give a fraction such as 0.25)")
+    if kind is None:
+        kind = "cuda" if num_gpus else "cpu"
+    gpus = (1 if num_gpus is None else num_gpus) if kind == "cuda" else 0
+    return gpus, "cuda:0" if kind == "cuda" else "cpu"  # Ray sets CUDA_VISIBLE_DEVICES per task
+
+
+def _check_ray_gpus(ray, num_gpus, started):
+    """Refuses GPU cells on a Ray instance this sweep started without GPUs (they would wait forever); a cluster
+    joined may still add GPU nodes: a warning."""
+    have = ray.cluster_resources().get("GPU", 0)
+    if num_gpus <= have:
+        return
+    text = f"the cells ask for {num_gpus:g} GPU each, and the Ray {'instance' if started else 'cluster'} has {have:g}"
+    if started:
+        raise SceneError("", "--num-gpus", text + "; use a machine with a GPU, --address of a cluster with GPUs, "
+                                                  "or the device cpu")
+    logging.getLogger(__name__).warning("%s: the cells wait until GPU nodes join", text)
+
+
+def _ray_connect(address, num_gpus, init_kwargs=None):
+    """The ray module, joined to the cluster at ``address`` or a local instance (started unless the program
+    started one); GPU cells on an instance without GPUs are refused here (:func:`_check_ray_gpus`)."""
     try:
         import ray
     except ImportError:
         raise SceneError("", "--executor", "ray is not installed: pip install 'warpsph[ray]' (or use --executor local)") from None
+    started = not ray.is_initialized() and not address
     if not ray.is_initialized():
         kwargs = dict(init_kwargs or {})
         kwargs.setdefault("include_dashboard", False)
@@ -980,12 +1025,16 @@ def _ray(todo, address, num_gpus, num_cpus, max_retries, on_record, progress, in
         if address:
             kwargs["address"] = address
         ray.init(**kwargs)
+    if num_gpus:
+        _check_ray_gpus(ray, num_gpus, started)
+    return ray
 
+
+def _ray(ray, todo, num_gpus, num_cpus, max_retries, on_record, progress, device="cpu"):
     def task(cell):
-        device = "cuda:0" if num_gpus and num_gpus > 0 else "cpu"  # Ray sets CUDA_VISIBLE_DEVICES per task
         return run_cell(cell, device)
 
-    remote = ray.remote(num_gpus=num_gpus or 0, num_cpus=num_cpus, max_retries=max_retries)(task)
+    remote = ray.remote(num_gpus=num_gpus, num_cpus=num_cpus, max_retries=max_retries)(task)
     pending = {}
     for cell in todo:
         pending[remote.remote(cell)] = cell
@@ -1009,10 +1058,12 @@ def add_executor_arguments(parser, default_devices="--device"):
     parser.add_argument("--workers", type=int, default=1, help="local: cells at once (default 1)")
     parser.add_argument("--devices", metavar="D[,D...]",
                         help="local: devices given to the worker slots in turn, e.g. cuda:0,cuda:1, or cuda:0 with "
-                             f"--workers 4 to pack four cells on one GPU, or auto (default: {default_devices})")
+                             f"--workers 4 to pack four cells on one GPU, or auto (default: {default_devices}); "
+                             "ray: cpu or cuda (the GPU Ray assigns each cell)")
     parser.add_argument("--address", help="ray: the cluster to join (e.g. auto or ray://host:10001); default a local instance")
-    parser.add_argument("--num-gpus", type=float, default=0.0,
-                        help="ray: GPUs per cell (0.25 packs four cells on a GPU; 0: CPU cells, default)")
+    parser.add_argument("--num-gpus", type=float, default=None,
+                        help="ray: GPUs per cell (0.25 packs four cells on a GPU; default 1 when the device is cuda, "
+                             "else 0: CPU cells)")
     parser.add_argument("--num-cpus", type=float, default=1.0, help="ray: CPUs per cell (default 1)")
     parser.add_argument("--max-retries", type=int, default=3, help="ray: retries of a cell lost with its worker (default 3)")
 
@@ -1026,7 +1077,7 @@ def executor_arguments(args):
         raise SceneError("", "--workers", f"expected an integer >= 1, got {args.workers}")
     if args.max_retries < 0:
         raise SceneError("", "--max-retries", f"expected an integer >= 0, got {args.max_retries}")
-    if not 0 <= args.num_gpus < math.inf:
+    if args.num_gpus is not None and not 0 <= args.num_gpus < math.inf:
         raise SceneError("", "--num-gpus", f"expected a number >= 0, got {args.num_gpus:g}")
     devices = [args.device] if getattr(args, "device", None) else None  # None: the sweep file's device
     if args.devices:
@@ -1042,6 +1093,25 @@ def executor_arguments(args):
             "num_gpus": args.num_gpus, "num_cpus": args.num_cpus, "max_retries": args.max_retries}
 
 
+def _local_devices(devices, sweep_device, file):
+    """The local executor's worker-slot devices: ``devices`` (a list or "D,D"), else the sweep file's device
+    (checked here, before any cell, as --devices is), else cpu."""
+    if devices is None:
+        devices = [sweep_device or "cpu"]
+        if sweep_device:
+            from .cli import _pick_device
+
+            try:
+                devices = [_pick_device(sweep_device)]
+            except SceneError as exc:
+                raise SceneError(file, "device", exc.reason) from None
+    if isinstance(devices, str):
+        devices = [d.strip() for d in devices.split(",") if d.strip()]
+    if not devices:
+        raise SceneError("", "--devices", "expected at least one device")
+    return devices
+
+
 def run_sweep(sweep, out, executor="local", workers=1, devices=None, address=None, num_gpus=None, num_cpus=1,
               max_retries=3, log=None, ray_init=None):
     """Runs the cells of ``sweep`` (a path or dict) not yet finished in ``out``; returns the table (a dict,
@@ -1049,8 +1119,9 @@ def run_sweep(sweep, out, executor="local", workers=1, devices=None, address=Non
 
     ``executor``: "local" (``workers`` processes, ``devices`` a list given to the worker slots in turn; default
     the sweep file's device or "cpu") or "ray" (``address`` of a cluster, else a local instance (``ray_init``:
-    keyword arguments of ray.init); ``num_gpus`` per task (a fraction packs cells on a GPU; 0/None: CPU),
-    ``num_cpus`` per task, ``max_retries``). ``log``: a function taking a progress line (default: info on the
+    keyword arguments of ray.init); ``num_gpus`` per task (a fraction packs cells on a GPU; None: 1 when the
+    device (``devices`` or the sweep file's) is cuda, else 0; see :func:`ray_placement`), ``num_cpus`` per task,
+    ``max_retries``). ``log``: a function taking a progress line (default: info on the
     ``warpsph.sweep`` logger)."""
     spec = load_sweep(sweep)
     say = log or logging.getLogger(__name__).info
@@ -1058,19 +1129,12 @@ def run_sweep(sweep, out, executor="local", workers=1, devices=None, address=Non
         raise SceneError("", "--executor", f"unknown executor '{executor}'; expected local or ray")
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise SceneError("", "--workers", f"expected an integer >= 1, got {workers!r}")
-    if devices is None:
-        devices = [spec["device"] or "cpu"]
-        if spec["device"] and executor == "local":  # checked before any cell runs, as --devices is
-            from .cli import _pick_device
-
-            try:
-                devices = [_pick_device(spec["device"])]
-            except SceneError as exc:
-                raise SceneError(sweep if not isinstance(sweep, dict) else "<sweep>", "device", exc.reason) from None
-    if isinstance(devices, str):
-        devices = [d.strip() for d in devices.split(",") if d.strip()]
-    if not devices:
-        raise SceneError("", "--devices", "expected at least one device")
+    file = sweep if not isinstance(sweep, dict) else "<sweep>"
+    if executor == "ray":  # the device honoured or refused before anything is written, as for the local executor
+        num_gpus, ray_device = ray_placement(devices, spec["device"], num_gpus, file)
+        ray = _ray_connect(address, num_gpus, ray_init)
+    else:
+        devices = _local_devices(devices, spec["device"], file)
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise SceneError(out, "--out", "is a file; --out names the sweep's output folder")
@@ -1086,7 +1150,8 @@ def run_sweep(sweep, out, executor="local", workers=1, devices=None, address=Non
     all_cells = cells(spec)
     todo = [c for c in all_cells if finished(out, c) is None]
     progress = _Progress(len(all_cells), len(all_cells) - len(todo), say)
-    progress.line(f"[{len(todo)} to run, executor {executor}]")
+    gpus = f", {num_gpus:g} GPU per cell" if executor == "ray" and num_gpus else ""
+    progress.line(f"[{len(todo)} to run, executor {executor}{gpus}]")
 
     def on_record(cell, record):
         write_json(record, _cell_path(out, cell))
@@ -1096,7 +1161,7 @@ def run_sweep(sweep, out, executor="local", workers=1, devices=None, address=Non
         if executor == "local":
             _local(todo, devices, min(workers, len(todo)), on_record, progress)
         else:
-            _ray(todo, address, num_gpus, num_cpus, max_retries, on_record, progress, ray_init)
+            _ray(ray, todo, num_gpus, num_cpus, max_retries, on_record, progress, ray_device)
     table = assemble(spec, out)
     c = table["counts"]
     say(f"sweep: finished: {c['done']} done, {c['unstable']} unstable, {c['failed']} failed, {c['missing']} missing; "
