@@ -155,3 +155,22 @@ def test_bodies_are_meshes_with_their_motion(tmp_path, clips):
     assert abs(turned[3] - turned[0]) == pytest.approx(4.0 * 3 / 20, rel=0.1)  # placed at each step's start
     boundary = UsdGeom.Points(stage.GetPrimAtPath("/World/Boundary"))
     assert np.array(boundary.GetPointsAttr().Get())[:, 1].max() < 0.6 + 0.1  # only static samples (walls, pillar)
+
+
+@pytest.mark.parametrize("clips", [False, True])
+def test_a_cache_plays_at_the_scenes_fps(tmp_path, device, clips):
+    """timeCodesPerSecond and framesPerSecond are both the scene's output.fps (a time code is a frame), and the
+    start and end time codes span the frames written: DCCs play the cache at its real speed."""
+    import warpsph
+
+    scene = warpsph.Scene.from_dict(tank_scene(radius=0.05, output={"fps": 24, "frames": 3}))
+    sim = warpsph.Simulation(scene, device=device)
+    out = tmp_path / ("cache.usda" if clips else "cache.usdc")
+    with warpsph.io.UsdWriter(out, sim, clips=clips) as usd:
+        sim.run(frames=3, on_frame=usd)
+    stage = Usd.Stage.Open(str(out))
+    layer = stage.GetRootLayer()
+    assert stage.GetTimeCodesPerSecond() == stage.GetFramesPerSecond() == 24
+    assert layer.HasTimeCodesPerSecond() and layer.HasFramesPerSecond()
+    assert layer.HasStartTimeCode() and layer.HasEndTimeCode()
+    assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (0, 3)
