@@ -2,8 +2,11 @@
 an API reference (mkdocstrings) or a cross-reference to something that does not exist fails.
 Offline and without Warp on the GPU (the API pages are read statically by griffe)."""
 
+import importlib
 import importlib.util
+import inspect
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -34,9 +37,15 @@ def build(root, site):
                           cwd=root, env=env, capture_output=True, text=True, timeout=600)
 
 
-def test_site_builds_strict(tmp_path):
-    site = tmp_path / "site"
-    done = build(ROOT, site)
+@pytest.fixture(scope="module")
+def site(tmp_path_factory):
+    """The site of this checkout, built once: (the completed build, the site folder)."""
+    folder = tmp_path_factory.mktemp("docs") / "site"
+    return build(ROOT, folder), folder
+
+
+def test_site_builds_strict(site):
+    done, site = site
     assert done.returncode == 0, done.stdout + done.stderr
     for page in ("index.html", "getting-started/index.html", "scene-reference/index.html", "output/index.html",
                  "models/vorticity-refinement/index.html", "validation/index.html", "notes/solver/index.html"):
@@ -71,3 +80,55 @@ def test_broken_docs_fail_the_build(tmp_path, page, text, expected):
     done = build(root, tmp_path / "site")
     assert done.returncode != 0
     assert expected in done.stdout + done.stderr
+
+
+PUBLIC_MODULES = ("warpsph", "warpsph.io", "warpsph.models", "warpsph.surface")
+INTERNAL = ({f"warpsph.simulation.Simulation.{name}" for name in (
+    "exchange", "allreduce", "per_particle", "scratch", "active", "host", "permute", "parts", "global_count",
+    "sort_particles", "reorder_particles", "update_densities", "state_arrays", "state_flags", "restore_flags", "launch",
+    "array", "zeros")}
+    | {f"warpsph.scene.{name}" for name in ("parse_dataclass", "parse_model", "key", "schema", "shown", "read_text",
+                                            "parse_json", "key_path", "with_overrides", "rescale", "model_types")}
+    | {f"warpsph.io.usd.{name}" for name in ("UsdPointCache", "UsdClipCache", "frame_writer", "write_host_frame",
+                                             "check_space", "run_metadata", "body_meshes", "write_surface")}
+    | {f"warpsph.surface.{name}" for name in ("BackgroundMesher", "ProcessMesher", "mesher_for", "require_pysplashsurf")}
+    | {"warpsph.decomposition.Subdomain", "warpsph.decomposition.device_names",
+       "warpsph.decomposition.DecomposedSimulation.reads_directly", "warpsph.simulation.StageTimer"})
+
+
+def documented(site):
+    """The dotted paths of the objects the API pages document (their headings' ids)."""
+    ids = set()
+    for page in (site / "api").glob("*/index.html"):
+        ids.update(re.findall(r'id="(warpsph(?:\.[A-Za-z_][A-Za-z0-9_]*)*)"', page.read_text()))
+    return ids
+
+
+def exported(module_name):
+    """(the name under the module, the path where it is defined) of each name in a public module's __all__."""
+    module = importlib.import_module(module_name)
+    for name in module.__all__:
+        obj = getattr(module, name)
+        if isinstance(obj, str):  # __version__
+            continue
+        where = obj.__name__ if inspect.ismodule(obj) else (
+            f"{obj.__module__}.{obj.__qualname__}" if hasattr(obj, "__qualname__") else f"{module_name}.{name}")
+        yield f"{module_name}.{name}", where
+
+
+def test_the_api_reference_is_the_public_api_with_docstrings(site):
+    """The API pages show the public modules' exports (the surface API too), each with a docstring, and nothing
+    internal: no _name and none of the methods and helpers that serve the command line or the stepper."""
+    griffe = pytest.importorskip("griffe")
+    done, site = site
+    assert done.returncode == 0, done.stdout + done.stderr
+    ids = documented(site)
+    assert not sorted(i for i in ids if any(part.startswith("_") for part in i.split("."))), ids
+    assert not sorted(ids & INTERNAL)
+    for module in PUBLIC_MODULES:
+        for name, where in exported(module):
+            assert {name, where} & ids, f"{name} ({where}) is public but not in the API reference"
+    package = griffe.GriffeLoader(search_paths=[str(ROOT)]).load("warpsph")
+    for path in sorted(ids - {"warpsph"}):
+        obj = package[path.removeprefix("warpsph.")]
+        assert obj.docstring is not None and obj.docstring.value.strip(), f"{path} has no docstring"

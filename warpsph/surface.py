@@ -30,6 +30,9 @@ import numpy as np
 
 from .errors import SceneError
 
+__all__ = ["SurfaceOptions", "SurfaceMesh", "reconstruct", "reconstruct_preview", "mesh_frame", "mesh_volume",
+           "open_frames", "UsdFrames", "H5Frames", "plan_remesh", "remesh"]
+
 PYSPLASHSURF = "0.14.1.0"
 INSTALL_HINT = f"pip install 'warpsph[surface]' (pysplashsurf=={PYSPLASHSURF})"
 METHODS = ("splashsurf", "preview")
@@ -86,6 +89,7 @@ class SurfaceMesh:
 
     @staticmethod
     def empty(velocities=True):
+        """A mesh with no vertices and no faces (a frame without fluid)."""
         z = np.zeros((0, 3), np.float32)
         return SurfaceMesh(z, np.zeros((0, 3), np.int32), z.copy(), z.copy() if velocities else None)
 
@@ -644,6 +648,7 @@ class H5Frames:
             self.fps = self.frames[-1] / t if t > 0 else 25.0
 
     def read(self, frame):
+        """(points, velocities or None, vorticity or None) of ``frame``."""
         g = self.group[f"{frame:06d}"]
         return (g["x"][...], g["v"][...] if "v" in g else None, g["vorticity"][...] if "vorticity" in g else None)
 

@@ -45,6 +45,7 @@ class ParticleFrames:
         self.file.flush()
 
     def close(self):
+        """Closes the file (the frames written so far are in it)."""
         self.file.close()
 
 

@@ -36,12 +36,15 @@ import math
 
 import warp as wp
 
+__all__ = ["register", "Model", "ModelContext", "scene_models", "NO_HISTORY"]
+
 REGISTRY: dict = {}
 
 # History of a particle an emitter just added: the models read NaN in their carried vector (``wp.isnan``
 # of its first component) as "none yet" and skip the particle's first correction, as they skip everyone's
 # on the first step. The marker travels with the particle through re-sorting, sinks and checkpoints.
 NO_HISTORY = wp.vec3(math.nan, math.nan, math.nan)
+"""The carried vector of a particle with no history yet (NaN): :meth:`Model.emitted` marks new rows with it."""
 
 
 def register(name):
@@ -79,15 +82,25 @@ class ModelContext:
         self._sim = sim
 
     device = property(lambda self: self._sim.device)
+    """The simulation's Warp device."""
     scene = property(lambda self: self._sim.scene, doc="The scene (read-only data).")
+    """The scene (read-only data)."""
     fluid = property(lambda self: self._sim.fluid, doc="x, v, ids, density, factor, acceleration (per particle).")
+    """The fluid's per-particle arrays: x, v, ids, density, factor, acceleration."""
     num_fluid = property(lambda self: self._sim.num_fluid, doc="Rows that hold particles now.")
+    """Rows that hold particles now."""
     neighbour_lists = property(lambda self: self._sim.neighbours.lists, doc="The kernels' Neighbours struct.")
+    """The neighbour lists (the kernels' ``Neighbours`` struct)."""
     boundary_samples = property(lambda self: self._sim.boundary.samples, doc="The kernels' Boundary struct.")
+    """The boundary samples (the kernels' ``Boundary`` struct)."""
     particle_mass = property(lambda self: self._sim.particle_mass)
+    """A fluid particle's mass [kg]."""
     particle_radius = property(lambda self: self._sim.scene.particle_radius)
+    """The particle radius r [m]."""
     support_radius = property(lambda self: self._sim.support_radius)
+    """The kernel's support 4r [m]."""
     dt = property(lambda self: self._sim.dt, doc="This step's dt [s], a device array of one.")
+    """This step's dt [s], a device array of one."""
 
     @property
     def surface_flags(self):
@@ -102,6 +115,7 @@ class ModelContext:
         return None if field is None else field.vorticity
 
     def launch(self, kernel, dim, inputs):
+        """Launches ``kernel`` over ``dim`` threads with ``inputs`` on the simulation's device (counted per kernel)."""
         self._sim.launch(kernel, dim, inputs)
 
     def exchange(self, *arrays):
@@ -134,30 +148,42 @@ class Model:
     """Base class with the do-nothing parts of the interface."""
 
     name = "model"
+    """The registration name (set by :func:`register`)."""
     Parameters = None  # the scene entry's pydantic dataclass; None: not named by scenes (viscosity)
+    """The scene entry's pydantic dataclass; None: scenes do not name the model (viscosity)."""
     bytes_per_particle = 0  # device bytes per fluid particle of its per_particle arrays (memory check)
+    """Device bytes per fluid particle of its ``per_particle`` arrays (the memory check before a run)."""
     needs_vorticity = False  # the stepper computes the shared vorticity field of v~ for it
+    """Whether the stepper computes the shared vorticity field of v~ for it."""
     computes_vorticity = False  # it fills the shared vorticity field itself (one pass fewer)
+    """Whether it fills the shared vorticity field itself (one pass fewer)."""
     scratch_columns = 0
+    """Floats per particle it takes from the shared scratch pool (``ctx.scratch``)."""
     output_fields = {}  # name: bytes per particle of what fields() publishes (USD primvars, disk estimate)
+    """{name: bytes per particle} of what :meth:`fields` publishes (USD primvars; the disk estimate)."""
     flag_names = ()  # host-side ints a checkpoint keeps (e.g. whether a history exists yet)
+    """Host-side ints a checkpoint keeps (e.g. whether a history exists yet)."""
 
     def __init__(self, ctx, params=None):
+        """Allocates the model's arrays through ``ctx.per_particle``; ``params``: its ``Parameters``."""
         self.params = params
 
     def step(self, ctx):
+        """The model's work in the non-pressure phase of a step (after the divergence solve)."""
         raise NotImplementedError
 
     def emitted(self, ctx, first, count):
-        pass
+        """Marks rows ``first .. first + count - 1``, just added by an emitter, as new (``NO_HISTORY``)."""
 
     def reorder(self, ctx, order):
-        pass
+        """Permutes the model's per-particle state when the fluid is re-sorted (``ctx.permute``)."""
 
     def fields(self):
+        """The per-particle arrays it publishes for output, by name."""
         return {}
 
     def state(self):
+        """The device arrays a checkpoint must keep, by name."""
         return {}
 
     def flags(self):
@@ -165,6 +191,7 @@ class Model:
         return {k: int(getattr(self, k)) for k in self.flag_names}
 
     def restore_flags(self, flags):
+        """Sets the host-side state of a checkpoint (:meth:`flags`)."""
         for k, v in flags.items():
             setattr(self, k, int(v))
 
