@@ -6,6 +6,8 @@ from typing import Any
 
 import warp as wp
 
+from .particles import SymmetricMatrix
+
 wp.set_module_options({"enable_backward": False})
 
 
@@ -124,11 +126,11 @@ def combine_values(other: wp.array(dtype=Any), ops: wp.array(dtype=wp.int32), va
 
 # the row types a step carries or exchanges, declared up front: the subdomains' threads must not create
 # overloads of a generic kernel at the same time (Warp's registry of them is not thread-safe)
-# (mat33: the corrected kernel gradient and the velocity gradient; their rows move and are exchanged, never combined)
-ROW_TYPES = (float, wp.int32, wp.vec3, wp.mat33)
+# (SymmetricMatrix: the corrected kernel gradient and the strain rate: their rows move and are exchanged, never combined)
+ROW_TYPES = (float, wp.int32, wp.vec3, SymmetricMatrix)
 for _t in ROW_TYPES:
     wp.overload(gather_rows, [wp.array(dtype=_t), wp.array(dtype=wp.int32), int, wp.array(dtype=_t)])
     wp.overload(move_rows, [wp.array(dtype=wp.int32), wp.array(dtype=wp.int32), wp.array(dtype=wp.int32),
                             wp.array(dtype=_t)])
-    if _t is not wp.mat33:
+    if _t is not SymmetricMatrix:
         wp.overload(combine_values, [wp.array(dtype=_t), wp.array(dtype=wp.int32), wp.array(dtype=_t)])

@@ -2,7 +2,7 @@
 
 import warp as wp
 
-from .particles import Boundary, Neighbours
+from .particles import Boundary, Neighbours, SymmetricMatrix
 from .pressure import clamped, corrected_density_rate, density_rate, pressure_source, relaxed_stiffness
 
 wp.set_module_options({"enable_backward": False})
@@ -24,7 +24,7 @@ def _density_source_kernel(corrected: bool):
         support_radius: float,
         dt: wp.array(dtype=float),
         drift_weight: float,
-        correction: wp.array(dtype=wp.mat33),
+        correction: wp.array(dtype=SymmetricMatrix),
         error: wp.array(dtype=float),
         stiffness: wp.array(dtype=float),
     ):

@@ -10,6 +10,8 @@ from typing import Any
 
 import warp as wp
 
+from .particles import SymmetricMatrix
+
 wp.set_module_options({"enable_backward": False})
 
 
@@ -178,5 +180,5 @@ def gather(src: wp.array(dtype=Any), order: wp.array(dtype=wp.int32), dst: wp.ar
     dst[i] = src[order[i]]
 
 
-for _t in (float, wp.int32, wp.vec3, wp.mat33):  # declared up front (subdomains permute from several threads)
+for _t in (float, wp.int32, wp.vec3, SymmetricMatrix):  # declared up front (subdomains permute from several threads)
     wp.overload(gather, [wp.array(dtype=_t), wp.array(dtype=wp.int32), wp.array(dtype=_t)])

@@ -10,7 +10,7 @@ import warp as wp
 
 from .density import dfsph_factor
 from .free_surface import BULK, off_surface
-from .particles import Boundary, Neighbours, boundary_velocity, separation
+from .particles import Boundary, Neighbours, SymmetricMatrix, boundary_velocity, pack_symmetric, separation, symmetric_times
 from .sph_kernel import cubic_kernel, cubic_kernel_gradient
 
 wp.set_module_options({"enable_backward": False})
@@ -47,7 +47,7 @@ def compute_gradient_correction(
     surface: wp.array(dtype=wp.int32),
     fluid_volume: float,
     support_radius: float,
-    correction: wp.array(dtype=wp.mat33),
+    correction: wp.array(dtype=SymmetricMatrix),
     factor: wp.array(dtype=float),
 ):
     """L_i = M_i^-T, M_i = sum_f V_j (x_j - x_i) (x) grad W_ij + sum_b V_b (x_b - x_i) (x) grad W_ib (Bonet & Lok
@@ -89,7 +89,7 @@ def compute_gradient_correction(
         # (p >= 0 there cannot pull back) and a resting tank threw surface particles out at 0.3 m/s
         blend = whole / wp.max(weight, 1.0e-12)
         li = blend * wp.transpose(wp.inverse(m)) + (1.0 - blend) * wp.identity(3, dtype=float)
-    correction[i] = li
+    correction[i] = pack_symmetric(li)  # M_i is symmetric (grad W_ij is along x_ij), so is L_i
     # sum_f |L_i V_j grad W_ij|^2 = L_i^T L_i : sum_f (V_j grad W_ij) (x) (V_j grad W_ij): one neighbour pass
     factor[i] = dfsph_factor(li * g_sum, wp.ddot(wp.transpose(li) * li, g_outer), support_radius)
 
@@ -101,23 +101,25 @@ def corrected_density_rate(
     v: wp.array(dtype=wp.vec3),
     nb: Neighbours,
     boundary: Boundary,
-    correction: wp.array(dtype=wp.mat33),
+    correction: wp.array(dtype=SymmetricMatrix),
     fluid_volume: float,
     support_radius: float,
 ):
     """:func:`density_rate` with the corrected kernel gradient L_i grad W (:func:`compute_gradient_correction`):
-    minus the divergence of v, exact for linear fields on any arrangement."""
+    minus the divergence of v, exact for linear fields on any arrangement. L_i is symmetric: the sum is
+    sum_j V_j (L_i (v_i - v_j)) . grad W_ij."""
     xi = x[i]
     vi = v[i]
     li = correction[i]
     rate = float(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         j = nb.fluid[k]
-        rate += fluid_volume * wp.dot(vi - v[j], li * cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius))
+        rate += fluid_volume * wp.dot(symmetric_times(li, vi - v[j]),
+                                      cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius))
     for k in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
         b = nb.boundary[k]
-        rate += boundary.volume[b] * wp.dot(vi - boundary_velocity(boundary, b),
-                                            li * cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius))
+        rate += boundary.volume[b] * wp.dot(symmetric_times(li, vi - boundary_velocity(boundary, b)),
+                                            cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius))
     return rate
 
 
@@ -133,7 +135,7 @@ def _pressure_acceleration_kernel(corrected: bool):
         dt: wp.array(dtype=float),
         accumulate: int,
         stiffness_sum: wp.array(dtype=float),
-        correction: wp.array(dtype=wp.mat33),
+        correction: wp.array(dtype=SymmetricMatrix),
         v: wp.array(dtype=wp.vec3),
     ):
         """v_i -= dt (sum_f V_j (k_i + k_j) grad W_ij + sum_b V_b k_i grad W_ib).
@@ -153,11 +155,14 @@ def _pressure_acceleration_kernel(corrected: bool):
         xi = x[i]
         dv = wp.vec3(0.0)
         if wp.static(corrected):
-            li = ki * correction[i]
+            # sum_f V_j (k_i L_i + k_j L_j) grad W_ij: k_i L_i once on the sum of the gradients
+            g_sum = wp.vec3(0.0)
             for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
                 j = nb.fluid[k]
                 grad = cubic_kernel_gradient(separation(nb, xi, x[j]), support_radius)
-                dv += fluid_volume * ((li + stiffness[j] * correction[j]) * grad)
+                g_sum += grad
+                dv += stiffness[j] * symmetric_times(correction[j], grad)
+            dv = fluid_volume * (dv + ki * symmetric_times(correction[i], g_sum))
         else:
             for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
                 j = nb.fluid[k]
@@ -166,7 +171,7 @@ def _pressure_acceleration_kernel(corrected: bool):
             b = nb.boundary[k]
             grad_b = cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius)
             if wp.static(corrected):
-                grad_b = correction[i] * grad_b
+                grad_b = symmetric_times(correction[i], grad_b)
             dvb = boundary.volume[b] * ki * grad_b
             if b >= boundary.first_dynamic:
                 wp.atomic_add(boundary.impulse, b, dt[0] * dvb)

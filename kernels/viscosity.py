@@ -5,11 +5,18 @@ free surface the componentwise (Morris et al. 1997) Laplacian with eq 4 on its g
 import warp as wp
 
 from .free_surface import SURFACE, off_surface
-from .particles import Boundary, Neighbours, boundary_velocity, separation
+from .particles import Boundary, Neighbours, SymmetricMatrix, boundary_velocity, pack_symmetric, separation, symmetric_quadratic
 from .sph_kernel import cubic_kernel_gradient
 from .vorticity import curl_term
 
 wp.set_module_options({"enable_backward": False})
+
+
+@wp.func
+def residual_laplacian(a_dot_x: float, x_ij: wp.vec3, grad_w: wp.vec3, volume_j: float, support_radius: float):
+    """:func:`artificial_laplacian` given A_ij . x_ij."""
+    h2 = support_radius * support_radius
+    return (10.0 * volume_j * a_dot_x / (wp.dot(x_ij, x_ij) + 0.01 * h2)) * grad_w
 
 
 @wp.func
@@ -18,8 +25,7 @@ def artificial_laplacian(a_ij: wp.vec3, x_ij: wp.vec3, grad_w: wp.vec3, volume_j
 
     Shared by the viscosity of v (eq 4) and the vorticity Laplacian (eq 10); ``grad_w`` is grad W_ij,
     which the callers' loops also use for other sums."""
-    h2 = support_radius * support_radius
-    return (10.0 * volume_j * wp.dot(a_ij, x_ij) / (wp.dot(x_ij, x_ij) + 0.01 * h2)) * grad_w
+    return residual_laplacian(wp.dot(a_ij, x_ij), x_ij, grad_w, volume_j, support_radius)
 
 
 @wp.func
@@ -31,7 +37,7 @@ def componentwise_laplacian(a_ij: wp.vec3, x_ij: wp.vec3, grad_w: wp.vec3, volum
 
 
 @wp.kernel
-def compute_velocity_gradient(
+def compute_strain_rate(
     x: wp.array(dtype=wp.vec3),
     v: wp.array(dtype=wp.vec3),
     density: wp.array(dtype=float),
@@ -39,16 +45,17 @@ def compute_velocity_gradient(
     particle_mass: float,
     support_radius: float,
     surface: wp.array(dtype=wp.int32),
-    gradient: wp.array(dtype=wp.mat33),
+    strain_rate: wp.array(dtype=SymmetricMatrix),
 ):
-    """grad v_i = (sum_f V_j (v_j - v_i) (x) grad W_ij) M_i^-1, M_i = sum_f V_j (x_j - x_i) (x) grad W_ij
-    (Bonet & Lok 1999: exact for a linear field), V_j = m / rho_j; the plain sum where M_i is too thin to
-    invert (|det M_i| <= 0.1). Fluid neighbours only: the walls enter through M_i's renormalisation. Zero on the
-    free surface (``surface``): only bulk particles take the corrected operator, and their neighbours are bulk or
-    band; a splash's thin M_i, near the threshold, turned rounding into jumps of the operator."""
+    """The strain rate (grad v_i + grad v_i^T) / 2 of grad v_i = (sum_f V_j (v_j - v_i) (x) grad W_ij) M_i^-1,
+    M_i = sum_f V_j (x_j - x_i) (x) grad W_ij (Bonet & Lok 1999: exact for a linear field), V_j = m / rho_j; the
+    plain sum where M_i is too thin to invert (|det M_i| <= 0.1). Fluid neighbours only: the walls enter through M_i's
+    renormalisation. Zero on the free surface (``surface``): only bulk particles take the corrected operator, and
+    their neighbours are bulk or band; a splash's thin M_i, near the threshold, turned rounding into jumps of the
+    operator. The viscosity reads only x_ij . grad v x_ij, which the symmetric part gives whole."""
     i = wp.tid()
     if surface[i] == SURFACE:
-        gradient[i] = wp.mat33(0.0)
+        strain_rate[i] = SymmetricMatrix()
         return
     xi = x[i]
     vi = v[i]
@@ -63,7 +70,7 @@ def compute_velocity_gradient(
         m -= volume * wp.outer(x_ij, gw)
     if wp.abs(wp.determinant(m)) > 0.1:
         g = g * wp.inverse(m)
-    gradient[i] = g
+    strain_rate[i] = pack_symmetric(g)
 
 
 # weight of eq 4 on the residual v_ij - (grad v_i + grad v_j)/2 x_ij in the corrected operator: 0.25 left
@@ -86,7 +93,7 @@ def _viscosity_acceleration_kernel(corrected: bool):
         dt: wp.array(dtype=float),
         with_vorticity: int,
         surface: wp.array(dtype=wp.int32),
-        gradient: wp.array(dtype=wp.mat33),
+        strain_rate: wp.array(dtype=SymmetricMatrix),
         acceleration: wp.array(dtype=wp.vec3),
         vorticity: wp.array(dtype=wp.vec3),
     ):
@@ -101,8 +108,9 @@ def _viscosity_acceleration_kernel(corrected: bool):
         its band (``surface``; a pair that has one there takes eq 4 from both sides, so that the pair's forces are
         equal and opposite: with the choice made per particle, a walled channel gained 6 % of its momentum in 0.45 s),
         the Laplacian componentwise
-        and adds eq 4 of the residual v_ij - (grad v_i + grad v_j) x_ij / 2 (``gradient`` from
-        :func:`compute_velocity_gradient`; the plain kernel does not read it), weighted CORRECTED_STABILISER.
+        and adds eq 4 of the residual v_ij - (grad v_i + grad v_j) x_ij / 2, weighted CORRECTED_STABILISER. Eq 4 reads
+        a_ij only through a_ij . x_ij, so of grad v only its symmetric part (``strain_rate`` from
+        :func:`compute_strain_rate`; the plain kernel does not read it).
         Eq 4 acts as nu on an isotropic neighbourhood, but as 0.7 nu on a shear along particle rows and 1.4 nu
         at 45 degrees to them; a vortex lines its particles up along the streamlines, and Lamb-Oseen's core
         then decays as if nu were 0.83 nu. The componentwise form is right in every orientation (0.91-1.00)
@@ -112,10 +120,10 @@ def _viscosity_acceleration_kernel(corrected: bool):
         vi = v[i]
         lap = wp.vec3(0.0)
         curl = wp.vec3(0.0)
-        gi = wp.mat33(0.0)
+        si = SymmetricMatrix()
         bulk = False  # the corrected operator away from the free surface and its band, eq 4 there
         if wp.static(corrected):
-            gi = gradient[i]
+            si = strain_rate[i]
             bulk = off_surface(surface[i])
         for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
             j = nb.fluid[k]
@@ -129,9 +137,10 @@ def _viscosity_acceleration_kernel(corrected: bool):
             if wp.static(corrected):
                 share = 0.5 * (wp.where(bulk, 1.0, 0.0) + wp.where(off_surface(surface[j]), 1.0, 0.0))
             if share > 0.0:
-                residual = v_ij - 0.5 * ((gi + gradient[j]) * x_ij)
+                # (v_ij - (grad v_i + grad v_j) x_ij / 2) . x_ij
+                residual = wp.dot(v_ij, x_ij) - 0.5 * (symmetric_quadratic(si, x_ij) + symmetric_quadratic(strain_rate[j], x_ij))
                 lap += share * componentwise_laplacian(v_ij, x_ij, gw, volume, support_radius)
-                lap += (share * CORRECTED_STABILISER) * artificial_laplacian(residual, x_ij, gw, volume, support_radius)
+                lap += (share * CORRECTED_STABILISER) * residual_laplacian(residual, x_ij, gw, volume, support_radius)
             if share < 1.0:
                 lap += (1.0 - share) * artificial_laplacian(v_ij, x_ij, gw, volume, support_radius)
             if with_vorticity != 0:

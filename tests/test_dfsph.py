@@ -236,6 +236,7 @@ def _strained_periodic_box(device):
     periodic strain, no jitter), its densities and neighbours, and the corrected gradient L_i."""
     import warp as wp
 
+    from warpsph.kernels.particles import SymmetricMatrix
     from warpsph.kernels.pressure import compute_gradient_correction
     from warpsph.scene import scene_from_dict
     from warpsph.simulation import Simulation
@@ -246,13 +247,13 @@ def _strained_periodic_box(device):
     x[:, 0] += 0.3 * np.sin(2 * np.pi * x[:, 0]) / (2 * np.pi)
     sim.fluid.x.assign(x.astype(np.float32))
     sim.update_densities()
-    correction = wp.zeros(sim.num_fluid, dtype=wp.mat33, device=sim.device)
+    correction = wp.zeros(sim.num_fluid, dtype=SymmetricMatrix, device=sim.device)
     factor = wp.zeros(sim.num_fluid, dtype=float, device=sim.device)
     bulk = wp.zeros(sim.num_fluid, dtype=wp.int32, device=sim.device)  # every particle in the bulk
     sim.launch(compute_gradient_correction, sim.num_fluid, [sim.fluid.x, sim.neighbours.lists, sim.boundary.samples,
                                                             bulk, sim.fluid_volume, sim.support_radius, correction,
                                                             factor])
-    return sim, x, correction, wp.zeros(0, dtype=wp.mat33, device=sim.device)
+    return sim, x, correction, wp.zeros(0, dtype=SymmetricMatrix, device=sim.device)
 
 
 def test_corrected_divergence_of_a_smooth_field_on_a_strained_arrangement(device):

@@ -22,6 +22,7 @@ from warpsph.kernels.iisph import (
     start_pressure_solve,
     update_iisph_pressure,
 )
+from warpsph.kernels.particles import SymmetricMatrix
 from warpsph.kernels.pressure import REDUCE_THREADS, apply_pressure_acceleration, reduce_error, update_solver_status
 from warpsph.solver import DENSITY, PEAK_ERROR_RATIO
 
@@ -48,7 +49,7 @@ class IISPHSolver:
         self.stiffness = sim.scratch(float, 8)
         self.error = sim.scratch(float, 9)
         self.pressure = sim.per_particle("pressure")  # p / rho0 of the last solve: the next step's warm start
-        self.no_gradient_correction = z("pressure", 0, dtype=wp.mat33)  # DFSPH's periodic box only
+        self.no_gradient_correction = z("pressure", 0, dtype=SymmetricMatrix)  # DFSPH's periodic box only
         self.error_stats = z("pressure", 3)  # sum |error|, max |error| (update_solver_status resets them)
         self.average_error = z("pressure", 1)
         self.condition = z("pressure", 1, dtype=wp.int32)  # read by wp.capture_while

@@ -12,7 +12,7 @@ from warpsph.errors import SceneError
 # on the 1M dam break, tools/results/bench_dam_break_1M_model_none_h100.json)
 FLUID_STATE = 12 + 12 + 8 + 4 + 4 + 12  # x, v, ids, density, factor, acceleration
 SOLVER = 4 * 4  # stiffness, error, two warm-start pressures
-CORRECTED = 36 + 4 + 12  # DFSPH's corrected kernel gradient L_i, the corrected factor and grad C
+CORRECTED = 24 + 4 + 12  # DFSPH's corrected kernel gradient L_i (six floats), the corrected factor and grad C
 # IISPH (solver.method "iisph"): no factor; its warm-start pressure, and its scratch columns (IISPHSolver's,
 # shared with the models')
 IISPH_FLUID_STATE = FLUID_STATE - 4
@@ -42,7 +42,7 @@ def estimate_bytes(scene, num_fluid, num_boundary):
     per_fluid += sum(p.bytes_per_particle for p in plugins)  # each model's own arrays
     if scene.solver.method != "iisph":
         per_fluid += CORRECTED
-        if Viscosity.takes_corrected_operator(scene):  # the corrected viscosity's velocity gradient
+        if Viscosity.takes_corrected_operator(scene):  # the corrected viscosity's strain rate
             per_fluid += Viscosity.corrected_bytes_per_particle
     per_fluid += SHARED_VORTICITY if any(p.needs_vorticity for p in plugins) else 0
     per_fluid += 4 * max(scratch)  # the scratch pool (DFSPH: if wider than its own, counted in SOLVER)

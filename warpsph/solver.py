@@ -26,6 +26,7 @@ from warpsph.kernels.density_solver import compute_corrected_density_source, com
 from warpsph.kernels.divergence_solver import compute_corrected_divergence_source, compute_divergence_source
 from warpsph.kernels.free_surface import classify_free_surface
 from warpsph.kernels.integration import advect_positions
+from warpsph.kernels.particles import SymmetricMatrix
 from warpsph.kernels.pressure import (
     REDUCE_THREADS,
     apply_corrected_pressure_acceleration,
@@ -109,9 +110,9 @@ class DFSPHSolver:
         self.totals = z("pressure", 4, dtype=wp.int64)
         self.max_iteration_streak = z("pressure", 2, dtype=wp.int32)
         # the corrected kernel gradient of every bulk particle (:meth:`_corrected`), recomputed every step
-        self.gradient_correction = sim.per_particle("pressure", wp.mat33)  # L_i
+        self.gradient_correction = sim.per_particle("pressure", SymmetricMatrix)  # L_i
         self.corrected_factor = sim.per_particle("pressure")  # ... and the factor of the corrected solves
-        self.no_gradient_correction = sim.zeros("pressure", 0, dtype=wp.mat33)
+        self.no_gradient_correction = sim.zeros("pressure", 0, dtype=SymmetricMatrix)
         if self.drift_by_positions:  # the drift solve's velocity, and its stiffness for the warm start
             self.drift_velocity = sim.per_particle("pressure", wp.vec3)
             self.pressure_sum.append(sim.per_particle("pressure"))

@@ -3,10 +3,11 @@ and its band, and the corrected operator of kernels/viscosity.py elsewhere."""
 
 import warp as wp
 
+from warpsph.kernels.particles import SymmetricMatrix
 from warpsph.kernels.viscosity import (
     add_corrected_viscosity_acceleration,
     add_viscosity_acceleration,
-    compute_velocity_gradient,
+    compute_strain_rate,
 )
 
 from . import Model, register
@@ -17,14 +18,14 @@ class Viscosity(Model):
     """a_i += nu laplacian(v)_i; enabled whenever the scene's fluid viscosity is > 0.
 
     Away from the free surface and its band (``ctx.surface_flags``) the Laplacian is the corrected one
-    (:data:`add_corrected_viscosity_acceleration`), which takes a velocity-gradient pass and a mat33 a particle;
+    (:data:`add_corrected_viscosity_acceleration`), which takes a strain-rate pass and six floats a particle;
     eq 4 on the surface and its band, with IISPH (no surface flags) and in a periodic box. Lamb-Oseen on the H200 at
     64 / 128 / 256 across: 0.97 / 0.69 / 0.39 % with it, 1.90 / 1.52 / 1.12 % with eq 4 (peak vorticity 2-4 %
     high; docs/notes/solver.md). In the periodic box the corrected operator did not fall from 128 to 256 across
     (Taylor-Green 0.33 / 0.34 %, eq 4 0.33 / 0.26 %)."""
 
     computes_vorticity = True  # fills the shared vorticity field (ctx.vorticity) in the same pass when it exists
-    corrected_bytes_per_particle = 36  # the velocity gradient, where the operator is the corrected one
+    corrected_bytes_per_particle = 24  # the strain rate, where the operator is the corrected one
 
     @staticmethod
     def takes_corrected_operator(scene):
@@ -38,22 +39,22 @@ class Viscosity(Model):
         self._empty_vec3 = wp.empty(0, dtype=wp.vec3, device=ctx.device)
         self.corrected = self.takes_corrected_operator(ctx.scene)
         self._empty_flags = wp.empty(0, dtype=wp.int32, device=ctx.device)
-        self.gradient = (ctx.per_particle("viscosity", wp.mat33) if self.corrected
-                         else wp.empty(0, dtype=wp.mat33, device=ctx.device))
+        self.strain_rate = (ctx.per_particle("viscosity", SymmetricMatrix) if self.corrected
+                            else wp.empty(0, dtype=SymmetricMatrix, device=ctx.device))
 
     def step(self, ctx):
         f, vorticity = ctx.fluid, ctx.vorticity
         with_vorticity = vorticity is not None
         if self.corrected:
-            ctx.launch(compute_velocity_gradient, ctx.num_fluid,
+            ctx.launch(compute_strain_rate, ctx.num_fluid,
                        [f.x, f.v, f.density, ctx.neighbour_lists, ctx.particle_mass, ctx.support_radius,
-                        ctx.surface_flags, self.gradient])
-            ctx.exchange(self.gradient)
+                        ctx.surface_flags, self.strain_rate])
+            ctx.exchange(self.strain_rate)
         kernel = add_corrected_viscosity_acceleration if self.corrected else add_viscosity_acceleration
         ctx.launch(kernel, ctx.num_fluid,
                    [f.x, f.v, f.density, ctx.neighbour_lists, ctx.particle_mass, ctx.scene.fluid.viscosity,
                     ctx.support_radius, ctx.boundary_samples, ctx.scene.fluid.boundary_viscosity, ctx.dt,
-                    int(with_vorticity), ctx.surface_flags if self.corrected else self._empty_flags, self.gradient,
+                    int(with_vorticity), ctx.surface_flags if self.corrected else self._empty_flags, self.strain_rate,
                     f.acceleration,
                     vorticity if with_vorticity else self._empty_vec3])
         if with_vorticity:
