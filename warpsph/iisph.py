@@ -98,7 +98,7 @@ class IISPHSolver:
             sim.launch(update_iisph_pressure, n,
                        [f.x, nb, f.density, V, sim.rest_density, H, MIN_DIAGONAL / (H * H), sim.dt, self.d_ii, self.a_ii,
                         self.source, self.displacement, self.pressure, self.stiffness, self.error])
-            sim.launch(reduce_error, min(n, REDUCE_THREADS), [self.error, n, self.error_stats])
+            sim.launch(reduce_error, REDUCE_THREADS, [self.error, n, self.error_stats])
             sim.launch(update_solver_status, 1,
                        [self.error_stats, n, max_error, max_error * PEAK_ERROR_RATIO, 0, 0.0, 0.0, sim.dt, s.min_iterations,
                         s.max_iterations, 0, DENSITY, self.average_error, self.condition, self.iterations, self.totals,

@@ -274,7 +274,7 @@ class DFSPHSolver:
         sim = self.sim
         sim.launch(self._source(kind), sim.num_fluid, inputs + [self.error, self.stiffness])
         if self._removes_mean():  # a step without free surface (on the device): the source less its mean
-            sim.launch(reduce_source_sum, min(sim.num_fluid, REDUCE_THREADS),
+            sim.launch(reduce_source_sum, REDUCE_THREADS,
                        [self.error, sim.num_fluid, self.free_surface, self.error_stats])
             if self.free_surface_known != 1:  # (error_stats[2] stays 0 with a free surface)
                 sim.allreduce((self.error_stats, "--s"))
@@ -286,7 +286,7 @@ class DFSPHSolver:
                        [self.error, self._factor(kind), sim.dt, sim.dt_previous, int(kind == DIVERGENCE),
                         self.surface, self.free_surface, self.pressure_sum[kind], int(self._bulk_first(kind)),
                         self.stiffness])
-        sim.launch(reduce_error, min(sim.num_fluid, REDUCE_THREADS), [self.error, sim.num_fluid, self.error_stats])
+        sim.launch(reduce_error, REDUCE_THREADS, [self.error, sim.num_fluid, self.error_stats])
         sim.allreduce((self.error_stats, "sm-"))
         sim.launch(update_solver_status, 1,
                    [self.error_stats, sim.global_count, max_error, max_error * PEAK_ERROR_RATIO, int(kind == DIVERGENCE), *rate, sim.dt, min_it, max_it,
