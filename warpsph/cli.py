@@ -7,6 +7,7 @@
     warpsph resume CHECKPOINT.h5 [--device ...] [--frames N]
     warpsph surface OUT.usdc|OUT.particles.h5 [--cube C] [--smoothing L] [--frames A B] [--out NEW.usdc]
                     [--method splashsurf|preview] [--device cpu|cuda]
+    warpsph warmup [--device auto|cpu|cuda] [--scene SCENE.json ...]   (compile the kernels ahead of a first run)
 
 Every command takes -q/--quiet (warnings and errors only, no progress), -v/--verbose (debug
 lines too, e.g. each frame's wall time) and --log FILE (the same lines appended to FILE, timed),
@@ -726,8 +727,9 @@ def _run_locked(args, scene, frames, outputs, surface):
     device, devices = _pick_devices(args)
     if devices is None:
         from .simulation import Simulation
+        from .warmup import frame_modules
 
-        sim = Simulation(scene, device=device)
+        sim = Simulation(scene, device=device, preload=frame_modules(scene))  # with the diagnostics' kernels
     else:
         from .decomposition import DecomposedSimulation
 
@@ -1012,6 +1014,10 @@ def build_parser():
     study(sub, "stress", stress, "stability matrix: the scene as plain DFSPH with one parameter changed per cell")
     study(kinds, "results", results, "the figures of result JSON files (validation, Pareto, stress, benchmark sizes)",
           device=False)
+    from . import warmup
+
+    study(sub, "warmup", warmup, "compile the kernels (all, or those of --scene files) into Warp's kernel cache "
+                                 "in one parallel pass, ahead of a first run")
     schema = sub.add_parser("schema", help="the scene file's JSON Schema (for editors), or with --markdown the "
                                            "scene reference: every key, type, unit, default and range")
     schema.add_argument("--markdown", action="store_true", help="the scene reference as markdown instead")

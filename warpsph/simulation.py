@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from warpsph import health
+from warpsph import health, warmup
 from warpsph.bodies import BODY_INSET, MovingBodies
 from warpsph.health import InstabilityError  # noqa: F401 (public here too)
 from warpsph.inflow import Inflow
@@ -93,10 +93,16 @@ class Simulation:
     >>> sim.run(frames=10)
     """
 
-    def __init__(self, scene: Scene, device=None, profile=False, use_graph=None, particles=None, halo=None):
+    def __init__(self, scene: Scene, device=None, profile=False, use_graph=None, particles=None, halo=None,
+                 preload=None):
         """``particles`` (x, v, ids) and ``halo`` are for one subdomain of a
         :class:`~warpsph.decomposition.DecomposedSimulation`: its fluid particles instead of the scene's
-        sampled (and packed) ones, and the link to the other subdomains (ghost rows, exchanges, reductions)."""
+        sampled (and packed) ones, and the link to the other subdomains (ghost rows, exchanges, reductions).
+        ``preload``: True compiles (or loads from Warp's kernel cache) the Warp modules the scene launches
+        (:func:`~warpsph.warmup.scene_modules`) together, a thread per idle core, before the set-up launches
+        anything; False: each module compiles at its first launch, one after another; None (default): True unless
+        the environment variable ``WARPSPH_PRELOAD`` is 0 (:mod:`warpsph.warmup`); a list of module names: as
+        None, with those too (``warpsph run``'s frame diagnostics)."""
         self.scene = scene
         self.halo = halo
         self.device = wp.get_device(device)
@@ -116,9 +122,11 @@ class Simulation:
         ids = None
         if particles is None:
             fluid_x, fluid_v, boundary_x, body, self.bodies = sample_scene(scene)
+            self._preload(preload, len(fluid_x))
             fluid_x, fluid_v = remove_fluid_inside_bodies(scene, self.bodies, fluid_x, fluid_v, self.device, self.launch)
         else:  # a subdomain: its own fluid, the scene's boundary
             _, _, boundary_x, body, self.bodies = sample_scene(scene, limit_fluid=False, with_fluid=False)
+            self._preload(preload, 0)  # (the decomposed simulation cleared the bodies' insides)
             fluid_x, fluid_v, ids = particles
         # moving bodies' samples follow the static ones: kinematic, then dynamic
         moving = sorted((b for b in self.bodies if b.kind != "static"), key=lambda b: b.kind == "dynamic")
@@ -196,6 +204,15 @@ class Simulation:
             self.use_graph = False  # exchanges wait on the other subdomains
         self._graph = None
         self._graph_generation = None
+
+    def _preload(self, preload, fluid):
+        """The set-up's one parallel compile (#43), after the host sampling (its errors come first, and the
+        bodies and the ``fluid`` count tell which kernels of the bodies run) and before anything is launched."""
+        extra = [] if preload is None or isinstance(preload, bool) else list(preload)
+        if preload is True or (preload is not False and warmup.enabled()):
+            names = warmup.scene_modules(self.scene, bodies=self.bodies, fluid=fluid,
+                                         decomposed=self.halo is not None)
+            warmup.preload(names + extra, self.device)
 
     # -- the data lives in self.state; these read it ---------------------------------------------------
     fluid = property(lambda self: self.state.fluid, doc="The fluid's per-particle arrays (:class:`FluidParticles`).")

@@ -159,6 +159,9 @@ class Model:
     """Whether it fills the shared vorticity field itself (one pass fewer)."""
     scratch_columns = 0
     """Floats per particle it takes from the shared scratch pool (``ctx.scratch``)."""
+    kernel_modules = None  # names of the Warp modules of its kernels (warpsph.warmup); None: found from its module
+    """Names of the Warp modules whose kernels it launches, compiled before the first step (:mod:`warpsph.warmup`);
+    None: those of the kernels its Python module defines or imports."""
     output_fields = {}  # name: bytes per particle of what fields() publishes (USD primvars, disk estimate)
     """{name: bytes per particle} of what :meth:`fields` publishes (USD primvars; the disk estimate)."""
     flag_names = ()  # host-side ints a checkpoint keeps (e.g. whether a history exists yet)

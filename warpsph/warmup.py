@@ -1,0 +1,263 @@
+"""Compile the Warp kernels into Warp's kernel cache ahead of a first run, in one parallel pass.
+
+    warpsph warmup                                   # every warpsph kernel module, on the default device
+    warpsph warmup --device cpu --scene scenes/dam_break.json scenes/propeller.json
+
+Warp compiles a module (the kernels of one ``kernels/*.py`` file) the first time one of its kernels is
+launched on a device, and keeps the binary in its kernel cache: ``WARP_CACHE_PATH`` when set, else a
+per-user folder (Warp's ``wp.config.kernel_cache_dir``, printed below). Later runs load it from there.
+A first run on an empty cache compiled its modules one after the other as the first step reached them
+(the dam break: ~7 s on 2 CPU cores, against ~1 s cached; on an H100 10.2 s against 2.7 s).
+
+A :class:`~warpsph.simulation.Simulation` now compiles the modules its scene launches together, before its
+set-up launches anything (:func:`preload`, one thread per idle core; ``Simulation(..., preload=False)`` or
+``WARPSPH_PRELOAD=0`` leaves each to its first launch). ``warpsph warmup`` does the same ahead of time for
+every kernel module (or those of ``--scene`` files, as ``warpsph run`` would launch them) and prints what it
+compiled and how long it took, so that the first run finds them cached.
+
+Which modules a scene launches is :func:`scene_modules`: the stepper's own always, each feature's only when
+the scene has it (the solver's, bodies, inflow, viscosity, the models' and the shared vorticity pass).
+A model plug-in's modules are those of the kernels its Python module defines or imports (its class may
+name them instead: ``kernel_modules``).
+"""
+
+from __future__ import annotations
+
+import importlib
+import os
+import pkgutil
+import sys
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+KERNELS = "warpsph.kernels"
+
+
+def _k(*names):
+    return [f"{KERNELS}.{n}" for n in names]
+
+
+def enabled() -> bool:
+    """Whether a Simulation preloads by default (the environment variable ``WARPSPH_PRELOAD=0`` turns it off)."""
+    return os.environ.get("WARPSPH_PRELOAD", "1").strip().lower() not in ("0", "false", "no", "off")
+
+
+def plugin_modules(cls) -> list[str]:
+    """The Warp modules a model plug-in launches: its ``kernel_modules`` when it names them, else the modules of
+    the kernels its Python module defines or imports."""
+    import warp as wp
+
+    named = getattr(cls, "kernel_modules", None)
+    if named is not None:
+        return list(named)
+    namespace = vars(sys.modules[cls.__module__])
+    return sorted({v.module.name for v in namespace.values() if isinstance(v, wp.Kernel)})
+
+
+def scene_modules(scene, bodies=None, fluid=None, decomposed=False, frames=False) -> list[str]:
+    """The names of the Warp modules whose kernels a :class:`~warpsph.simulation.Simulation` of ``scene``
+    launches in its set-up and its steps. ``bodies``: the scene's obstacles as loaded
+    (:class:`~warpsph.bodies.RigidBody`) and ``fluid``: the fluid particles sampled at t = 0, which tell whether
+    the bodies launch kernels; ``decomposed``: as a
+    subdomain of a :class:`~warpsph.decomposition.DecomposedSimulation`; ``frames``: with the frame
+    diagnostics of ``warpsph run`` (:class:`~warpsph.diagnostics.Diagnostics`).
+
+    The stepper's own always (neighbour lists and re-sorting, densities, pressure, integration, the health
+    check); the boundary volumes when there are walls or bodies; DFSPH's free surface and density solve, its
+    divergence solve and shifting when on, or IISPH's solve; viscosity when the fluid has one; each model's;
+    the shared vorticity pass when a model reads it and no viscosity pass fills it; bodies when one moves, or
+    is closed and fluid was sampled (the fluid inside it is removed): without ``bodies``, whenever the scene has
+    obstacles (an open static mesh launches none); inflow with emitters, sinks or an open domain."""
+    from warpsph.models import REGISTRY, plugin_of
+
+    domain, solver = scene.domain, scene.solver
+    names = _k("neighbours", "density", "pressure", "integration", "stability")
+    if (domain.walls and len(domain.periodic) < 3) or scene.obstacles:
+        names += _k("boundary")
+    if solver.method == "iisph":
+        names += _k("iisph")
+    else:
+        names += _k("free_surface", "density_solver")
+        names += _k("divergence_solver") if solver.divergence_solver else []
+        names += _k("shifting") if solver.shifting > 0.0 else []
+    viscous = scene.fluid.viscosity > 0.0 or scene.fluid.boundary_viscosity > 0.0
+    models = ([REGISTRY["viscosity"]] if viscous else []) + [plugin_of(p) for p in scene.models]
+    for cls in models:
+        names += plugin_modules(cls)
+    if any(m.needs_vorticity for m in models) and not any(m.computes_vorticity for m in models):
+        names += _k("vorticity")
+    if bodies is None:
+        bodies_launch = bool(scene.obstacles)
+    else:
+        bodies_launch = any(b.kind != "static" or (b.closed and fluid != 0) for b in bodies)
+    if bodies_launch:
+        names += _k("bodies")
+    if scene.emitters or scene.sinks or domain.is_open:
+        names += _k("inflow")
+    if decomposed:
+        names += _k("decomposition")
+    if frames:
+        names += frame_modules(scene)
+    return list(dict.fromkeys(names))
+
+
+def frame_modules(scene) -> list[str]:
+    """The Warp modules of ``warpsph run``'s frame diagnostics (:class:`~warpsph.diagnostics.Diagnostics`): its
+    reductions, and the curl of v where no model keeps the vorticity."""
+    from warpsph.models import plugin_of
+
+    keeps_vorticity = any(plugin_of(p).needs_vorticity for p in scene.models)
+    return _k("diagnostics") + ([] if keeps_vorticity else _k("vorticity"))
+
+
+def all_modules() -> list[str]:
+    """Every module of ``warpsph.kernels`` that holds kernels (imported here)."""
+    import warp as wp
+
+    package = importlib.import_module(KERNELS)
+    names = []
+    for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda i: i.name):
+        module = importlib.import_module(f"{KERNELS}.{info.name}")
+        if any(isinstance(v, wp.Kernel) for v in vars(module).values()):
+            names.append(module.__name__)
+    return names
+
+
+@dataclass
+class Loaded:
+    """One module of a :func:`preload`: its name, the seconds its load took, and whether it was compiled
+    (False: Warp's kernel cache had it, or it was loaded already)."""
+
+    name: str
+    seconds: float
+    compiled: bool
+
+
+def _cache_files(name):
+    import warp as wp
+
+    root = Path(wp.config.kernel_cache_dir or "")
+    return {p for d in root.glob(f"wp_{name}_*") for p in d.rglob("*")} if root.is_dir() else set()
+
+
+def idle_cores() -> int:
+    """The default number of compile threads: the cores this process may use less those busy with other work
+    now (:func:`busy_cores`), at least 1. Each thread that compiles for the CPU builds Warp's precompiled
+    header first (~1.7 s of a core), so threads help only where cores are idle: on 2 cores, 2 threads took
+    the dam break's first step from 8.8 to 5.2 s, and made it slower where another program kept both busy
+    (docs/notes/performance-history.md, "Cold start")."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:
+        cores = os.cpu_count() or 1
+    return max(1, min(cores, round(cores - busy_cores())))
+
+
+def busy_cores() -> float:
+    """Cores busy with other work now: the tasks runnable at this moment besides this one (Linux's
+    /proc/loadavg), else the one-minute load average, else 0."""
+    try:
+        with open("/proc/loadavg") as f:
+            return max(0.0, float(f.read().split()[3].split("/")[0]) - 1.0)
+    except (OSError, IndexError, ValueError):
+        pass
+    try:
+        return os.getloadavg()[0]
+    except (AttributeError, OSError):
+        return 0.0
+
+
+def _size(name):
+    """A module's Python source size: its compile time's rough measure (the longest first)."""
+    path = getattr(sys.modules.get(name), "__file__", None)
+    try:
+        return os.path.getsize(path)
+    except (OSError, TypeError):
+        return 0
+
+
+def preload(names, device=None, max_workers=None) -> list[Loaded]:
+    """Compiles (or loads from Warp's kernel cache) the Warp modules ``names`` on ``device`` in one pass of
+    ``max_workers`` threads (default :func:`idle_cores`), the largest first, and returns what each took (its
+    load's wall time, beside the others). The calling thread is one of them: a module that a program compiles
+    later, lazily, finds its precompiled header built. Loading a module is what its first launch would do (the
+    same variant: results do not change); a module already loaded costs nothing."""
+    import warp as wp
+
+    device = wp.get_device(device)
+    modules = []
+    for name in dict.fromkeys(names):
+        importlib.import_module(name)
+        modules.append(wp.get_module(name))
+    modules.sort(key=lambda m: -_size(m.name))
+    workers = max(1, min(len(modules), max_workers or idle_cores()))
+    queue, lock, done = list(modules), threading.Lock(), []
+
+    def work():
+        while True:
+            with lock:
+                if not queue:
+                    return
+                module = queue.pop(0)
+            before = _cache_files(module.name)
+            start = time.perf_counter()
+            wp.force_load(device=device, modules=[module], max_workers=0)
+            done.append(Loaded(module.name, time.perf_counter() - start, bool(_cache_files(module.name) - before)))
+
+    if workers == 1:
+        work()
+    else:
+        with ThreadPoolExecutor(max_workers=workers - 1, thread_name_prefix="warpsph-preload") as pool:
+            helpers = [pool.submit(work) for _ in range(workers - 1)]
+            try:
+                work()
+            except BaseException:  # a failed build, Ctrl-C: the helpers stop after the module each has begun
+                with lock:
+                    queue.clear()
+                raise
+            for helper in helpers:
+                helper.result()
+    order = [m.name for m in modules]
+    return sorted(done, key=lambda m: order.index(m.name))
+
+
+# -- warpsph warmup -------------------------------------------------------------------------------------------
+def add_arguments(parser):
+    parser.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present; default)")
+    parser.add_argument("--scene", nargs="+", metavar="FILE",
+                        help="only the modules these scene files launch (as warpsph run does); default: every "
+                             "warpsph kernel module")
+    parser.add_argument("--workers", type=int, metavar="N",
+                        help="compile threads (default: one per idle CPU core, at least 1)")
+
+
+def command(args):
+    """``warpsph warmup``: the modules compiled into Warp's kernel cache; a table on stdout."""
+    import warp as wp
+
+    from warpsph.errors import SceneError
+    from warpsph.scene import load_scene
+
+    if args.workers is not None and args.workers < 1:
+        raise SceneError("", "--workers", f"expected an integer >= 1, got {args.workers}")
+    if args.scene:
+        names = []
+        for path in args.scene:
+            names += scene_modules(load_scene(path), frames=True)  # a bad file: SceneError naming it
+        names = list(dict.fromkeys(names))
+    else:
+        names = all_modules()
+    workers = max(1, min(len(names), args.workers or idle_cores()))
+    start = time.perf_counter()
+    loaded = preload(names, args.device, max_workers=workers)
+    wall = time.perf_counter() - start
+    compiled = [m for m in loaded if m.compiled]
+    width = max(len(m.name) for m in loaded)
+    for m in sorted(loaded, key=lambda m: -m.seconds):
+        print(f"  {m.name:<{width}}  {'compiled' if m.compiled else 'cached  '}  {m.seconds:6.2f} s")
+    print(f"warpsph warmup: {len(compiled)} of {len(loaded)} modules compiled on {args.device} in {wall:.2f} s "
+          f"({workers} thread{'s' if workers > 1 else ''}); kernel cache {wp.config.kernel_cache_dir}")
+    return 0
