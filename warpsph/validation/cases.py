@@ -26,7 +26,10 @@ error_units, wall_s, steps (and setup_s and the case's own measurements).
   particles across a);
 - tank-at-rest: a sealed 0.4 m cube of water and pools filled to 95, 93 and 88 % resting under gravity for 5 s:
   the largest speed over each tank's last second, in % of sqrt(g H), the worst of the four (each tank's speed,
-  density error and surface count in ``tanks``; resolution = particles across the side).
+  density error and surface count in ``tanks``; resolution = particles across the side);
+- sinking-sphere: the terminal speed of a sphere (D = 0.1 m, 3000 kg/m^3) sinking on the axis of a square tank 6 D
+  wide, against Stokes-Oseen drag with Haberman & Sayre's wall factor (``sinking``): distance from the middle of the
+  band that the square's inscribed and equal-area tubes give, in %; resolution = particles across D.
 
 Every row reports the summation density's unremoved error away from the free surface at the end
 (``density_error_mean_pct``, :func:`density_error`).
@@ -52,7 +55,8 @@ import numpy as np
 
 from .taylor_green import METHODS, PACK_STEPS
 
-CASES = ("taylor-green", "lamb-oseen", "vortex-surface", "standing-wave", "hydrostatic", "dam-front", "tank-at-rest")
+CASES = ("taylor-green", "lamb-oseen", "vortex-surface", "standing-wave", "hydrostatic", "dam-front", "tank-at-rest",
+         "sinking-sphere")
 MIN_RESOLUTION = 4
 FRAMES = 10  # measurements per vortex run (and frame 0)
 
@@ -68,11 +72,15 @@ ERRORS = {
                        "column width a (not a percentage)"),
     "tank-at-rest": ("%", "largest speed over the last of 5 s at rest under gravity, % of sqrt(g H), the worst of a "
                           "sealed tank and pools filled to 95 / 93 / 88 %"),
+    "sinking-sphere": ("%", "terminal speed of a sphere sinking on the axis of a square tank against Stokes-Oseen drag "
+                            "with Haberman & Sayre's wall factor: distance from the middle of the band the square's "
+                            "inscribed and equal-area tubes give, %"),
 }
 RESOLUTION_MEANS = {"taylor-green": "particles across L = 1 m", "lamb-oseen": "particles across L = 1 m",
                     "vortex-surface": "particles across L = 1 m", "standing-wave": "particles along the 1 m tank",
                     "hydrostatic": "particles across the 0.4 m water cube", "dam-front": "particles across the column width a",
-                    "tank-at-rest": "particles across the 0.4 m tank"}
+                    "tank-at-rest": "particles across the 0.4 m tank",
+                    "sinking-sphere": "particles across the sphere's 0.1 m diameter"}
 
 
 def timed_run(sim, run, on_frame=None):
@@ -232,9 +240,20 @@ def tank_at_rest_row(models, resolution, device, overrides=None):
             "density_error_mean_pct": max((t["density_error_mean_pct"] for t in tanks), key=abs)}
 
 
+def sinking_sphere_row(models, resolution, device, overrides=None):
+    from .sinking import sinking_sphere
+
+    timing = []
+    start = time.perf_counter()
+    r = sinking_sphere(resolution, device, models=models, overrides=overrides,
+                       on_run=lambda sim, run: timing.append(timed_run(sim, lambda cb: run())[0]))
+    sim = r.pop("sim")
+    return {**r, "wall_s": timing[0], "setup_s": time.perf_counter() - start - timing[0], **density_error(sim)}
+
+
 ROWS = {"taylor-green": taylor_green_row, "lamb-oseen": lamb_oseen_row, "vortex-surface": vortex_surface_row,
         "standing-wave": standing_wave_row, "hydrostatic": hydrostatic_row, "dam-front": dam_front_row,
-        "tank-at-rest": tank_at_rest_row}
+        "tank-at-rest": tank_at_rest_row, "sinking-sphere": sinking_sphere_row}
 
 
 def warm_up(models, device, overrides=None):
