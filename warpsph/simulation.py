@@ -434,7 +434,7 @@ class Simulation:
             self.pressure_solver.detect_free_surface()
         with t("time_step"):  # CFL condition on |v^n|
             self.max_speed_sq.zero_()
-            self.launch(compute_max_speed, min(n, REDUCE_THREADS), [f.v, n, self.max_speed_sq])
+            self.launch(compute_max_speed, REDUCE_THREADS, [f.v, n, self.max_speed_sq])
             self.allreduce((self.max_speed_sq, "m"))
             tm = self.scene.time
             self.launch(compute_time_step, 1,
