@@ -145,10 +145,10 @@ def test_resume_keeps_meshing(tmp_path):
 SLOW_MESHER = """
 import sys, time
 from warpsph import surface
-def slow_mesher(options, radius, device="cpu"):  # in the run's process, so that the sleep holds
+def slow_mesher(options, radius, device="cpu", clip=None):  # in the run's process, so that the sleep holds
     def mesh(arrays):
         time.sleep(0.2)  # a slow mesher: the signal arrives while a frame is being meshed
-        return surface.mesh_frame(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options, device)
+        return surface.mesh_frame(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options, device, clip)
     return mesh
 surface.mesher_for = slow_mesher
 from warpsph.cli import main
@@ -319,10 +319,11 @@ def test_a_mesher_behind_the_simulation_skips_frames_or_waits(tmp_path, monkeypa
     need_pysplashsurf()
     from warpsph import cli, surface
 
-    def slow_mesher(options, radius, device="cpu"):  # in this process, so that the sleep holds
+    def slow_mesher(options, radius, device="cpu", clip=None):  # in this process, so that the sleep holds
         def mesh(arrays):
             time.sleep(SLOW)
-            return surface.mesh_frame(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options, device)
+            return surface.mesh_frame(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options, device,
+                                      clip)
         return mesh
 
     monkeypatch.setattr(surface, "mesher_for", slow_mesher)

@@ -167,7 +167,7 @@ def _rich_bar():
                console=Console(file=sys.stderr))
 
 
-CLIP_FILE = re.compile(r"frame\.\d{6}\.usdc|boundary\.npz|bodies\.npz|surface\.json|metadata\.json")
+CLIP_FILE = re.compile(r"frame\.\d{6}\.usdc|boundary\.npz|bodies\.npz|surface\.json|metadata\.json|domain\.json")
 
 
 class Outputs:
@@ -321,13 +321,15 @@ def _simulate(sim, outputs, frames, args, options, append):
     metadata = None if append is not None else run_metadata(scene)  # a resumed run keeps its first part's
     if options.get("clips"):
         cache = UsdClipCache(outputs.out, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
-                             boundary_radius=scene.particle_radius, append=append, bodies=meshes, metadata=metadata)
+                             boundary_radius=scene.particle_radius, append=append, bodies=meshes, metadata=metadata,
+                             domain=scene.domain)
     else:
         if append is not None and outputs.out.exists():
             os.replace(outputs.out, outputs.partial)
         try:
             cache = UsdPointCache(outputs.partial, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
-                                  boundary_radius=scene.particle_radius, append=append, bodies=meshes, metadata=metadata)
+                                  boundary_radius=scene.particle_radius, append=append, bodies=meshes, metadata=metadata,
+                                  domain=scene.domain)
         except DamagedCache as exc:
             if not outputs.out.exists():
                 os.replace(outputs.partial, outputs.out)  # left as it was found
@@ -352,9 +354,10 @@ def _simulate(sim, outputs, frames, args, options, append):
     payload = {"bytes": 0, "particle_frames": 0, "surface_seconds": 0.0}
     mesher = None
     if surface is not None:  # meshes on a thread of its own, fed by the writer (bounded: --surface-behind)
-        from .surface import BackgroundMesher, mesher_for
+        from .surface import BackgroundMesher, mesher_for, surface_clip
 
-        mesher = BackgroundMesher(mesher_for(surface, radius, sim.device), every=int(options.get("surface_every", 1)),
+        clip = surface_clip(scene.domain, body_meshes(sim))  # the meshes stop at the walls and bodies (#42)
+        mesher = BackgroundMesher(mesher_for(surface, radius, sim.device, clip=clip), every=int(options.get("surface_every", 1)),
                                   behind=str(options.get("surface_behind", "wait")))
 
     def write(item):  # on the writer's thread: the USD frame, the meshes done, the HDF5 frame, the CSV row
@@ -365,6 +368,8 @@ def _simulate(sim, outputs, frames, args, options, append):
         if mesher is not None and mesher.wants(item.frame):
             a = item.arrays
             job = {k: a[k] for k in ("x", "v", "vorticity") if k in a}
+            if item.poses:  # the moving bodies' poses, for clipping the mesh to them
+                job["poses"] = item.poses
             layer = cache.surface_layer(item.frame)
             if layer is not None:  # --clips: the mesher's worker writes the mesh into the frame's layer itself
                 job["layer"] = (layer, item.frame)

@@ -16,6 +16,10 @@ pysplashsurf 0.14.1.0 reads ``smoothing_length`` and ``cube_size`` as *multiples
 radius* (its ``reconstruct_surface`` docstring says absolute units); warpsph passes multiples and
 tests it (a sphere's mesh keeps the sphere's radius, its edges are about ``cube`` r long).
 
+Every mesh is clipped to the tank (#42, :func:`clip_mesh`): vertices outside the domain's walled faces
+are moved onto them and vertices inside a closed body onto its surface (:func:`surface_clip` of the
+scene's domain and bodies; ``warpsph surface`` reads the domain from the cache's ``warpsph:domain``).
+
 Per vertex the mesh carries the particles' velocity interpolated with the SPH kernel (for motion
 blur: USD ``velocities``) and, when the frame has a vorticity field (a turbulence model runs),
 the vorticity magnitude (a primvar for shading foam and detail).
@@ -31,7 +35,8 @@ import numpy as np
 from .errors import SceneError
 
 __all__ = ["SurfaceOptions", "SurfaceMesh", "reconstruct", "reconstruct_preview", "mesh_frame", "mesh_volume",
-           "open_frames", "UsdFrames", "H5Frames", "plan_remesh", "remesh"]
+           "SurfaceClip", "ClipBody", "surface_clip", "clip_mesh", "open_frames", "UsdFrames", "H5Frames", "plan_remesh",
+           "remesh"]
 
 PYSPLASHSURF = "0.14.1.0"
 INSTALL_HINT = f"pip install 'warpsph[surface]' (pysplashsurf=={PYSPLASHSURF})"
@@ -92,6 +97,90 @@ class SurfaceMesh:
         """A mesh with no vertices and no faces (a frame without fluid)."""
         z = np.zeros((0, 3), np.float32)
         return SurfaceMesh(z, np.zeros((0, 3), np.int32), z.copy(), z.copy() if velocities else None)
+
+
+@dataclass(frozen=True, eq=False)
+class ClipBody:
+    """A closed body the fluid's surface is pushed out of: ``vertices`` (V, 3) in world space (a static
+    body) or in body space (a moving one, placed by each frame's pose), ``faces`` (F, 3), outward."""
+
+    name: str
+    vertices: np.ndarray
+    faces: np.ndarray
+    moving: bool = False
+
+
+@dataclass(frozen=True, eq=False)
+class SurfaceClip:
+    """What a mesh is clipped to (#42): the walled faces of the domain, ``lo`` and ``hi`` per axis (-inf and
+    +inf along an axis without walls: periodic, or an open domain), and the closed ``bodies``
+    (:class:`ClipBody`). The colour field's iso surface reaches about a particle radius beyond the
+    outermost particle centres, and the particles sit up to the wall (``inside_lo``/``inside_hi`` of the
+    simulation): unclipped, splashsurf's meshes reached 1.3 r through the walls and the floor."""
+
+    lo: tuple = (-np.inf, -np.inf, -np.inf)
+    hi: tuple = (np.inf, np.inf, np.inf)
+    bodies: tuple = ()
+
+    @property
+    def walled(self):
+        """The axes with walls, e.g. "xyz", "y" (x and z periodic) or "" (an open domain)."""
+        return "".join("xyz"[k] for k in range(3) if np.isfinite(self.lo[k]) or np.isfinite(self.hi[k]))
+
+    def describe(self):
+        """E.g. "the walls across x, y, z and 2 bodies"."""
+        parts = [f"the walls across {', '.join(self.walled)}"] if self.walled else []
+        if self.bodies:
+            parts.append(f"{len(self.bodies)} bod{'y' if len(self.bodies) == 1 else 'ies'}")
+        return " and ".join(parts) or "nothing"
+
+
+def surface_clip(domain=None, bodies=()):
+    """The :class:`SurfaceClip` of a scene: the walled faces of ``domain`` (a scene's ``Box``, or anything
+    with ``min``, ``max``, ``periodic`` and ``walls``: the faces the simulation keeps the particles inside)
+    and the closed meshes among ``bodies`` ((name, vertices, faces, moving) as
+    :func:`warpsph.io.usd.body_meshes` gives them; an open mesh has no inside and is left out). None when
+    there is nothing to clip to."""
+    lo, hi = [-np.inf] * 3, [np.inf] * 3
+    if domain is not None and getattr(domain, "walls", True):
+        for k in range(3):
+            if "xyz"[k] not in tuple(domain.periodic):
+                lo[k], hi[k] = float(domain.min[k]), float(domain.max[k])
+    closed = []
+    for name, vertices, faces, moving in bodies or ():
+        vertices, faces = np.asarray(vertices, np.float64).reshape(-1, 3), np.asarray(faces, np.int32).reshape(-1, 3)
+        if len(faces) == 0 or boundary_edges(faces) != 0:
+            continue
+        if mesh_volume(vertices, faces) < 0:  # inward triangles: the winding number would call the inside outside
+            faces = np.ascontiguousarray(faces[:, ::-1])
+        closed.append(ClipBody(str(name), vertices, faces, bool(moving)))
+    clip = SurfaceClip(tuple(lo), tuple(hi), tuple(closed))
+    return clip if clip.walled or clip.bodies else None
+
+
+def clip_mesh(mesh, clip, poses=None):
+    """Moves the vertices of ``mesh`` that lie inside a body of ``clip`` onto the body's surface (the
+    nearest point; a moving body at its pose in ``poses``, {name: (position, rotation)}, left out without
+    one), then those outside a walled face onto the face (along walled axes only). Returns the number of
+    vertices moved. The faces stay (a closed mesh stays closed), and so do the velocities and the
+    normals (the colour field's at the vertex meshed: at a vertex flattened onto a wall they point out of
+    the fluid, into the wall, as the flattened surface's own normal does)."""
+    if clip is None or len(mesh.points) == 0:
+        return 0
+    points = np.array(mesh.points, np.float32)
+    moved = np.zeros(len(points), bool)
+    if clip.bodies:
+        from .surface_clip import push_out_of_bodies
+
+        moved |= push_out_of_bodies(points, clip.bodies, poses)
+    if clip.walled:
+        lo, hi = np.asarray(clip.lo, np.float32), np.asarray(clip.hi, np.float32)  # rounded inwards to float32:
+        lo = np.where(lo < np.asarray(clip.lo), np.nextafter(lo, np.float32(np.inf)), lo)  # on or inside the faces
+        hi = np.where(hi > np.asarray(clip.hi), np.nextafter(hi, np.float32(-np.inf)), hi)
+        moved |= ((points < lo) | (points > hi)).any(axis=1)
+        np.clip(points, lo, hi, out=points)
+    mesh.points = points
+    return int(moved.sum())
 
 
 def require_pysplashsurf(option="--surface"):
@@ -362,9 +451,11 @@ class BackgroundMesher:
         if self.skipped:
             text += (f"; {len(self.skipped)} frames were skipped because the mesher was behind the simulation "
                      f"(--surface-behind skip): re-mesh them with warpsph surface")
+        clip = getattr(self.mesh, "clip", None)
         return {"method": options.method, "every": self.every, "behind": self.behind, "meshed": self.meshed,
                 "skipped": len(self.skipped), "skipped_frames": list(self.skipped), "cube": float(options.cube),
-                "smoothing": float(options.smoothing), "iso": float(options.threshold), "note": text}
+                "smoothing": float(options.smoothing), "iso": float(options.threshold),
+                "clipped": clip.describe() if clip is not None else "nothing", "note": text}
 
 
 class ProcessMesher:
@@ -388,7 +479,7 @@ class ProcessMesher:
     mesh into that layer itself and returns it without its arrays (``layer`` set): the main process then
     neither reads the mesh nor writes it into USD."""
 
-    def __init__(self, options, radius, device="cpu", workers=None):
+    def __init__(self, options, radius, device="cpu", workers=None, clip=None):
         import multiprocessing
         import os
         import shutil
@@ -398,6 +489,7 @@ class ProcessMesher:
         from itertools import count
 
         self.options, self.radius, self.device = options, radius, str(device)
+        self.clip = clip  # goes to each worker once (its initializer), a moving body's pose with each frame
         cores = os.cpu_count() or 1
         # splashsurf scales poorly past ~8 threads (1M particles on 16 cores: 1.78 s a mesh, 2.17 s on 6): two
         # frames at once on 8 threads each mesh more per second than one on 16; the preview runs on the device
@@ -409,7 +501,7 @@ class ProcessMesher:
         self._remove_folder = weakref.finalize(self, shutil.rmtree, self.folder, True)  # also at exit
         self._jobs = count()
         self.pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                        initializer=_init_worker, initargs=(max(1, (cores - spare) // self.workers),))
+                                        initializer=_init_worker, initargs=(max(1, (cores - spare) // self.workers), clip))
         self.worker_pid = None
 
     def __call__(self, arrays):
@@ -422,7 +514,7 @@ class ProcessMesher:
             points, velocities, vorticity = (_store(os.path.join(job, name), arrays.get(name))
                                              for name in ("x", "v", "vorticity"))
             future = self.pool.submit(_mesh_in_worker, points, self.radius, velocities, vorticity, self.options,
-                                      self.device, job, arrays.get("layer"))
+                                      self.device, job, arrays.get("layer"), arrays.get("poses"))
             mesh, self.worker_pid = future.result()
             return _load_mesh(mesh)
         finally:  # done, failed in the worker, or the worker died: nothing of the frame stays
@@ -438,12 +530,19 @@ class ProcessMesher:
 WORKER_NICENESS = 10  # the simulation's host thread launches the GPU's work: it goes first on a busy CPU
 
 
-def _init_worker(threads):
+_worker_clip = None  # a mesher worker's SurfaceClip (from _init_worker)
+
+
+def _init_worker(threads, clip=None):
     """A mesher worker: its share of the cores (splashsurf's rayon pool reads RAYON_NUM_THREADS when it
-    starts) at a lower CPU priority than the simulation. It ignores SIGINT and SIGTERM, which a terminal or a
-    process-group kill sends to the whole group: the run's process finishes the frame, saves and stops it."""
+    starts) at a lower CPU priority than the simulation, and the run's :class:`SurfaceClip` (once, not with
+    every frame). It ignores SIGINT and SIGTERM, which a terminal or a process-group kill sends to the whole
+    group: the run's process finishes the frame, saves and stops it."""
     import os
     import signal
+
+    global _worker_clip
+    _worker_clip = clip
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
@@ -452,12 +551,13 @@ def _init_worker(threads):
         os.nice(WORKER_NICENESS)
 
 
-def _mesh_in_worker(points, radius, velocities, vorticity, options, device, folder=None, layer=None):
-    """A frame's mesh in a worker: arrays as :func:`_store` left them; the mesh stored in ``folder`` (None: by
-    pickle), or, with ``layer`` (path, frame), written into that USD layer and returned without its arrays."""
+def _mesh_in_worker(points, radius, velocities, vorticity, options, device, folder=None, layer=None, poses=None):
+    """A frame's mesh in a worker, clipped to the worker's clip (the moving bodies at ``poses``): arrays as
+    :func:`_store` left them; the mesh stored in ``folder`` (None: by pickle), or, with ``layer`` (path,
+    frame), written into that USD layer and returned without its arrays."""
     import os
 
-    mesh = mesh_frame(_load(points), radius, _load(velocities), _load(vorticity), options, device)
+    mesh = mesh_frame(_load(points), radius, _load(velocities), _load(vorticity), options, device, _worker_clip, poses)
     if layer is not None:
         from .io.usd import write_surface_layer
 
@@ -543,17 +643,26 @@ def _load_mesh(mesh):
     return _with_arrays(mesh, lambda name, array: _load(array))
 
 
-def mesher_for(options, radius, device="cpu", workers=None):
+def mesher_for(options, radius, device="cpu", workers=None, clip=None):
     """The ``mesh(arrays)`` of a run: a :class:`ProcessMesher`, splashsurf on the host's cores or the preview
-    on ``device`` (the run's: the worker process has its own CUDA context and streams)."""
-    return ProcessMesher(options, radius, device, workers)
+    on ``device`` (the run's: the worker process has its own CUDA context and streams), its meshes clipped
+    to ``clip`` (:func:`surface_clip` of the scene's domain and bodies; None: not clipped)."""
+    return ProcessMesher(options, radius, device, workers, clip=clip)
 
 
-def mesh_frame(points, radius, velocities=None, vorticity=None, options=SurfaceOptions(), device="cpu"):
-    """One frame's mesh with ``options.method``."""
+def mesh_frame(points, radius, velocities=None, vorticity=None, options=SurfaceOptions(), device="cpu", clip=None,
+               poses=None):
+    """One frame's mesh with ``options.method``, clipped to ``clip`` (a :class:`SurfaceClip`: the domain's
+    walls and the bodies, the moving ones at ``poses``; None: not clipped) by :func:`clip_mesh`."""
     if options.method == "preview":
-        return reconstruct_preview(points, radius, velocities, vorticity, options, device)
-    return reconstruct(points, radius, velocities, vorticity, options)
+        mesh = reconstruct_preview(points, radius, velocities, vorticity, options, device)
+    else:
+        mesh = reconstruct(points, radius, velocities, vorticity, options)
+    if clip is not None:
+        start = time.perf_counter()
+        clip_mesh(mesh, clip, poses)
+        mesh.seconds += time.perf_counter() - start
+    return mesh
 
 
 def mesh_volume(points, faces):
@@ -610,6 +719,11 @@ class UsdFrames:
         value = widths.Get(self.frames[0]) if widths else None
         self.radius = float(value[0]) / 2.0 if value is not None and len(value) else None
         self.usd = path
+        self.clip, self.has_domain = stage_clip(self.stage)
+
+    def poses(self, frame):
+        """{name: (position, rotation)} of the moving bodies at ``frame`` (None without any)."""
+        return stage_poses(self.stage, self.clip, frame)
 
     def read(self, frame):
         """(points, velocities or None, vorticity magnitude or None) of ``frame``."""
@@ -636,10 +750,12 @@ class H5Frames:
             raise SceneError(path, "", "holds no frames")
         self.usd = _sibling_usd(path)
         self.radius, self.fps = None, None
+        self.clip, self.has_domain, self._cache = None, False, None  # the walls and bodies: in the USD cache
         if self.usd is not None:
             try:
                 cache = UsdFrames(self.usd)
                 self.radius, self.fps = cache.radius, cache.fps
+                self.clip, self.has_domain, self._cache = cache.clip, cache.has_domain, cache
             except SceneError:
                 self.usd = None
         if self.fps is None:
@@ -647,10 +763,64 @@ class H5Frames:
             t = float(last.attrs.get("time", 0.0))
             self.fps = self.frames[-1] / t if t > 0 else 25.0
 
+    def poses(self, frame):
+        """{name: (position, rotation)} of the moving bodies at ``frame``, from the USD cache beside (None)."""
+        return self._cache.poses(frame) if self._cache is not None else None
+
     def read(self, frame):
         """(points, velocities or None, vorticity or None) of ``frame``."""
         g = self.group[f"{frame:06d}"]
         return (g["x"][...], g["v"][...] if "v" in g else None, g["vorticity"][...] if "vorticity" in g else None)
+
+
+DOMAIN = "warpsph:domain"  # customLayerData of a cache: the scene's domain (min, max, periodic, walls)
+
+
+def stage_clip(stage):
+    """(:class:`SurfaceClip` or None, whether the cache recorded its domain) of a cache's stage: the
+    domain's walled faces from the root layer's ``warpsph:domain`` (written by warpsph since #42; an
+    older cache has none, and its meshes are clipped to its bodies only) and the closed meshes under
+    /World/Bodies (a moving one in body space, with time-sampled ``xformOp``s)."""
+    from pxr import UsdGeom
+
+    data = stage.GetRootLayer().customLayerData.get(DOMAIN) if stage is not None else None
+    domain = None
+    if data:
+        from types import SimpleNamespace
+
+        domain = SimpleNamespace(min=list(data["min"]), max=list(data["max"]), periodic=tuple(str(data["periodic"])),
+                                 walls=bool(data["walls"]))
+    bodies = []
+    root = stage.GetPrimAtPath("/World/Bodies") if stage is not None else None
+    for prim in root.GetChildren() if root is not None and root.IsValid() else ():
+        if not prim.IsA(UsdGeom.Mesh):
+            continue
+        mesh = UsdGeom.Mesh(prim)
+        points, indices = mesh.GetPointsAttr().Get(), mesh.GetFaceVertexIndicesAttr().Get()
+        counts = mesh.GetFaceVertexCountsAttr().Get()
+        if points is None or indices is None or counts is None or not np.all(np.asarray(counts) == 3):
+            continue
+        moving = bool(UsdGeom.Xformable(prim).GetOrderedXformOps())
+        bodies.append((prim.GetName(), np.asarray(points, np.float64), np.asarray(indices, np.int32).reshape(-1, 3),
+                       moving))
+    return surface_clip(domain, bodies), domain is not None
+
+
+def stage_poses(stage, clip, frame):
+    """{name: (position, rotation)} of the moving bodies of ``clip`` at ``frame`` in ``stage`` (their
+    transforms; world = rotation @ body + position), None without moving bodies."""
+    from pxr import Usd, UsdGeom
+
+    moving = [b.name for b in clip.bodies if b.moving] if clip is not None else []
+    if not moving:
+        return None
+    poses = {}
+    for name in moving:
+        matrix = UsdGeom.Xformable(stage.GetPrimAtPath(f"/World/Bodies/{name}")).ComputeLocalToWorldTransform(
+            Usd.TimeCode(frame))
+        m = np.array(matrix, np.float64).reshape(4, 4)  # row vectors: world = body @ m[:3, :3] + m[3, :3]
+        poses[name] = (m[3, :3].copy(), m[:3, :3].T.copy())
+    return poses
 
 
 def open_frames(path):
@@ -721,11 +891,13 @@ def plan_remesh(cache, frames=None, out=None, radius=None, overwrite=False, opti
     return source, chosen, out, radius
 
 
-def remesh(source, frames, out, radius, options=SurfaceOptions(), log=None, device="cpu"):
+def remesh(source, frames, out, radius, options=SurfaceOptions(), log=None, device="cpu", clip="cache"):
     """Meshes ``frames`` of ``source`` (:func:`open_frames`) into the new layer ``out``: stage
     metadata of the cache, the cache itself as a sublayer (so ``out`` shows the particles and the
-    surface), and ``/World/FluidSurface``. Saved after every frame (as OUT.partial, renamed at the
-    end or when stopped). Returns {"frames", "seconds" (meshing), "vertices", "triangles"}."""
+    surface), and ``/World/FluidSurface``, clipped to ``clip`` ("cache": the walls and bodies the cache
+    records, ``source.clip``; a :class:`SurfaceClip`; None: not clipped). Saved after every frame (as
+    OUT.partial, renamed at the end or when stopped). Returns {"frames", "seconds" (meshing),
+    "vertices", "triangles", "clipped" (what the meshes were clipped to)}."""
     import os
 
     from pxr import Usd, UsdGeom
@@ -748,7 +920,15 @@ def remesh(source, frames, out, radius, options=SurfaceOptions(), log=None, devi
     stage.SetEndTimeCode(frames[-1])
     UsdGeom.Xform.Define(stage, "/World")
     stage.SetDefaultPrim(stage.GetPrimAtPath("/World"))
-    done = {"frames": 0, "seconds": 0.0, "vertices": 0, "triangles": 0}
+    if isinstance(clip, str):
+        clip = getattr(source, "clip", None)
+        if log is not None and source.usd is not None and not getattr(source, "has_domain", False):
+            log(f"{source.usd} does not record its domain (written before warpsph:domain): the meshes are not "
+                f"clipped to its walls" + (f", only to its {len(clip.bodies)} bodies" if clip is not None else ""))
+    if log is not None and clip is not None:
+        log(f"the meshes are clipped to {clip.describe()}")
+    done = {"frames": 0, "seconds": 0.0, "vertices": 0, "triangles": 0,
+            "clipped": clip.describe() if clip is not None else "nothing"}
     try:
         for frame in frames:
             points, velocities, vorticity = source.read(frame)
@@ -757,7 +937,8 @@ def remesh(source, frames, out, radius, options=SurfaceOptions(), log=None, devi
                 raise SceneError(getattr(source, "path", source.usd), "--frames", f"{bad} of the {len(points)} particle positions of "
                                  f"frame {frame} are NaN or infinite (an unstable run's frame): mesh the frames before it"
                                  + (f" (--frames {frames[0]} {frame - 1}; those done are kept)" if frame > frames[0] else ""))
-            mesh = mesh_frame(points, radius, velocities, vorticity, options, device)
+            poses = source.poses(frame) if clip is not None and hasattr(source, "poses") else None
+            mesh = mesh_frame(points, radius, velocities, vorticity, options, device, clip, poses)
             write_surface(stage, frame, mesh)
             layer.Save()
             done["frames"] += 1

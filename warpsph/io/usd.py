@@ -16,7 +16,9 @@ Layout of the stage (``metersPerUnit`` = 1, ``upAxis`` from the scene,
   without its own sample holds the last mesh before it (USD holds arrays of a different length;
   value clips interpolate missing values), and the layer's customLayerData ``warpsph:surface``
   says how it was meshed and which frames were skipped; a SPlisHSPlasH scene run anyway has
-  ``warpsph:import_dropped`` there, the physics the run leaves out (:func:`run_metadata`);
+  ``warpsph:import_dropped`` there, the physics the run leaves out (:func:`run_metadata`), and
+  every cache has ``warpsph:domain`` there (min, max, periodic, walls: ``warpsph surface`` clips
+  its meshes to the walls);
 - ``/World/Boundary`` (Points, purpose ``guide``): the static boundary samples, written
   once without time samples;
 - ``/World/Bodies/NAME`` (Mesh), one per obstacle, in metres: a static body in world space; a
@@ -63,6 +65,23 @@ def _note_metadata(layer, metadata):
 
 def _mark(layer):
     layer.customLayerData = {**layer.customLayerData, "generator": GENERATOR}
+
+
+DOMAIN = "warpsph:domain"  # the scene's domain box, for clipping surface meshes to its walls (warpsph surface, #42)
+
+
+def domain_record(domain):
+    """The scene's ``domain`` (a ``Box``) as plain values: {"min", "max", "periodic" ("xz"), "walls"}."""
+    return {"min": [float(v) for v in domain.min], "max": [float(v) for v in domain.max],
+            "periodic": "".join(domain.periodic), "walls": bool(domain.walls)}
+
+
+def _note_domain(layer, record):
+    """``warpsph:domain`` in the layer's customLayerData (``record``: :func:`domain_record`)."""
+    if record:
+        layer.customLayerData = {**layer.customLayerData, DOMAIN: {
+            "min": Vt.DoubleArray(list(record["min"])), "max": Vt.DoubleArray(list(record["max"])),
+            "periodic": str(record["periodic"]), "walls": bool(record["walls"])}}
 
 
 def written_by_warpsph(path):
@@ -244,7 +263,7 @@ class UsdPointCache:
     resumed before, are dropped: each frame once)."""
 
     def __init__(self, path, fps, up_axis="Y", boundary_points=None, boundary_radius=None, append=None, bodies=None,
-                 metadata=None):
+                 metadata=None, domain=None):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.frames = 0
@@ -263,12 +282,15 @@ class UsdPointCache:
                         if t > append:
                             attr.ClearAtTime(t)
             self.stage.SetEndTimeCode(min(append, self.stage.GetEndTimeCode()))
+            if domain is not None and DOMAIN not in self.stage.GetRootLayer().customLayerData:
+                _note_domain(self.stage.GetRootLayer(), domain_record(domain))
             return
         if self.path.exists():
             self.path.unlink()
         self.stage = Usd.Stage.CreateNew(str(self.path))
         _mark(self.stage.GetRootLayer())
         _note_metadata(self.stage.GetRootLayer(), metadata)
+        _note_domain(self.stage.GetRootLayer(), domain_record(domain) if domain is not None else None)
         _set_stage_metadata(self.stage, fps, up_axis)
         self.stage.SetStartTimeCode(0)
         self.stage.SetEndTimeCode(0)
@@ -341,7 +363,7 @@ class UsdClipCache:
     OUT.clips/metadata.json."""
 
     def __init__(self, final_path, fps, up_axis="Y", boundary_points=None, boundary_radius=None, append=None,
-                 bodies=None, metadata=None):
+                 bodies=None, metadata=None, domain=None):
         self.final = Path(final_path)
         self.dir = self.final.with_name(self.final.stem + ".clips")
         self.dir.mkdir(parents=True, exist_ok=True)
@@ -358,6 +380,11 @@ class UsdClipCache:
             import json
 
             self.metadata_file.write_text(json.dumps(metadata))
+        self.domain_file = self.dir / "domain.json"  # warpsph:domain of the top-level file
+        if domain is not None:
+            import json
+
+            self.domain_file.write_text(json.dumps(domain_record(domain)))
         self.bodies_file = self.dir / "bodies.npz"
         if bodies:
             arrays = {}
@@ -444,6 +471,10 @@ class UsdClipCache:
             import json
 
             _note_metadata(layer, json.loads(self.metadata_file.read_text()))
+        if self.domain_file.exists():
+            import json
+
+            _note_domain(layer, json.loads(self.domain_file.read_text()))
         stage = Usd.Stage.Open(layer)
         _set_stage_metadata(stage, self.fps, self.up_axis)
         stage.SetDefaultPrim(stage.GetPrimAtPath("/World"))
@@ -568,7 +599,8 @@ class UsdWriter:
         boundary = sim.boundary.x.numpy()[:static]
         kind = UsdClipCache if clips else UsdPointCache
         self.cache = kind(self.path, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
-                          boundary_radius=scene.particle_radius, bodies=body_meshes(sim), metadata=run_metadata(scene))
+                          boundary_radius=scene.particle_radius, bodies=body_meshes(sim), metadata=run_metadata(scene),
+                          domain=scene.domain)
         self._on_frame = frame_writer(self.cache, list(fields) if fields is not None else None)
         self.closed = False
 
