@@ -308,8 +308,8 @@ def test_sigkill_leaves_a_readable_cache_and_a_recent_checkpoint(tmp_path):
     proc.kill()
     proc.communicate(timeout=60)
     assert proc.returncode == -signal.SIGKILL
-    done = time_samples(tmp_path / "long.partial.usdc")  # saved after every frame
-    assert done == [float(f) for f in range(len(done))] and len(done) >= 6
+    done = time_samples(tmp_path / "long.partial.usdc")  # saved while cheap and at each checkpoint (frame 4 at least)
+    assert done == [float(f) for f in range(len(done))] and len(done) >= 5
     checkpoint = out.with_suffix(".checkpoint.h5")
     with h5py.File(checkpoint, "r") as f:
         assert len(done) - 1 - 2 <= f.attrs["frame"] <= len(done) - 1

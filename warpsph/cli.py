@@ -311,7 +311,8 @@ def _simulate(sim, outputs, frames, args, options, append):
     from .diagnostics import DiagnosticsWriter
     from .io.checkpoint import save_checkpoint
     from .io.frames import FrameWriter, WriterFailed, parse_fields
-    from .io.usd import DamagedCache, UsdClipCache, UsdPointCache, body_meshes, run_metadata, write_host_frame
+    from .io.usd import (FLUSH_SHARE, DamagedCache, UsdClipCache, UsdPointCache, body_meshes, recover_cache,
+                         run_metadata, write_host_frame)
 
     scene = sim.scene
     fields = parse_fields(options.get("fields") or None, sim)
@@ -324,16 +325,15 @@ def _simulate(sim, outputs, frames, args, options, append):
                              boundary_radius=scene.particle_radius, append=append, bodies=meshes, metadata=metadata,
                              domain=scene.domain)
     else:
-        if append is not None and outputs.out.exists():
-            os.replace(outputs.out, outputs.partial)
         try:
+            if append is not None:  # the copy holding frames 0..append, moved to NAME.partial (else nothing changes)
+                recover_cache(outputs.out, outputs.partial, append)
             cache = UsdPointCache(outputs.partial, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
                                   boundary_radius=scene.particle_radius, append=append, bodies=meshes, metadata=metadata,
                                   domain=scene.domain)
         except DamagedCache as exc:
-            if not outputs.out.exists():
-                os.replace(outputs.partial, outputs.out)  # left as it was found
             raise SceneError(outputs.out, "", exc.reason) from None
+        cache.flush_share = FLUSH_SHARE  # saved whole (crash-consistent) while cheap, at each checkpoint and at the end
     diagnostics = DiagnosticsWriter(outputs.stats, append=append, metadata=metadata)
     particles = None
     if options.get("particles_h5"):
@@ -401,7 +401,9 @@ def _simulate(sim, outputs, frames, args, options, append):
             raise _write_error(failed) from failed.cause
 
     def checkpoint():
-        drain()  # the checkpoint claims only frames the cache holds
+        drain()  # the checkpoint claims only frames the cache holds, saved
+        with _writing(f"cannot save the cache {outputs.out}"):
+            cache.flush()
         with _writing(f"cannot write the checkpoint {outputs.checkpoint}"):
             save_checkpoint(sim, outputs.checkpoint,
                             extra={**options, "output": os.path.abspath(outputs.out), "frames": frames})

@@ -144,10 +144,9 @@ class DiagnosticsWriter:
         append = append is not None and self.path.exists() and _keep_rows(self.path, append)
         if not append:
             write_metadata(self.path, metadata)
-        self._file = open(self.path, "a" if append else "w", newline="")
+            _write_header(self.path)
+        self._file = open(self.path, "a", newline="")
         self._csv = csv.DictWriter(self._file, fieldnames=COLUMNS)
-        if not append:
-            self._csv.writeheader()
         self.rows = []
 
     def __call__(self, sim, frame):
@@ -164,6 +163,15 @@ class DiagnosticsWriter:
 
     def close(self):
         self._file.close()
+
+
+def _write_header(path):
+    """A new CSV holding its header, through a rename: a run killed before its first row leaves a file that
+    --overwrite knows as warpsph's (it was empty, and refused)."""
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "w", newline="") as f:
+        csv.DictWriter(f, fieldnames=COLUMNS).writeheader()
+    tmp.replace(path)
 
 
 def _keep_rows(path, last):

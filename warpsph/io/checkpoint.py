@@ -60,6 +60,11 @@ def save_checkpoint(sim, path, extra=None):
         f.flush()
         os.fsync(f.id.get_vfd_handle())
     os.replace(tmp, path)
+    folder = os.open(path.parent, os.O_RDONLY)  # the rename itself survives a power cut
+    try:
+        os.fsync(folder)
+    finally:
+        os.close(folder)
 
 
 def _same(a, b):

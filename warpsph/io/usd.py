@@ -27,7 +27,10 @@ Layout of the stage (``metersPerUnit`` = 1, ``upAxis`` from the scene,
 
 Two writers with one interface (``write_frame``, ``finish``):
 
-- :class:`UsdPointCache`, a single file saved after every frame (small runs);
+- :class:`UsdPointCache`, a single file, saved crash-consistently (a whole new file, synced and renamed
+  over the old one: a kill or power cut at any moment leaves the frames of the last save) after every
+  frame, or with ``flush_share`` (the CLI, :class:`UsdWriter`) when the rewrite costs at most that share
+  of the time since the last one, at a checkpoint and at the end (small runs);
 - :class:`UsdClipCache`, one layer per frame stitched with USD value clips
   (``UsdUtils.StitchClips``: a topology layer with the prim and attribute declarations, a
   manifest, and a small top-level file), for large runs: the writer holds one frame at a time.
@@ -37,6 +40,8 @@ from __future__ import annotations
 
 import errno
 import os
+import re
+import time
 from pathlib import Path
 
 import numpy as np
@@ -247,25 +252,146 @@ def _write_points(points_prim, frame, points, velocities, ids, radius, fields, w
     return written
 
 
-class DamagedCache(OSError):
-    """A cache that USD cannot open (truncated by a full disk or a crash during a save)."""
+def _fsync(path):
+    """Flushes the file ``path`` to the disk, or the folder ``path`` (a rename in it then survives a power cut)."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
 
-    def __init__(self, path, cause):
-        first = str(cause).strip().splitlines()[0] if str(cause).strip() else type(cause).__name__
-        self.reason = (f"USD cannot open this cache ({first[:200]}); its frames cannot be recovered. Start the run "
-                       "again (a --clips run keeps every frame's layer on its own)")
+
+def temporary_path(path):
+    """Where a save of ``path`` is written before it is renamed over ``path``: NAME.tmp.usdc beside it."""
+    path = Path(path)
+    return path.with_name(f"{path.stem}.tmp{path.suffix}")
+
+
+def remove_leftovers(path):
+    """Removes what a killed save of ``path`` left: NAME.tmp.usdc and USD's own NAME.tmp.XXXXXX."""
+    path = Path(path)
+    pattern = re.compile(re.escape(path.stem) + r"\.tmp\.(" + re.escape(path.suffix[1:]) + r"|[A-Za-z0-9]{6})")
+    for p in path.parent.glob(f"{path.stem}.tmp.*") if path.parent.is_dir() else ():
+        if pattern.fullmatch(p.name) and p.is_file():
+            p.unlink()
+
+
+def save_layer(layer, path):
+    """Saves ``layer`` to ``path`` crash-consistently: the whole layer to NAME.tmp.usdc, synced, renamed over
+    ``path``, the folder synced. (``layer.Save()`` of a crate file read from ``path`` writes in place: the new
+    values over the old table of contents, then the header; a kill or power cut between the two leaves a file
+    USD cannot open.) ``path`` holds the old file or the new one, whole, at every moment."""
+    path = Path(path)
+    tmp = temporary_path(path)
+    try:
+        try:
+            written = layer.Export(str(tmp))
+        except Exception as exc:  # pxr.Tf.ErrorException: the file system's error among USD's lines
+            if type(exc).__name__ != "ErrorException":
+                raise
+            found = re.findall(r"Error occurred writing file: ([^'\n]*)", str(exc))
+            raise OSError(f"{path}: USD could not write {tmp.name}"
+                          + (f": {found[0]}" if found else f" ({str(exc).strip().splitlines()[0][:200]})")) from None
+        if not written:
+            raise OSError(f"{path}: USD could not write {tmp.name}")
+        _fsync(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        if tmp.exists():
+            tmp.unlink()
+        raise
+    _fsync(path.parent)
+
+
+class DamagedCache(OSError):
+    """A cache that USD cannot open (truncated by a full disk or a crash during a save), or one that cannot be
+    continued; ``reason`` says why, without the path."""
+
+    def __init__(self, path, cause=None, reason=None):
+        if reason is None:
+            first = str(cause).strip().splitlines()[0] if str(cause).strip() else type(cause).__name__
+            reason = (f"USD cannot open this cache ({first[:200]}); its frames cannot be recovered. Start the run "
+                      "again (a --clips run keeps every frame's layer on its own)")
+        self.reason = reason
         super().__init__(f"{path}: {self.reason}")
 
 
+def cache_frames(path):
+    """The frames (time codes of /World/Fluid's points) of the single-file cache ``path``, the last one read;
+    :class:`DamagedCache` when USD cannot open the file or read them."""
+    try:
+        stage = Usd.Stage.Open(str(path))
+        points = UsdGeom.Points(stage.GetPrimAtPath("/World/Fluid")).GetPointsAttr()
+        frames = [int(t) for t in points.GetTimeSamples()]
+        if frames and points.Get(frames[-1]) is None:
+            raise ValueError(f"frame {frames[-1]} has no points")
+    except Exception as exc:  # pxr.Tf.ErrorException: a truncated or damaged crate file
+        raise DamagedCache(path, exc) from None
+    return frames
+
+
+def _spans(frames):
+    """'frames 0..7', 'frames 0..3, 6..7', 'no frames' (``frames`` sorted)."""
+    if not frames:
+        return "no frames"
+    runs, first = [], frames[0]
+    for a, b in zip(frames, [*frames[1:], None]):
+        if b != a + 1:
+            runs.append(f"{first}..{a}" if a != first else f"{a}")
+            first = b
+    return "frames " + ", ".join(runs)
+
+
+def recover_cache(out, partial, frame):
+    """Before a resumed run continues a single-file cache after checkpoint frame ``frame``: the first of ``out``
+    (a finished or stopped run's cache) and ``partial`` (a killed run's) that USD opens and that holds frames
+    0..``frame`` is moved to ``partial``, where the run goes on, and a killed save's temporary files are
+    removed; returns its frames. Neither: :class:`DamagedCache` saying what each copy lacks, with nothing
+    changed (the checkpoint holds frame ``frame``'s state only: the frames before it cannot be computed again)."""
+    out, partial = Path(out), Path(partial)
+    problems = []
+    for path in (out, partial):
+        if not path.exists():
+            continue
+        try:
+            frames = cache_frames(path)
+        except DamagedCache as exc:
+            problems.append(f"{path.name}: {exc.reason.split(';')[0]}")
+            continue
+        missing = sorted(set(range(frame + 1)) - set(frames))
+        if not missing:
+            remove_leftovers(partial)
+            if path != partial:
+                os.replace(path, partial)
+                _fsync(partial.parent)
+            return frames
+        problems.append(f"{path.name} holds {_spans(frames)}, not {_spans(missing)}")
+    raise DamagedCache(out, reason=f"cannot continue after frame {frame}: {'; '.join(problems) or 'no cache'}; frames "
+                                   f"0..{frame} cannot be recovered from the checkpoint (it holds frame {frame}'s state "
+                                   "only): start the run again (warpsph run ... --overwrite)")
+
+
+FLUSH_SHARE = 0.1  # the CLI's single-file cache: whole-file saves take at most this share of the writer's time
+
+
 class UsdPointCache:
-    """A single file, saved after every frame (a stopped run leaves the frames done).
+    """A single file, rewritten whole at each save through a synced temporary file and a rename
+    (:func:`save_layer`): a kill or power cut at any moment leaves a cache that opens, with the frames of the
+    last save. ``flush_share`` None saves after every frame; a number saves after a frame only when the last
+    save took at most that share of the time since it began (a save costs the whole file: every frame of a
+    small cache, fewer of a large one); :meth:`flush` (at a checkpoint), :meth:`note_surface` and
+    :meth:`finish` save at once.
     ``append=K`` reopens an existing cache to continue it after frame K (later frames, from a run
     resumed before, are dropped: each frame once)."""
 
     def __init__(self, path, fps, up_axis="Y", boundary_points=None, boundary_radius=None, append=None, bodies=None,
-                 metadata=None, domain=None):
+                 metadata=None, domain=None, flush_share=None):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        remove_leftovers(self.path)
+        self.flush_share = flush_share
+        self.flushes = 0  # saves so far
+        self._flushed = (0.0, 0.0)  # (start, seconds) of the last save
         self.frames = 0
         self._ids = None  # the ids and particle count of the last time samples written
         self._count = None
@@ -287,7 +413,7 @@ class UsdPointCache:
             return
         if self.path.exists():
             self.path.unlink()
-        self.stage = Usd.Stage.CreateNew(str(self.path))
+        self.stage = Usd.Stage.CreateInMemory()  # the file appears at the first save, whole and marked
         _mark(self.stage.GetRootLayer())
         _note_metadata(self.stage.GetRootLayer(), metadata)
         _note_domain(self.stage.GetRootLayer(), domain_record(domain) if domain is not None else None)
@@ -298,15 +424,25 @@ class UsdPointCache:
         self.points = UsdGeom.Points.Define(self.stage, "/World/Fluid")
         _define_boundary(self.stage, boundary_points, boundary_radius)
         _define_bodies(self.stage, bodies)
+        self._save_first()
+
+    def _save_first(self):
+        """Saves the new cache (no frames yet) and reopens it from its file: later saves reload the layer from the
+        file, which an in-memory layer cannot."""
+        save_layer(self.stage.GetRootLayer(), self.path)
+        self.stage = Usd.Stage.Open(str(self.path))
+        self.stage.GetRootLayer().Reload(True)  # a layer of this name still open in this process: the file anew
+        self.points = UsdGeom.Points(self.stage.GetPrimAtPath("/World/Fluid"))
 
     def write_frame(self, frame, points, velocities, ids, radius, fields=None, body_poses=None, widths=True,
                     surface=None):
-        """Writes one frame at time code ``frame`` and saves the layer; returns the bytes of the
-        arrays written. ``ids`` and widths get a time sample only when they differ from the last
+        """Writes one frame at time code ``frame`` and saves the layer when a save is due; returns the bytes
+        of the arrays written. ``ids`` and widths get a time sample only when they differ from the last
         one (USD holds a sample until the next), so a cache in id order without emitters or sinks
         has them once; the first frame a run writes (or appends) always has them."""
         _check_directory(self.path.parent)
-        check_space(self.path.parent, frame, _frame_estimate(points, self._last_written))
+        size = self.path.stat().st_size if self.path.exists() else 0  # a save writes the whole file anew
+        check_space(self.path.parent, frame, _frame_estimate(points, self._last_written) + size)
         count = len(points)
         if ids is not None:
             ids = np.asarray(ids)
@@ -320,12 +456,32 @@ class UsdPointCache:
             write_surface(self.stage, frame, surface)  # not in the bytes of particle arrays returned
         _write_body_poses(self.stage, frame, body_poses)
         self.stage.SetEndTimeCode(max(frame, self.stage.GetEndTimeCode()))
-        if not self.stage.GetRootLayer().Save():
-            raise OSError(f"{self.path}: USD could not save the layer")
         self._count = count
         self._last_written = written
         self.frames += 1
+        if self._due():
+            self.flush()
         return written
+
+    def _due(self):
+        if self.flush_share is None:
+            return True
+        start, seconds = self._flushed
+        return time.perf_counter() - start >= seconds / self.flush_share
+
+    def flush(self):
+        """Saves what is not on disk yet (:func:`save_layer`); the layer then reads the new file, so the
+        frames saved leave the memory."""
+        layer = self.stage.GetRootLayer()
+        if not layer.dirty:
+            return
+        start = time.perf_counter()
+        _check_directory(self.path.parent)
+        save_layer(layer, self.path)
+        layer.Reload(True)  # the same content, read from the new file (the stage's prims are new objects)
+        self.points = UsdGeom.Points(self.stage.GetPrimAtPath("/World/Fluid"))
+        self._flushed = (start, time.perf_counter() - start)
+        self.flushes += 1
 
     def surface_layer(self, frame):
         """None: the mesher's worker cannot write into this cache (see :meth:`UsdClipCache.surface_layer`)."""
@@ -333,24 +489,28 @@ class UsdPointCache:
 
     def write_surface(self, frame, mesh, save=False):
         """The surface mesh of frame ``frame``, meshed after the frame was written (the background
-        mesher); saved with the next frame, or now with ``save``."""
+        mesher); saved with the next save, or with ``save`` when a save is due (:meth:`finish` saves the rest)."""
         if getattr(mesh, "layer", None) is not None:
             raise ValueError(f"the mesh of frame {frame} was written into {mesh.layer}, not into {self.path}")
         write_surface(self.stage, frame, mesh)
-        if save and not self.stage.GetRootLayer().Save():
-            raise OSError(f"{self.path}: USD could not save the layer")
+        if save and self._due():
+            self.flush()
 
     def note_surface(self, info):
         """Records how the surface was meshed (method, every K-th frame, frames skipped) in the
-        layer's metadata ``warpsph:surface``."""
+        layer's metadata ``warpsph:surface``, and saves."""
         _note_surface(self.stage.GetRootLayer(), info)
-        if not self.stage.GetRootLayer().Save():
-            raise OSError(f"{self.path}: USD could not save the layer")
+        self.flush()
 
     def finish(self, final_path):
-        """The cache is complete up to its last frame: move it to its final name."""
-        if Path(final_path) != self.path and self.path.exists():
-            os.replace(self.path, final_path)
+        """The cache is complete up to its last frame: saves it and moves it to its final name (a save that fails
+        raises after the move: the file holds the frames of the save before)."""
+        try:
+            self.flush()
+        finally:
+            if Path(final_path) != self.path and self.path.exists():
+                os.replace(self.path, final_path)
+                _fsync(Path(final_path).parent)
 
 
 class UsdClipCache:
@@ -397,6 +557,9 @@ class UsdClipCache:
 
     def frame_path(self, frame):
         return self.dir / f"frame.{frame:06d}.usdc"
+
+    def flush(self):
+        """Nothing to save: each frame's layer is a whole file when :meth:`write_frame` returns."""
 
     def write_frame(self, frame, points, velocities, ids, radius, fields=None, body_poses=None, widths=True,
                     surface=None):
@@ -589,8 +752,9 @@ class UsdWriter:
 
     ``fields``: the ``--fields`` names to write (``points``, ``velocities``, ``ids``, ``widths``,
     ``density``, ``vorticity``, ...; None: all). ``clips=True`` writes one layer per frame
-    (:class:`UsdClipCache`, for large runs) instead of a single file (:class:`UsdPointCache`).
-    Frames are written on the calling thread (the CLI writes in the background)."""
+    (:class:`UsdClipCache`, for large runs) instead of a single file (:class:`UsdPointCache`, saved
+    whenever the rewrite costs at most ``FLUSH_SHARE`` of the time since the last save, and at
+    :meth:`close`). Frames are written on the calling thread (the CLI writes in the background)."""
 
     def __init__(self, path, sim, fields=None, clips=False):
         scene = sim.scene
@@ -601,6 +765,8 @@ class UsdWriter:
         self.cache = kind(self.path, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
                           boundary_radius=scene.particle_radius, bodies=body_meshes(sim), metadata=run_metadata(scene),
                           domain=scene.domain)
+        if not clips:
+            self.cache.flush_share = FLUSH_SHARE  # saved while cheap, and at close
         self._on_frame = frame_writer(self.cache, list(fields) if fields is not None else None)
         self.closed = False
 
