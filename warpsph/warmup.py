@@ -146,9 +146,9 @@ def _cache_files(name):
 def idle_cores() -> int:
     """The default number of compile threads: the cores this process may use less those busy with other work
     now (:func:`busy_cores`), at least 1. Each thread that compiles for the CPU builds Warp's precompiled
-    header first (~1.7 s of a core), so threads help only where cores are idle: on 2 cores, 2 threads took
-    the dam break's first step from 8.8 to 5.2 s, and made it slower where another program kept both busy
-    (docs/notes/performance-history.md, "Cold start")."""
+    header first (~1.7 s of a core), so threads help only where cores are idle: on 2 idle cores the dam
+    break's first step ended 4.5-5.3 s after the start instead of 6.9-8.2 s, on 2 cores kept busy by other
+    work two threads compiled its modules in 8.0 s where one took 6.3 s (docs/notes/performance-history.md)."""
     try:
         cores = len(os.sched_getaffinity(0))
     except AttributeError:
