@@ -6,10 +6,8 @@
 Warp compiles a module (the kernels of one ``kernels/*.py`` file) the first time one of its kernels is
 launched on a device, and keeps the binary in its kernel cache: ``WARP_CACHE_PATH`` when set, else a
 per-user folder (Warp's ``wp.config.kernel_cache_dir``, printed below). Later runs load it from there.
-A first run on an empty cache compiled its modules one after the other as the first step reached them
-(the dam break: ~7 s on 2 CPU cores, against ~1 s cached; on an H100 10.2 s against 2.7 s).
 
-A :class:`~warpsph.simulation.Simulation` now compiles the modules its scene launches together, before its
+A :class:`~warpsph.simulation.Simulation` compiles the modules its scene launches together, before its
 set-up launches anything (:func:`preload`, one thread per idle core; ``Simulation(..., preload=False)`` or
 ``WARPSPH_PRELOAD=0`` leaves each to its first launch). ``warpsph warmup`` does the same ahead of time for
 every kernel module (or those of ``--scene`` files, as ``warpsph run`` would launch them) and prints what it
