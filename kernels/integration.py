@@ -31,24 +31,56 @@ def compute_time_step(
     dt_max: float,
     fixed_dt: float,
     viscous_dt: float,
+    max_substeps: int,
     dt_scale: float,
     dt_previous: wp.array(dtype=float),
     dt: wp.array(dtype=float),
+    substeps: wp.array(dtype=wp.int32),
+    substep_dt: wp.array(dtype=float),
 ):
-    """One thread: dt = clamp(min(cfl * 0.4 * d / max|v|, viscous_dt), dt_min, dt_max) (SPlisHSPlasH's
-    CFL rule and the explicit-viscosity limit), or ``fixed_dt`` when it is positive, times ``dt_scale`` (< 1 when a step is retried
-    after an instability); the old dt moves to ``dt_previous``."""
+    """One thread: dt = clamp(min(cfl * 0.4 * d / max|v|, max_substeps x viscous_dt), dt_min, dt_max) (SPlisHSPlasH's
+    CFL rule and the explicit-viscosity limit, which the viscosity's sub-steps stretch), or ``fixed_dt`` when it is
+    positive, times ``dt_scale`` (< 1 when a step is retried after an instability); the old dt moves to
+    ``dt_previous``. With ``substeps`` (not empty): the viscosity's sub-steps n = ceil(dt / viscous_dt), at most
+    ``max_substeps``, and their dt / n into ``substep_dt``."""
     if dt[0] > 0.0:
         dt_previous[0] = dt[0]
     if fixed_dt > 0.0:
         dt[0] = fixed_dt * dt_scale
-        return
-    speed = wp.sqrt(max_speed_sq[0])
-    h = dt_max
-    if speed > 1.0e-9:
-        h = cfl_factor * 0.4 * particle_diameter / speed
-    h = wp.min(h, viscous_dt)
-    dt[0] = wp.clamp(h, dt_min, dt_max) * dt_scale
+    else:
+        speed = wp.sqrt(max_speed_sq[0])
+        h = dt_max
+        if speed > 1.0e-9:
+            h = cfl_factor * 0.4 * particle_diameter / speed
+        h = wp.min(h, viscous_dt * float(max_substeps))
+        dt[0] = wp.clamp(h, dt_min, dt_max) * dt_scale
+    if substeps.shape[0] > 0:
+        n = wp.min(max_substeps, wp.max(1, int(wp.ceil(dt[0] / viscous_dt * (1.0 - 1.0e-5)))))
+        substeps[0] = n
+        substep_dt[0] = dt[0] / float(n)
+
+
+@wp.kernel
+def start_substeps(substeps: wp.array(dtype=wp.int32), left: wp.array(dtype=wp.int32)):
+    """One thread: ``left`` = this step's viscosity sub-steps (the loop's condition)."""
+    left[0] = substeps[0]
+
+
+@wp.kernel
+def advance_substep(
+    acceleration: wp.array(dtype=wp.vec3),
+    substep_dt: wp.array(dtype=float),
+    v: wp.array(dtype=wp.vec3),
+):
+    """v += (dt / n) a_visc: one sub-step of the explicit viscosity."""
+    i = wp.tid()
+    v[i] = v[i] + substep_dt[0] * acceleration[i]
+
+
+@wp.kernel
+def count_down(left: wp.array(dtype=wp.int32)):
+    """One thread: one sub-step fewer left."""
+    left[0] = left[0] - 1
 
 
 @wp.kernel

@@ -270,3 +270,19 @@ def test_rankine_feedback_restores_the_vorticity_change(waves):
     curl = curl_of(sim, sim.fluid.v, wp.zeros(sim.num_fluid, dtype=wp.vec3)).numpy()
     gain = (curl[:, 2] * change[:, 2]).sum() / (change[:, 2] ** 2).sum()
     assert -1.0 < gain < -0.02 * waves
+
+
+def test_viscosity_substeps_stretch_the_step_past_the_explicit_limit():
+    """``solver.viscosity_substeps`` n: the step may reach n explicit viscous limits and the viscosity runs
+    ceil(dt / limit) sub-steps of dt / k. A sealed 12-across tank (limit 2.78 ms, dt_max 3.33 ms) takes 2 sub-steps
+    a step and stays at rest; with the step's whole dt in each sub-step it would exceed the explicit limit twice over."""
+    from warpsph.validation.rest import tank_at_rest
+
+    r = tank_at_rest(12, 1.0, "cpu", T=0.6, overrides={"solver.viscosity_substeps": 4})
+    sim = r.pop("sim")
+    assert float(sim.dt.numpy()[0]) > 1.1 * sim.viscous_dt
+    assert sim.launches["add_corrected_viscosity_acceleration"] == 2 * r["steps"]
+    assert r["max_speed_over_sqrt_gH"] < 0.057  # measured 0.038 (0.6 s, gravity ramped in over 0.2 s)
+    plain = tank_at_rest(12, 1.0, "cpu", T=0.2)["sim"]
+    assert float(plain.dt.numpy()[0]) <= plain.viscous_dt * (1 + 1e-6)
+    assert plain.launches["add_corrected_viscosity_acceleration"] == plain.step_count

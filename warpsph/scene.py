@@ -257,6 +257,10 @@ class Solver:
     divergence_min_iterations: int = key(1, doc="divergence solve: fewest iterations", ge=0)
     divergence_max_iterations: int = key(100, doc="divergence solve: most iterations", ge=1)
     warm_start: bool = key(True, doc="start each solve from last step's pressure where it still acts (capped)")
+    viscosity_substeps: int = key(
+        1, doc="most sub-steps of the explicit viscosity in a step: the step is capped at this many times the explicit "
+               "limit 0.125 (H/2)^2 / nu instead of at the limit, and the viscosity runs n sub-steps of dt / n "
+               "(1: the step keeps the limit)", ge=1, le=64)
     shifting: float = key(2.0, doc="particle shifting coefficient (Lind et al. 2012): x += -D grad C in the bulk, "
                                    "tangential near the free surface, off on it; D = shifting x h max|v| dt; 0: off", ge=0)
     sort_interval: int = key(16, doc="steps between re-sorting the particles by cell (0: never)", ge=0)

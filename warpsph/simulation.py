@@ -118,6 +118,8 @@ class Simulation:
         # r = 2.9 mm and nu = 0.05 a 0.57 ms step flung dam-break particles out at 38 m/s
         nu = max(scene.fluid.viscosity, scene.fluid.boundary_viscosity)
         self.viscous_dt = 0.125 * (0.5 * self.support_radius) ** 2 / nu if nu > 0 else 1.0e30
+        # solver.viscosity_substeps > 1: the step may reach that many viscous limits; the viscosity sub-steps it
+        self.max_viscous_substeps = scene.solver.viscosity_substeps if nu > 0 else 1
 
         ids = None
         if particles is None:
@@ -152,6 +154,10 @@ class Simulation:
             z = self.zeros
             self.state.allocate_fluid(fluid_x, fluid_v, factor=solver_class.needs_factor, ids=ids)
             self.state.allocate_clock(scene.time_step_bounds[1])
+            # the viscosity's sub-steps this step and their dt, and the loop's count (none without sub-steps)
+            sub = self.max_viscous_substeps > 1
+            self.viscous_substeps = (z("clock", int(sub), dtype=wp.int32), z("clock", int(sub)))
+            self.substeps_left = z("clock", int(sub), dtype=wp.int32)
             has_dynamic = any(b.kind == "dynamic" for b in moving)
             first_dynamic = first_moving + sum(len(b.samples) for b in moving if b.kind == "kinematic")
             self.boundary = BoundaryParticles(
@@ -439,7 +445,8 @@ class Simulation:
             tm = self.scene.time
             self.launch(compute_time_step, 1,
                         [self.max_speed_sq, self.scene.particle_diameter, tm.cfl, *self.scene.time_step_bounds,
-                         tm.fixed_dt or 0.0, self.viscous_dt, self._dt_scale, self.dt_previous, self.dt])
+                         tm.fixed_dt or 0.0, self.viscous_dt, self.max_viscous_substeps, self._dt_scale, self.dt_previous,
+                         self.dt, *self.viscous_substeps])
         with t("divergence_solve"):  # v~ = correctDivergence(v)
             self.pressure_solver.correct_divergence()
         with t("non_pressure"):  # a_adv = a_vis; turbulence models refine v~ (Algorithm 2)

@@ -100,6 +100,13 @@ class ModelContext:
     support_radius = property(lambda self: self._sim.support_radius)
     """The kernel's support 4r [m]."""
     dt = property(lambda self: self._sim.dt, doc="This step's dt [s], a device array of one.")
+
+    @property
+    def viscous_substeps(self):
+        """(n, dt / n, left): this step's viscosity sub-steps, their dt and a loop counter, device arrays of one; None
+        when the scene takes none (``solver.viscosity_substeps`` 1)."""
+        sim = self._sim
+        return (*sim.viscous_substeps, sim.substeps_left) if sim.max_viscous_substeps > 1 else None
     """This step's dt [s], a device array of one."""
 
     @property

@@ -3,6 +3,7 @@ and its band, and the corrected operator of kernels/viscosity.py elsewhere."""
 
 import warp as wp
 
+from warpsph.kernels.integration import advance_substep, count_down, start_substeps
 from warpsph.kernels.particles import SymmetricMatrix
 from warpsph.kernels.viscosity import (
     add_corrected_viscosity_acceleration,
@@ -41,8 +42,30 @@ class Viscosity(Model):
         self._empty_flags = wp.empty(0, dtype=wp.int32, device=ctx.device)
         self.strain_rate = (ctx.per_particle("viscosity", SymmetricMatrix) if self.corrected
                             else wp.empty(0, dtype=SymmetricMatrix, device=ctx.device))
+        # sub-stepped (solver.viscosity_substeps > 1): each sub-step's acceleration, integrated into v at once
+        self.substep_acceleration = (ctx.per_particle("viscosity", wp.vec3) if ctx.viscous_substeps is not None
+                                     else None)
 
     def step(self, ctx):
+        if ctx.viscous_substeps is None:
+            self._add_acceleration(ctx, ctx.dt, ctx.fluid.acceleration)
+            return
+        # n sub-steps of dt / n, each integrated into v~ (the step is up to n explicit limits long): a device loop
+        count, substep_dt, left = ctx.viscous_substeps
+        ctx.launch(start_substeps, 1, [count, left])
+
+        def substep():
+            self.substep_acceleration.zero_()
+            self._add_acceleration(ctx, substep_dt, self.substep_acceleration)
+            ctx.launch(advance_substep, ctx.num_fluid, [self.substep_acceleration, substep_dt, ctx.fluid.v])
+            ctx.exchange(ctx.fluid.v)
+            ctx.launch(count_down, 1, [left])
+
+        wp.capture_while(left, substep)
+
+    def _add_acceleration(self, ctx, dt, acceleration):
+        """acceleration += nu laplacian(v) (and the shared vorticity of v in the same pass, when it exists); ``dt``
+        is the step (or sub-step) of the bodies' friction impulse."""
         f, vorticity = ctx.fluid, ctx.vorticity
         with_vorticity = vorticity is not None
         if self.corrected:
@@ -53,9 +76,9 @@ class Viscosity(Model):
         kernel = add_corrected_viscosity_acceleration if self.corrected else add_viscosity_acceleration
         ctx.launch(kernel, ctx.num_fluid,
                    [f.x, f.v, f.density, ctx.neighbour_lists, ctx.particle_mass, ctx.scene.fluid.viscosity,
-                    ctx.support_radius, ctx.boundary_samples, ctx.scene.fluid.boundary_viscosity, ctx.dt,
+                    ctx.support_radius, ctx.boundary_samples, ctx.scene.fluid.boundary_viscosity, dt,
                     int(with_vorticity), ctx.surface_flags if self.corrected else self._empty_flags, self.strain_rate,
-                    f.acceleration,
+                    acceleration,
                     vorticity if with_vorticity else self._empty_vec3])
         if with_vorticity:
             ctx.exchange(vorticity)
