@@ -569,3 +569,28 @@ def test_plot_slice_of_a_cache_without_velocities(tmp_path, capsys):
     cache = _cache_without_velocities(tmp_path / "c.usdc")
     assert main(["plot", "slice", str(cache), "--out", str(tmp_path / "s.png")]) == 0
     assert (tmp_path / "s.png").stat().st_size > 0
+
+
+def test_a_signal_stops_a_run_over_several_subdomains_and_resume_completes(tmp_path):
+    """``--devices`` (two slabs on the CPU here): SIGINT finishes the frame, writes the checkpoint, exits 130 with the
+    resume hint, and the resume over the same subdomains completes the cache."""
+    data = tank_scene(radius=0.03, domain=(0.6, 0.4, 0.2), block=(0.3, 0.3, 0.2), output={"fps": 50, "frames": 400})
+    scene = write_scene(tmp_path, data)
+    out = tmp_path / "slabs.usdc"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen([sys.executable, "-m", "warpsph.cli", "run", str(scene), "--devices", "cpu,cpu", "--out",
+                             str(out)], stderr=subprocess.PIPE, text=True, env=env, cwd=tmp_path)
+    stats = out.with_suffix(".stats.csv")
+    deadline = time.time() + 180
+    while time.time() < deadline and (not stats.exists() or len(stats.read_text().splitlines()) < 4):
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=180)
+    assert proc.returncode == 130, err
+    assert "SIGINT" in err and "resume" in err and "Traceback" not in err
+    checkpoint = out.with_suffix(".checkpoint.h5")
+    assert checkpoint.exists() and out.exists()
+    done = time_samples(out)
+    assert done == [float(f) for f in range(len(done))] and 3 <= len(done) < 401
+    assert main(["resume", str(checkpoint), "--devices", "cpu,cpu", "--frames", str(len(done) + 1), "--quiet"]) == 0
+    assert time_samples(out) == [float(f) for f in range(len(done) + 2)]
