@@ -262,3 +262,21 @@ def test_a_body_and_the_fluid_keep_their_momentum():
         sim.step()
     assert body.velocity[0] < 0.05  # it has given its momentum away
     assert abs(momentum() / p0 - 1.0) < 0.018
+
+
+def test_a_box_dropped_on_its_edge_tips_over_and_lies_flat():
+    """A box placed at 30 degrees about z and dropped onto a static box lands on one edge; the contact's impulse at
+    the touching samples turns it until it lies flat on the lower box (before, contacts acted at the centre of mass:
+    it stopped on its edge, 0.4 r deep, with no angular velocity)."""
+    high = {**_box("high", 0.6, 800.0), "rotation_axis": [0, 0, 1], "rotation_angle": np.pi / 6}
+    data = tank_scene(radius=0.02, domain=(0.7, 1.0, 0.4), block=(0.12, 0.12, 0.4), output={"fps": 10},
+                      obstacles=[_box("low", 0.15), high])
+    sim = make_sim(data, base_dir=SCENES_DIR)
+    body = [b for b in sim.moving_bodies.bodies if b.name == "high"][0]
+    while sim.time < 3.0:
+        sim.step()
+    lowest = body.to_world(body.vertices)[:, 1].min()
+    assert abs(lowest - 0.25) < 0.005  # its lowest face on the lower box's top; measured 0.000 (old: 0.0088 deep)
+    turned = np.degrees(np.arccos(np.clip(body.rotation[0, 0], -1.0, 1.0)))
+    assert abs(turned - 30.0) < 3.0  # turned back by the placement's 30 degrees: flat; measured 30.0
+    assert np.linalg.norm(body.velocity) < 0.05 and np.linalg.norm(body.angular_velocity) < 0.1

@@ -207,7 +207,8 @@ class MovingBodies:
                 "closed": sim.array("bodies", np.array([int(b.closed) for b in bodies], np.int32), wp.int32),
                 "rotation": sim.array("bodies", np.stack([b.rotation for b in bodies]).astype(np.float32), wp.mat33),
                 "position": sim.array("bodies", np.stack([b.position for b in bodies]).astype(np.float32), wp.vec3),
-                "depth": sim.zeros("bodies", m * m), "push": sim.zeros("bodies", m * m, dtype=wp.vec3)}
+                "depth": sim.zeros("bodies", m * m), "push": sim.zeros("bodies", m * m, dtype=wp.vec3),
+                "arm": sim.zeros("bodies", m * m, dtype=wp.vec4)}
 
     # -- poses -------------------------------------------------------------------------------------------
     def place(self, time):
@@ -280,12 +281,14 @@ class MovingBodies:
         c["position"][:n].assign(np.stack([b.position for b in self.bodies]).astype(np.float32))
         c["depth"].zero_()
         c["push"].zero_()
+        c["arm"].zero_()
         dynamic_local = self.first_dynamic - self.first_sample
         sim.launch(measure_body_contacts, (self.num_samples - dynamic_local, m),
                    [self.local[dynamic_local:], self._dynamic_sample_body, c["rotation"], c["position"], c["ids"],
-                    c["closed"], BODY_INSET * sim.scene.particle_radius, m, c["depth"], c["push"]])
+                    c["closed"], BODY_INSET * sim.scene.particle_radius, m, c["depth"], c["push"], c["arm"]])
         depth = c["depth"].numpy().reshape(m, m).astype(np.float64)
         push = c["push"].numpy().reshape(m, m, 3).astype(np.float64)
+        arm = c["arm"].numpy().reshape(m, m, 4).astype(np.float64)
         bodies = c["bodies"]
         for a, body in enumerate(self.bodies):
             if body.kind != "dynamic":
@@ -297,23 +300,44 @@ class MovingBodies:
                 d = max(depth[a, o], depth[o, a]) if both else depth[a, o]
                 direction = push[a, o] - push[o, a] if both else push[a, o]
                 if d > 0.0 and np.any(direction):
-                    self._separate(body, bodies[o], direction / np.linalg.norm(direction), d, both)
+                    # the contact point: the touching samples' depth-weighted centre (b's own; o's when only o's touch)
+                    own, theirs = arm[a, o], (arm[o, a] if both else np.zeros(4))
+                    point = (body.position + own[:3] / own[3] if own[3] > 0.0
+                             else bodies[o].position + theirs[:3] / theirs[3])
+                    self._separate(body, bodies[o], direction / np.linalg.norm(direction), d, both, point)
 
     @staticmethod
-    def _separate(body, other, normal, depth, both):
-        """Moves ``body`` out of ``other`` along ``normal`` by ``depth``, removes their approach along it and
+    def _separate(body, other, normal, depth, both, point):
+        """Moves ``body`` out of ``other`` along ``normal`` by ``depth`` and removes their approach along it at the
+        contact ``point`` (an inelastic impulse there, so a body resting on an edge or corner turns about it), then
         damps their tangential slip by WALL_FRICTION (see :meth:`_body_contact`); ``both``: the other body is
         dynamic and takes its share (impulses between them are equal and opposite)."""
         inv, inv_other = 1.0 / body.mass, (1.0 / other.mass if both else 0.0)
         body.position = body.position + inv / (inv + inv_other) * depth * normal
-        relative = body.velocity - other.velocity
+        if both:
+            other.position = other.position - inv_other / (inv + inv_other) * depth * normal
+        r, r_other = point - body.position, point - other.position
+        inv_i = np.linalg.inv(body.rotation @ body.inertia @ body.rotation.T)
+        inv_i_other = np.linalg.inv(other.rotation @ other.inertia @ other.rotation.T) if both else np.zeros((3, 3))
+        relative = body.velocity + np.cross(body.angular_velocity, r)
+        if both:
+            relative = relative - other.velocity - np.cross(other.angular_velocity, r_other)
         approach = min(float(relative @ normal), 0.0)
-        slip = relative - float(relative @ normal) * normal
-        impulse = (-approach * normal - (1.0 - WALL_FRICTION) * slip) / (inv + inv_other)
+        if approach < 0.0:  # the effective inverse mass along the normal at the contact point
+            k = (inv + inv_other + float(normal @ np.cross(inv_i @ np.cross(r, normal), r))
+                 + float(normal @ np.cross(inv_i_other @ np.cross(r_other, normal), r_other)))
+            j = -approach / k * normal
+            body.velocity = body.velocity + inv * j
+            body.angular_velocity = body.angular_velocity + inv_i @ np.cross(r, j)
+            if both:
+                other.velocity = other.velocity - inv_other * j
+                other.angular_velocity = other.angular_velocity - inv_i_other @ np.cross(r_other, j)
+        slip = body.velocity - other.velocity if both else body.velocity
+        slip = slip - float(slip @ normal) * normal
+        impulse = -(1.0 - WALL_FRICTION) * slip / (inv + inv_other)
         body.velocity = body.velocity + inv * impulse
         body.angular_velocity = WALL_FRICTION * body.angular_velocity
         if both:
-            other.position = other.position - inv_other / (inv + inv_other) * depth * normal
             other.velocity = other.velocity - inv_other * impulse
             other.angular_velocity = WALL_FRICTION * other.angular_velocity
 
