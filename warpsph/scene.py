@@ -40,6 +40,15 @@ def key(default: Any = ..., doc: str = "", unit: typing.Optional[str] = None, **
     return Field(default, description=doc or None, json_schema_extra={"unit": unit} if unit else None, **limits)
 
 
+def walled_faces(domain):
+    """(lo, hi) per axis: the faces that hold the particles in ``domain`` (a :class:`Box`, or anything with ``min``,
+    ``max``, ``periodic`` and ``walls``): its min and max along a walled axis, -inf and +inf along a periodic one
+    and in an open domain (``walls`` false)."""
+    walled = [getattr(domain, "walls", True) and "xyz"[k] not in tuple(domain.periodic) for k in range(3)]
+    return (tuple(float(domain.min[k]) if walled[k] else -math.inf for k in range(3)),
+            tuple(float(domain.max[k]) if walled[k] else math.inf for k in range(3)))
+
+
 @schema
 class Box:
     """The domain: walls of boundary particles on its faces, except across ``periodic`` axes,

@@ -33,7 +33,7 @@ from warpsph.models import REGISTRY, ModelContext, plugin_of
 from warpsph.models.vorticity import VorticityField
 from warpsph.neighbours import NeighbourSearch, sort_order
 from warpsph.resources import check_fits
-from warpsph.scene import Scene
+from warpsph.scene import Scene, walled_faces
 from warpsph.state import FluidParticles, State  # noqa: F401 (FluidParticles: public here too)
 from warpsph.scene_setup import count_particles, remove_fluid_inside_bodies, sample_scene  # noqa: F401 (public here too)
 
@@ -169,9 +169,9 @@ class Simulation:
                                               [b for b in self.bodies if b.kind == "static"]) if moving else None
             self.neighbours = NeighbourSearch(self, self.boundary.x)
             # the walled faces hold every fluid particle (periodic axes wrap; an open domain lets them leave)
-            walled = [scene.domain.walls and "xyz"[k] not in scene.domain.periodic for k in range(3)]
-            self.inside_lo = wp.vec3(*[scene.domain.min[k] if walled[k] else -1e30 for k in range(3)])
-            self.inside_hi = wp.vec3(*[scene.domain.max[k] if walled[k] else 1e30 for k in range(3)])
+            lo, hi = walled_faces(scene.domain)
+            self.inside_lo = wp.vec3(*np.maximum(lo, -1e30))
+            self.inside_hi = wp.vec3(*np.minimum(hi, 1e30))
             if self.num_boundary:  # V_b once: static samples together, each moving body on its own
                 sample_body = wp.array(body, dtype=wp.int32, device=self.device)
                 first_moving_body = int(body[first_moving]) if moving else len(self.bodies) + 1

@@ -141,11 +141,9 @@ def surface_clip(domain=None, bodies=()):
     and the closed meshes among ``bodies`` ((name, vertices, faces, moving) as
     :func:`warpsph.io.usd.body_meshes` gives them; an open mesh has no inside and is left out). None when
     there is nothing to clip to."""
-    lo, hi = [-np.inf] * 3, [np.inf] * 3
-    if domain is not None and getattr(domain, "walls", True):
-        for k in range(3):
-            if "xyz"[k] not in tuple(domain.periodic):
-                lo[k], hi[k] = float(domain.min[k]), float(domain.max[k])
+    from .scene import walled_faces
+
+    lo, hi = walled_faces(domain) if domain is not None else ((-np.inf,) * 3, (np.inf,) * 3)
     closed = []
     for name, vertices, faces, moving in bodies or ():
         vertices, faces = np.asarray(vertices, np.float64).reshape(-1, 3), np.asarray(faces, np.int32).reshape(-1, 3)
@@ -154,7 +152,7 @@ def surface_clip(domain=None, bodies=()):
         if mesh_volume(vertices, faces) < 0:  # inward triangles: the winding number would call the inside outside
             faces = np.ascontiguousarray(faces[:, ::-1])
         closed.append(ClipBody(str(name), vertices, faces, bool(moving)))
-    clip = SurfaceClip(tuple(lo), tuple(hi), tuple(closed))
+    clip = SurfaceClip(lo, hi, tuple(closed))
     return clip if clip.walled or clip.bodies else None
 
 
