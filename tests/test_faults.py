@@ -143,14 +143,14 @@ def test_killed_or_failing_in_the_middle_of_a_save(tmp_path, reference, share, k
 KILL_BEFORE_RENAME = textwrap.dedent("""
     import os, signal, sys
     from warpsph.io import usd
-    fsync, saves = usd._fsync, []
+    fsync, saves = usd.fsync, []
     def kill_before_rename(path):
         fsync(path)
         if str(path).endswith(".tmp.usdc"):
             saves.append(path)
             if len(saves) == int(os.environ["KILL_AT_SAVE"]):
                 os.kill(os.getpid(), signal.SIGKILL)  # the temporary file is whole and synced, not yet renamed
-    usd._fsync = kill_before_rename
+    usd.fsync = kill_before_rename
     from warpsph.cli import main
     sys.exit(main(sys.argv[1:]))
 """)

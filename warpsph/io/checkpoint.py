@@ -20,6 +20,7 @@ import numpy as np
 import warp as wp
 
 from warpsph.errors import SceneError
+from warpsph.io import fsync
 
 FORMAT = "warpsph-checkpoint-1"
 
@@ -60,11 +61,7 @@ def save_checkpoint(sim, path, extra=None):
         f.flush()
         os.fsync(f.id.get_vfd_handle())
     os.replace(tmp, path)
-    folder = os.open(path.parent, os.O_RDONLY)  # the rename itself survives a power cut
-    try:
-        os.fsync(folder)
-    finally:
-        os.close(folder)
+    fsync(path.parent)  # the rename itself survives a power cut
 
 
 def _same(a, b):

@@ -47,6 +47,8 @@ from pathlib import Path
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdUtils, Vt
 
+from warpsph.io import fsync
+
 _PRIMVAR_TYPES = {1: Sdf.ValueTypeNames.FloatArray, 3: Sdf.ValueTypeNames.Float3Array}
 GENERATOR = "warpsph"  # customLayerData["generator"] of every layer warpsph writes: --overwrite replaces only these
 IMPORT_DROPPED = "warpsph:import_dropped"
@@ -252,15 +254,6 @@ def _write_points(points_prim, frame, points, velocities, ids, radius, fields, w
     return written
 
 
-def _fsync(path):
-    """Flushes the file ``path`` to the disk, or the folder ``path`` (a rename in it then survives a power cut)."""
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
 def temporary_path(path):
     """Where a save of ``path`` is written before it is renamed over ``path``: NAME.tmp.usdc beside it."""
     path = Path(path)
@@ -294,13 +287,13 @@ def save_layer(layer, path):
                           + (f": {found[0]}" if found else f" ({str(exc).strip().splitlines()[0][:200]})")) from None
         if not written:
             raise OSError(f"{path}: USD could not write {tmp.name}")
-        _fsync(tmp)
+        fsync(tmp)
         os.replace(tmp, path)
     except BaseException:
         if tmp.exists():
             tmp.unlink()
         raise
-    _fsync(path.parent)
+    fsync(path.parent)
 
 
 class DamagedCache(OSError):
@@ -363,7 +356,7 @@ def recover_cache(out, partial, frame):
             remove_leftovers(partial)
             if path != partial:
                 os.replace(path, partial)
-                _fsync(partial.parent)
+                fsync(partial.parent)
             return frames
         problems.append(f"{path.name} holds {_spans(frames)}, not {_spans(missing)}")
     raise DamagedCache(out, reason=f"cannot continue after frame {frame}: {'; '.join(problems) or 'no cache'}; frames "
@@ -510,7 +503,7 @@ class UsdPointCache:
         finally:
             if Path(final_path) != self.path and self.path.exists():
                 os.replace(self.path, final_path)
-                _fsync(Path(final_path).parent)
+                fsync(Path(final_path).parent)
 
 
 class UsdClipCache:
