@@ -89,6 +89,11 @@ class Fluid:
         0.0, doc="nu between fluid and boundary samples (SPlisHSPlasH's viscosityBoundary): friction with walls and "
                  "bodies; the fluid drags moving bodies along and they feel it", unit="m^2/s", ge=0)
 
+    @property
+    def viscous(self):
+        """Whether the viscosity model runs: a viscosity in the fluid or against the boundary."""
+        return self.viscosity > 0.0 or self.boundary_viscosity > 0.0
+
 
 @schema
 class FluidBlock:

@@ -179,7 +179,7 @@ class Simulation:
                             [self.neighbours.boundary_grid.grid, self.boundary.x, sample_body, first_moving_body,
                              self.support_radius, self.neighbours.lower, self.neighbours.period, self.boundary.volume])
             self.pressure_solver = solver_class(self)
-            viscous = scene.fluid.viscosity > 0.0 or scene.fluid.boundary_viscosity > 0.0
+            viscous = scene.fluid.viscous
             self.model_context = ModelContext(self)  # what the plug-ins see
             self.viscosity_model = REGISTRY["viscosity"](self.model_context) if viscous else None
             self.turbulence_models = [cls(self.model_context, p) for cls, p in zip(model_classes, scene.models)]

@@ -81,7 +81,7 @@ def scene_modules(scene, bodies=None, fluid=None, decomposed=False, frames=False
         names += _k("free_surface", "density_solver")
         names += _k("divergence_solver") if solver.divergence_solver else []
         names += _k("shifting") if solver.shifting > 0.0 else []
-    viscous = scene.fluid.viscosity > 0.0 or scene.fluid.boundary_viscosity > 0.0
+    viscous = scene.fluid.viscous
     models = ([REGISTRY["viscosity"]] if viscous else []) + [plugin_of(p) for p in scene.models]
     for cls in models:
         names += plugin_modules(cls)
