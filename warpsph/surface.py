@@ -36,7 +36,7 @@ from .errors import SceneError
 
 __all__ = ["SurfaceOptions", "SurfaceMesh", "reconstruct", "reconstruct_preview", "mesh_frame", "mesh_volume",
            "SurfaceClip", "ClipBody", "surface_clip", "clip_mesh", "open_frames", "UsdFrames", "H5Frames", "plan_remesh",
-           "remesh"]
+           "remesh", "mesh_quality"]
 
 PYSPLASHSURF = "0.14.1.0"
 INSTALL_HINT = f"pip install 'warpsph[surface]' (pysplashsurf=={PYSPLASHSURF})"
@@ -893,31 +893,48 @@ def remesh(source, frames, out, radius, options=SurfaceOptions(), log=None, devi
     """Meshes ``frames`` of ``source`` (:func:`open_frames`) into the new layer ``out``: stage
     metadata of the cache, the cache itself as a sublayer (so ``out`` shows the particles and the
     surface), and ``/World/FluidSurface``, clipped to ``clip`` ("cache": the walls and bodies the cache
-    records, ``source.clip``; a :class:`SurfaceClip`; None: not clipped). Saved after every frame (as
-    OUT.partial, renamed at the end or when stopped). Returns {"frames", "seconds" (meshing),
-    "vertices", "triangles", "clipped" (what the meshes were clipped to)}."""
+    records, ``source.clip``; a :class:`SurfaceClip`; None: not clipped). Written as OUT.partial, saved
+    whole through a synced temporary file and a rename (:func:`warpsph.io.usd.save_layer`; a kill or a full
+    disk leaves OUT.partial with the frames of the last save, and ``out`` as it was) after a frame while a save
+    costs at most ``FLUSH_SHARE`` of the time since the last, and renamed to ``out`` at the end or when stopped.
+    Returns {"frames", "seconds" (meshing), "vertices", "triangles", "clipped" (what the meshes were clipped to)}."""
     import os
+    import time
 
     from pxr import Usd, UsdGeom
 
-    from .io.usd import _mark, _set_stage_metadata, write_surface
+    from .io import fsync
+    from .io.usd import FLUSH_SHARE, _mark, _set_stage_metadata, remove_leftovers, save_layer, write_surface
 
     partial = out.with_name(out.stem + ".partial" + out.suffix)
+    remove_leftovers(partial)
     if partial.exists():
         partial.unlink()
-    stage = Usd.Stage.CreateNew(str(partial))
-    layer = stage.GetRootLayer()
-    _mark(layer)
     up = "Y"
     if source.usd is not None:
         base = Usd.Stage.Open(str(source.usd))
         up = "Z" if UsdGeom.GetStageUpAxis(base) == UsdGeom.Tokens.z else "Y"
-        layer.subLayerPaths.append(os.path.relpath(os.path.abspath(source.usd), os.path.abspath(out.parent)))
+    stage = Usd.Stage.CreateInMemory()  # the file appears at the first save, whole and marked
+    _mark(stage.GetRootLayer())
     _set_stage_metadata(stage, source.fps, up)
     stage.SetStartTimeCode(frames[0])
     stage.SetEndTimeCode(frames[-1])
     UsdGeom.Xform.Define(stage, "/World")
     stage.SetDefaultPrim(stage.GetPrimAtPath("/World"))
+    save_layer(stage.GetRootLayer(), partial)
+    stage = Usd.Stage.Open(str(partial))  # read from its file: later saves reload it, memory stays at one frame
+    layer = stage.GetRootLayer()
+    layer.Reload(True)
+    if source.usd is not None:  # a path relative to the file (an in-memory layer would resolve it elsewhere)
+        layer.subLayerPaths.append(os.path.relpath(os.path.abspath(source.usd), os.path.abspath(out.parent)))
+    saved = [0.0, 0.0]  # (start, seconds) of the last save
+
+    def save():
+        if layer.dirty:
+            start = time.perf_counter()
+            save_layer(layer, partial)
+            layer.Reload(True)
+            saved[:] = [start, time.perf_counter() - start]
     if isinstance(clip, str):
         clip = getattr(source, "clip", None)
         if log is not None and source.usd is not None and not getattr(source, "has_domain", False):
@@ -938,7 +955,8 @@ def remesh(source, frames, out, radius, options=SurfaceOptions(), log=None, devi
             poses = source.poses(frame) if clip is not None and hasattr(source, "poses") else None
             mesh = mesh_frame(points, radius, velocities, vorticity, options, device, clip, poses)
             write_surface(stage, frame, mesh)
-            layer.Save()
+            if time.perf_counter() - saved[0] >= saved[1] / FLUSH_SHARE:
+                save()
             done["frames"] += 1
             done["seconds"] += mesh.seconds
             done["vertices"] += len(mesh.points)
@@ -947,10 +965,126 @@ def remesh(source, frames, out, radius, options=SurfaceOptions(), log=None, devi
                 log(f"frame {frame}: {len(points)} particles -> {len(mesh.points)} vertices, {len(mesh.faces)} triangles "
                     f"in {mesh.seconds:.2f} s")
     finally:
-        layer.Save()
-        del stage, layer
+        save()  # a failed save raises here: OUT.partial keeps the frames of the save before, ``out`` is as it was
+        del stage
         if done["frames"]:
             os.replace(partial, out)
+            fsync(out.parent)
         elif partial.exists():
             partial.unlink()
     return done
+
+
+# ---------------------------------------------------------------------------------------------
+# mesh quality (#42): the numbers that compare the surface methods side by side
+
+
+SLIVER_DEGREES = 10.0  # a face whose smallest angle is below this is a sliver
+
+
+def _mesh_arrays(mesh):
+    """(vertices (V, 3) float64, faces (F, 3) int64) of a :class:`SurfaceMesh`, a trimesh or a (points, faces) pair."""
+    if isinstance(mesh, tuple):
+        points, faces = mesh
+    else:
+        points, faces = (mesh.points if hasattr(mesh, "points") else mesh.vertices), mesh.faces
+    return np.asarray(points, np.float64).reshape(-1, 3), np.asarray(faces, np.int64).reshape(-1, 3)
+
+
+def face_min_angles(points, faces):
+    """The smallest interior angle of each triangle [degrees]; 0 for a degenerate one (a repeated corner)."""
+    p = np.asarray(points, np.float64)
+    corners = [p[faces[:, k]] for k in range(3)]
+    angles = []
+    for k in range(3):
+        u, v = corners[(k + 1) % 3] - corners[k], corners[(k + 2) % 3] - corners[k]
+        norms = np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1)
+        cos = np.divide(np.einsum("ij,ij->i", u, v), norms, out=np.ones(len(u)), where=norms > 0)
+        angles.append(np.where(norms > 0, np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))), 0.0))
+    return np.min(angles, axis=0) if len(faces) else np.zeros(0)
+
+
+_distance_kernel = None
+
+
+def distances_to_mesh(query, points, faces):
+    """Each row of ``query`` (Q, 3): its distance [m] to the nearest point of the triangle mesh (``points``,
+    ``faces``) (Warp's BVH query on the CPU; float32, so about 1e-7 of the mesh's size)."""
+    global _distance_kernel
+    import warp as wp
+
+    query = np.ascontiguousarray(query, np.float32).reshape(-1, 3)
+    if len(query) == 0 or len(faces) == 0:
+        return np.full(len(query), np.inf if len(faces) == 0 else 0.0)
+    if _distance_kernel is None:
+        @wp.kernel(enable_backward=False)
+        def nearest_distance(mesh: wp.uint64, query: wp.array(dtype=wp.vec3), max_dist: float,
+                             distance: wp.array(dtype=float)):
+            """distance[i] = |query[i] - the nearest point of the mesh|."""
+            i = wp.tid()
+            q = wp.mesh_query_point_no_sign(mesh, query[i], max_dist)
+            if q.result:
+                distance[i] = wp.length(query[i] - wp.mesh_eval_position(mesh, q.face, q.u, q.v))
+
+        _distance_kernel = nearest_distance
+    device = wp.get_device("cpu")
+    span = np.concatenate([np.asarray(points, np.float64), np.asarray(query, np.float64)])
+    max_dist = float(np.linalg.norm(span.max(axis=0) - span.min(axis=0))) * 2.0 + 1.0
+    with wp.ScopedDevice(device):
+        mesh = wp.Mesh(points=wp.array(np.asarray(points, np.float32), dtype=wp.vec3, device=device),
+                       indices=wp.array(np.asarray(faces, np.int32).ravel(), dtype=wp.int32, device=device))
+        q = wp.array(query, dtype=wp.vec3, device=device)
+        distance = wp.full(len(query), np.inf, dtype=float, device=device)
+        wp.launch(_distance_kernel, len(query), inputs=[mesh.id, q, max_dist, distance], device=device)
+        return distance.numpy().astype(np.float64)
+
+
+def mesh_quality(mesh, reference=None, radius=1.0, clip=None, sliver_degrees=SLIVER_DEGREES):
+    """The quality of a surface mesh, as a dict of plain numbers (the side-by-side comparison of the surface
+    methods, #42).
+
+    ``mesh`` and ``reference``: a :class:`SurfaceMesh`, a trimesh or a (points, faces) pair; distances are in
+    multiples of ``radius`` (the particle radius; the default 1 gives metres); ``clip``: a
+    :class:`SurfaceClip` (the domain's walls).
+
+    Keys: ``vertices``, ``faces``; ``watertight`` (trimesh's: every edge shared by exactly two faces, the mesh
+    as written, vertices not merged), ``winding_consistent``, ``boundary_edges``; ``area`` [m^2] and
+    ``volume`` [m^3] (signed, :func:`mesh_volume`; meaningful when watertight); ``sliver_fraction``: the
+    fraction of faces whose smallest angle is below ``sliver_degrees`` (10), and ``min_angle_median``
+    [degrees]; with ``reference``: ``distance_mean`` and ``distance_max`` from each vertex to the reference's
+    surface and ``reverse_mean``, ``reverse_max`` from the reference's vertices to this mesh (what the mesh
+    misses), in radii; with ``clip``: ``outside_walls_max``, the largest distance of a vertex outside a
+    walled face of the domain, in radii (0 when none is outside).
+
+    >>> import trimesh
+    >>> q = mesh_quality(trimesh.creation.icosphere(subdivisions=3, radius=1.0))
+    >>> q["watertight"], q["sliver_fraction"], round(q["area"], 2)
+    (True, 0.0, 12.51)
+    """
+    import trimesh
+
+    points, faces = _mesh_arrays(mesh)
+    tri = trimesh.Trimesh(vertices=points, faces=faces, process=False, validate=False)
+    angles = face_min_angles(points, faces)
+    quality = {
+        "vertices": int(len(points)), "faces": int(len(faces)),
+        "watertight": bool(tri.is_watertight) if len(faces) else False,
+        "winding_consistent": bool(tri.is_winding_consistent) if len(faces) else False,
+        "boundary_edges": boundary_edges(faces) if len(faces) else 0,
+        "area": float(tri.area), "volume": mesh_volume(points, faces) if len(faces) else 0.0,
+        "sliver_fraction": float((angles < sliver_degrees).mean()) if len(faces) else 0.0,
+        "min_angle_median": float(np.median(angles)) if len(faces) else 0.0,
+    }
+    if reference is not None:
+        ref_points, ref_faces = _mesh_arrays(reference)
+        forward = distances_to_mesh(points, ref_points, ref_faces) / radius
+        reverse = distances_to_mesh(ref_points, points, faces) / radius
+        quality.update(distance_mean=float(forward.mean()) if len(forward) else 0.0,
+                       distance_max=float(forward.max()) if len(forward) else 0.0,
+                       reverse_mean=float(reverse.mean()) if len(reverse) else 0.0,
+                       reverse_max=float(reverse.max()) if len(reverse) else 0.0)
+    if clip is not None:
+        lo, hi = np.asarray(clip.lo, np.float64), np.asarray(clip.hi, np.float64)
+        outside = np.maximum(np.maximum(lo - points, points - hi), 0.0) if len(points) else np.zeros((0, 3))
+        quality["outside_walls_max"] = float(outside.max()) / radius if len(points) else 0.0
+    return quality
