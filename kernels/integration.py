@@ -9,17 +9,42 @@ wp.set_module_options({"enable_backward": False})
 
 
 @wp.kernel
-def compute_max_speed(v: wp.array(dtype=wp.vec3), count: int, max_speed_sq: wp.array(dtype=float)):
-    """max_speed_sq[0] = max_i |v_i|^2 (reset it to 0 first): launched on REDUCE_THREADS threads,
-    grid-stride, one atomic per block (one atomic per particle on one address took 0.45 ms at 1M on an H100,
-    7 % of a step)."""
+def compute_max_speed(
+    v: wp.array(dtype=wp.vec3),
+    count: int,
+    gravity: wp.vec3,
+    dt: wp.array(dtype=float),
+    max_speed_sq: wp.array(dtype=float),
+):
+    """max_speed_sq[0] = max_i |v_i|^2 and max_speed_sq[1] = max_i |v_i + g dt|^2 with ``dt`` the last step's (reset
+    both to 0 first; the second is SPlisHSPlasH's CFL speed |v + a h|, its a the gravity here): launched on
+    REDUCE_THREADS threads, grid-stride, one atomic per block and value (one atomic per particle on one address took
+    0.45 ms at 1M on an H100, 7 % of a step)."""
+    t = wp.tid()
+    shift = gravity * dt[0]
+    m = float(0.0)
+    m_cfl = float(0.0)
+    for i in range(t, count, REDUCE_THREADS):
+        m = wp.max(m, wp.length_sq(v[i]))
+        m_cfl = wp.max(m_cfl, wp.length_sq(v[i] + shift))
+    m = block_max(m)
+    m_cfl = block_max(m_cfl)
+    if first_in_block(t):
+        wp.atomic_max(max_speed_sq, 0, m)
+        wp.atomic_max(max_speed_sq, 1, m_cfl)
+
+
+@wp.kernel
+def compute_max_body_speed(v: wp.array(dtype=wp.vec3), count: int, max_speed_sq: wp.array(dtype=float)):
+    """max_speed_sq[1] = max(max_speed_sq[1], max_i |v_i|^2) over moving bodies' boundary samples (SPlisHSPlasH's CFL
+    speed takes the moving bodies' too): launched on REDUCE_THREADS threads, as :data:`compute_max_speed`."""
     t = wp.tid()
     m = float(0.0)
     for i in range(t, count, REDUCE_THREADS):
         m = wp.max(m, wp.length_sq(v[i]))
     m = block_max(m)
     if first_in_block(t):
-        wp.atomic_max(max_speed_sq, 0, m)
+        wp.atomic_max(max_speed_sq, 1, m)
 
 
 @wp.kernel
@@ -38,8 +63,10 @@ def compute_time_step(
     substeps: wp.array(dtype=wp.int32),
     substep_dt: wp.array(dtype=float),
 ):
-    """One thread: dt = clamp(min(cfl * 0.4 * d / max|v|, max_substeps x viscous_dt), dt_min, dt_max) (SPlisHSPlasH's
-    CFL rule and the explicit-viscosity limit, which the viscosity's sub-steps stretch), or ``fixed_dt`` when it is
+    """One thread: dt = clamp(min(cfl * 0.4 * d / u, max_substeps x viscous_dt), dt_min, dt_max), u = sqrt(max_speed_sq[1])
+    the largest of |v + g dt_last| over the fluid and |v| over moving bodies (SPlisHSPlasH's CFL rule,
+    Simulation::updateTimeStepSizeCFL, and the explicit-viscosity limit, which the viscosity's sub-steps stretch;
+    SPlisHSPlasH has no viscous limit), or ``fixed_dt`` when it is
     positive, times ``dt_scale`` (< 1 when a step is retried after an instability); the old dt moves to
     ``dt_previous``. With ``substeps`` (not empty): the viscosity's sub-steps n = ceil(dt / viscous_dt), at most
     ``max_substeps``, and their dt / n into ``substep_dt``."""
@@ -48,7 +75,7 @@ def compute_time_step(
     if fixed_dt > 0.0:
         dt[0] = fixed_dt * dt_scale
     else:
-        speed = wp.sqrt(max_speed_sq[0])
+        speed = wp.sqrt(max_speed_sq[1])
         h = dt_max
         if speed > 1.0e-9:
             h = cfl_factor * 0.4 * particle_diameter / speed

@@ -235,6 +235,7 @@ class Sink:
 
 
 DT_MAX_PER_RADIUS = 0.2  # [s/m]: the default dt_max is proportional to the particle radius
+MAX_VISCOSITY_SUBSTEPS = 64  # solver.viscosity_substeps: most sub-steps of the explicit viscosity in a step
 
 
 @schema
@@ -274,7 +275,9 @@ class Solver:
     viscosity_substeps: int = key(
         1, doc="most sub-steps of the explicit viscosity in a step: the step is capped at this many times the explicit "
                "limit 0.125 (H/2)^2 / nu instead of at the limit, and the viscosity runs n sub-steps of dt / n "
-               "(1: the step keeps the limit)", ge=1, le=64)
+               "(1: the step keeps the limit; 0: as many as the longest step needs, at most 64, so that the step "
+               "follows the CFL rule alone, as SPlisHSPlasH's, which has no viscous limit)",
+        ge=0, le=MAX_VISCOSITY_SUBSTEPS)
     shifting: float = key(2.0, doc="particle shifting coefficient (Lind et al. 2012): x += -D grad C in the bulk, "
                                    "tangential near the free surface, off on it; D = shifting x h max|v| dt; 0: off", ge=0)
     sort_interval: int = key(16, doc="steps between re-sorting the particles by cell (0: never)", ge=0)

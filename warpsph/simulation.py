@@ -21,6 +21,7 @@ from warpsph.kernels.density import compute_density_and_factor
 from warpsph.kernels.integration import (
     advance_clock,
     advect_positions,
+    compute_max_body_speed,
     compute_max_speed,
     compute_time_step,
     predict_velocity,
@@ -33,7 +34,7 @@ from warpsph.models import REGISTRY, ModelContext, plugin_of
 from warpsph.models.vorticity import VorticityField
 from warpsph.neighbours import NeighbourSearch, sort_order
 from warpsph.resources import check_fits
-from warpsph.scene import Scene, walled_faces
+from warpsph.scene import MAX_VISCOSITY_SUBSTEPS, Scene, walled_faces
 from warpsph.state import FluidParticles, State  # noqa: F401 (FluidParticles: public here too)
 from warpsph.scene_setup import count_particles, remove_fluid_inside_bodies, sample_scene  # noqa: F401 (public here too)
 
@@ -42,6 +43,17 @@ from warpsph.solver import DFSPHSolver
 
 # scene key solver.method -> the pressure solver
 SOLVERS = {"dfsph": DFSPHSolver, "iisph": IISPHSolver}
+
+
+def viscous_substeps(scene: Scene, viscous_dt: float) -> int:
+    """The most sub-steps of the explicit viscosity in a step: ``solver.viscosity_substeps``, or where that is 0 as
+    many as let the longest step (``time.fixed_dt``, else dt_max) stay within the viscous limit ``viscous_dt`` [s], at
+    most MAX_VISCOSITY_SUBSTEPS: the step then follows the CFL rule alone, as SPlisHSPlasH's does."""
+    n = scene.solver.viscosity_substeps
+    if n == 0:
+        longest = scene.time.fixed_dt or scene.time_step_bounds[1]
+        n = min(MAX_VISCOSITY_SUBSTEPS, max(1, int(np.ceil(longest / viscous_dt * (1.0 - 1.0e-6)))))
+    return n
 
 
 @dataclass
@@ -119,7 +131,7 @@ class Simulation:
         nu = max(scene.fluid.viscosity, scene.fluid.boundary_viscosity)
         self.viscous_dt = 0.125 * (0.5 * self.support_radius) ** 2 / nu if nu > 0 else 1.0e30
         # solver.viscosity_substeps > 1: the step may reach that many viscous limits; the viscosity sub-steps it
-        self.max_viscous_substeps = scene.solver.viscosity_substeps if nu > 0 else 1
+        self.max_viscous_substeps = viscous_substeps(scene, self.viscous_dt) if nu > 0 else 1
 
         ids = None
         if particles is None:
@@ -191,7 +203,7 @@ class Simulation:
             self.vorticity_field = None
             if any(m.needs_vorticity for m in self.models):
                 self.vorticity_field = VorticityField(self)
-            self.max_speed_sq = z("clock", 1)
+            self.max_speed_sq = z("clock", 2)  # [max |v|^2 of the fluid, the CFL speed^2 (compute_max_speed)]
             self.health_counts = z("health", 4, dtype=wp.int32)
             self.health_first = z("health", 4, dtype=wp.int32)
             if scene.initial_packing is not None and particles is None:  # the blocks' particles relaxed before t = 0
@@ -438,10 +450,13 @@ class Simulation:
         with t("density"):  # rho^n, the DFSPH factor and the free surface at x^n (IISPH: rho^n only)
             self._compute_density()
             self.pressure_solver.detect_free_surface()
-        with t("time_step"):  # CFL condition on |v^n|
+        with t("time_step"):  # CFL condition on |v^n + g dt^(n-1)| and the moving bodies' speeds (SPlisHSPlasH's)
             self.max_speed_sq.zero_()
-            self.launch(compute_max_speed, REDUCE_THREADS, [f.v, n, self.max_speed_sq])
-            self.allreduce((self.max_speed_sq, "m"))
+            self.launch(compute_max_speed, REDUCE_THREADS, [f.v, n, self.gravity, self.dt, self.max_speed_sq])
+            moving = self.boundary.v.shape[0]
+            if moving:
+                self.launch(compute_max_body_speed, REDUCE_THREADS, [self.boundary.v, moving, self.max_speed_sq])
+            self.allreduce((self.max_speed_sq, "mm"))
             tm = self.scene.time
             self.launch(compute_time_step, 1,
                         [self.max_speed_sq, self.scene.particle_diameter, tm.cfl, *self.scene.time_step_bounds,

@@ -452,6 +452,9 @@ class _Reader:
             if "timeStepSize" in config:
                 self.note("Configuration.timeStepSize is only SPlisHSPlasH's first step with adaptive time stepping")
         scene["time"] = time
+        # SPlisHSPlasH's step has no viscous limit (its CFL rule alone): the explicit viscosity runs as many sub-steps
+        # within its limit as the step needs instead of shortening the step (docs/notes/time-step.md)
+        scene["solver"]["viscosity_substeps"] = 0
         fps = float(_num(config.get("dataExportFPS"), 25.0))
         output = {"fps": fps}
         self.mapped("Configuration.dataExportFPS", "output.fps", fps, default="dataExportFPS" not in config)
