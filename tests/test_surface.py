@@ -524,6 +524,7 @@ def test_mesh_quality_of_boxes_is_exact():
     assert q["sliver_fraction"] == 0.0 and q["min_angle_median"] == pytest.approx(45.0)
     assert q["distance_mean"] == pytest.approx(1.0, rel=1e-5) and q["distance_max"] == pytest.approx(1.0, rel=1e-5)
     assert q["reverse_max"] == pytest.approx(np.sqrt(3.0), rel=1e-5)
+    assert q["reverse_over_1r"] == 1.0
     assert q["outside_walls_max"] == pytest.approx(2.0, rel=1e-6)
     needle = (np.array([[0, 0, 0], [1, 0, 0], [0.5, 0.01, 0], [0, 1, 0]], float), np.array([[0, 1, 2], [0, 1, 3]]))
     q = mesh_quality(needle)
@@ -557,6 +558,7 @@ def test_mesh_quality_of_the_preview_of_a_sphere_of_particles():
     assert q["area"] == pytest.approx(area, rel=0.03) and q["volume"] == pytest.approx(volume, rel=0.015)
     assert 0.14 < q["sliver_fraction"] < 0.32
     assert q["distance_mean"] < 0.32 and q["distance_max"] < 1.1 and q["reverse_max"] < 1.1
+    assert q["distance_over_1r"] == 0.0 and q["reverse_over_1r"] == 0.0
 
 
 def test_mesh_quality_of_splashsurf_s_sphere_of_particles():

@@ -1053,7 +1053,8 @@ def mesh_quality(mesh, reference=None, radius=1.0, clip=None, sliver_degrees=SLI
     fraction of faces whose smallest angle is below ``sliver_degrees`` (10), and ``min_angle_median``
     [degrees]; with ``reference``: ``distance_mean`` and ``distance_max`` from each vertex to the reference's
     surface and ``reverse_mean``, ``reverse_max`` from the reference's vertices to this mesh (what the mesh
-    misses), in radii; with ``clip``: ``outside_walls_max``, the largest distance of a vertex outside a
+    misses), in radii, and ``distance_over_1r``, ``reverse_over_1r``: the fractions of those vertices more than
+    one radius away (droplets one mesh has and the other lacks); with ``clip``: ``outside_walls_max``, the largest distance of a vertex outside a
     walled face of the domain, in radii (0 when none is outside).
 
     >>> import trimesh
@@ -1081,8 +1082,10 @@ def mesh_quality(mesh, reference=None, radius=1.0, clip=None, sliver_degrees=SLI
         reverse = distances_to_mesh(ref_points, points, faces) / radius
         quality.update(distance_mean=float(forward.mean()) if len(forward) else 0.0,
                        distance_max=float(forward.max()) if len(forward) else 0.0,
+                       distance_over_1r=float((forward > 1.0).mean()) if len(forward) else 0.0,
                        reverse_mean=float(reverse.mean()) if len(reverse) else 0.0,
-                       reverse_max=float(reverse.max()) if len(reverse) else 0.0)
+                       reverse_max=float(reverse.max()) if len(reverse) else 0.0,
+                       reverse_over_1r=float((reverse > 1.0).mean()) if len(reverse) else 0.0)
     if clip is not None:
         lo, hi = np.asarray(clip.lo, np.float64), np.asarray(clip.hi, np.float64)
         outside = np.maximum(np.maximum(lo - points, points - hi), 0.0) if len(points) else np.zeros((0, 3))
