@@ -240,7 +240,9 @@ MAX_VISCOSITY_SUBSTEPS = 64  # solver.viscosity_substeps: most sub-steps of the 
 
 @schema
 class TimeStepping:
-    """Adaptive time step: dt = cfl x r / max speed, within [dt_min, dt_max] (or ``fixed_dt``)."""
+    """Adaptive time step (SPlisHSPlasH's CFL rule): dt = cfl x 0.4 x 2r / u within [dt_min, dt_max], u the largest of
+    |v + g dt_last| over the fluid and |v| over moving bodies, and at most ``solver.viscosity_substeps`` explicit
+    viscous limits 0.125 (2r)^2 / nu; or ``fixed_dt``."""
 
     cfl: float = key(0.5, doc="CFL number", gt=0, le=1)
     dt_min: Optional[float] = key(None, doc="smallest step; null: dt_max / 50 (SPlisHSPlasH's 0.1 ms at r = 25 mm)",
