@@ -167,7 +167,9 @@ def _rich_bar():
                console=Console(file=sys.stderr))
 
 
-CLIP_FILE = re.compile(r"frame\.\d{6}\.usdc|boundary\.npz|bodies\.npz|surface\.json|metadata\.json|domain\.json")
+CLIP_FILE = re.compile(r"frame\.\d{6}\.usdc|boundary\.npz|bodies\.npz|surface\.json|metadata\.json|domain\.json|"
+                       r"frame\.\d{6}\.tmp\.(usdc|[A-Za-z0-9]{6})|(boundary\.npz|bodies\.npz|surface\.json|metadata\.json|"
+                       r"domain\.json)\.tmp")  # and what a killed write leaves there
 
 
 class Outputs:
@@ -258,10 +260,30 @@ def _writing(what):
         raise WriteError(f"{what}: {reason}") from exc
 
 
+class MesherFailed(Exception):
+    """The surface mesher of ``run --surface`` failed or lost a worker process: the particle frames are kept."""
+
+
+def _mesher_failure(exc):
+    """One line on a failed mesh: a worker that died names no exception of its own."""
+    from concurrent.futures.process import BrokenProcessPool
+
+    cause, seen = exc, set()
+    while cause is not None and id(cause) not in seen:
+        seen.add(id(cause))
+        if isinstance(cause, BrokenProcessPool):
+            return (f"{exc}".split(":")[0] + ": a mesher worker process died (killed by a signal or out of "
+                    "memory)").strip()
+        cause = cause.__cause__
+    return f"{exc}".strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+
+
 def _close(close):
     """Runs ``close``; the reason it failed writing, or None (the run's own error goes first)."""
     try:
         close()
+    except MesherFailed as exc:
+        return str(exc)
     except Exception as exc:
         if not _write_failure(exc):
             raise
@@ -281,6 +303,8 @@ def _write_error(failed):
         reason = exc.strerror
     elif _write_failure(exc):
         reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+    elif "surface mesh of frame" in str(exc):  # the mesher's error, raised on the writer's thread
+        reason = _mesher_failure(exc)
     else:  # not a disk problem: name the exception
         reason = f"{type(exc).__name__}: {exc}"
     error = WriteError(f"cannot write frame {failed.frame}: {reason}")
@@ -339,7 +363,10 @@ def _simulate(sim, outputs, frames, args, options, append):
     if options.get("particles_h5"):
         from .io.particles_h5 import ParticleFrames
 
-        particles = ParticleFrames(outputs.particles, append=append)
+        try:
+            particles = ParticleFrames(outputs.particles, append=append)
+        except OSError as exc:  # h5py: a file it cannot open (not written by this warpsph), or no room
+            raise SceneError(outputs.particles, "", f"cannot continue the particle frames ({exc})") from None
     published = list(sim.fields())
     if particles is not None:  # the HDF5 frames hold every array
         copy = ["v", *published]
@@ -380,7 +407,11 @@ def _simulate(sim, outputs, frames, args, options, append):
         diagnostics.write_row(item.row)
 
     def finish_meshes():  # after the writer: the meshes still queued, and the note in the metadata
-        for frame, mesh in mesher.close():
+        try:
+            done = mesher.close()
+        except Exception as exc:  # a worker died (SIGKILL, out of memory) or failed: the particle frames stay
+            raise MesherFailed(_mesher_failure(exc)) from exc
+        for frame, mesh in done:
             cache.write_surface(frame, mesh, save=True)
         payload["surface_seconds"] = mesher.seconds
         cache.note_surface(mesher.note(surface))
@@ -404,6 +435,9 @@ def _simulate(sim, outputs, frames, args, options, append):
         drain()  # the checkpoint claims only frames the cache holds, saved
         with _writing(f"cannot save the cache {outputs.out}"):
             cache.flush()
+        if particles is not None:
+            with _writing(f"cannot save {outputs.particles}"):
+                particles.flush()
         with _writing(f"cannot write the checkpoint {outputs.checkpoint}"):
             save_checkpoint(sim, outputs.checkpoint,
                             extra={**options, "output": os.path.abspath(outputs.out), "frames": frames})
@@ -811,7 +845,16 @@ def surface_command(args):
     logger.info(f"meshing {len(frames)} frames of {args.cache} ({options.method}"
                 + (f" on {device}" if options.method == "preview" else "") + f", r = {radius:.4g} m, cube "
                 f"{options.cube:g} r, smoothing length {options.smoothing:g} r) -> {out}", extra=PLAIN)
-    done = remesh(source, frames, out, radius, options, log=logger.info, device=device)
+    partial = out.with_name(out.stem + ".partial" + out.suffix)
+    try:
+        done = remesh(source, frames, out, radius, options, log=logger.info, device=device)
+    except Exception as exc:  # a full disk, a quota: one line (the saves are whole: nothing is half-written)
+        if not _write_failure(exc):
+            raise
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc).strip().splitlines()[-1]
+        kept = f"; {partial} keeps the frames of its last save" if partial.exists() else ""
+        logger.error("%s", f"cannot write {out}: {reason}" + (f" ({out} is as it was)" if out.exists() else "") + kept)
+        return 2
     logger.info(f"wrote {out}: {done['frames']} frames, {done['seconds'] / max(done['frames'], 1):.2f} s per frame, "
                 f"{done['triangles'] / max(done['frames'], 1):.0f} triangles per frame")
     return 0

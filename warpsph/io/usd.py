@@ -214,13 +214,14 @@ def _vt_array(kind, values):
 
 def write_surface_layer(path, frame, mesh):
     """The surface mesh of frame ``frame`` into the existing frame layer ``path`` of a --clips cache
-    (:meth:`UsdClipCache.write_surface`, or a mesher worker: :meth:`UsdClipCache.surface_layer`)."""
+    (:meth:`UsdClipCache.write_surface`, or a mesher worker: :meth:`UsdClipCache.surface_layer`), saved whole
+    through a temporary file and a rename (:func:`save_layer`): ``layer.Save()`` rewrote the frame's crate file in
+    place, and a kill or a full disk during it left a frame layer, particles and all, that USD cannot open."""
     path = Path(path)
     _check_directory(path.parent)
     stage = Usd.Stage.Open(str(path))
     write_surface(stage, frame, mesh)
-    if not stage.GetRootLayer().Save():
-        raise OSError(f"{path}: USD could not save the layer")
+    save_layer(stage.GetRootLayer(), path)
 
 
 def _write_points(points_prim, frame, points, velocities, ids, radius, fields, widths=True):
@@ -267,6 +268,32 @@ def remove_leftovers(path):
     for p in path.parent.glob(f"{path.stem}.tmp.*") if path.parent.is_dir() else ():
         if pattern.fullmatch(p.name) and p.is_file():
             p.unlink()
+
+
+def write_atomically(path, data):
+    """``data`` (bytes) to ``path`` through NAME.tmp beside it, synced and renamed: ``path`` holds the old
+    contents or the new, whole, at every moment."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if tmp.exists():
+            tmp.unlink()
+        raise
+    fsync(path.parent)
+
+
+def _npz_bytes(**arrays):
+    import io
+
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    return buffer.getvalue()
 
 
 def save_layer(layer, path):
@@ -506,11 +533,19 @@ class UsdPointCache:
                 fsync(Path(final_path).parent)
 
 
+FRAME_LAYER = re.compile(r"frame\.\d{6}\.usdc")
+CLIP_LEFTOVER = re.compile(r"frame\.\d{6}\.tmp\.(usdc|[A-Za-z0-9]{6})|(boundary\.npz|bodies\.npz|surface\.json|"
+                           r"metadata\.json|domain\.json)\.tmp")  # what a killed write in OUT.clips/ leaves
+
+
 class UsdClipCache:
     """One layer per frame in ``FINAL.clips/``, stitched into ``FINAL`` by :meth:`finish`.
 
     Memory does not grow with the number of frames: each frame's stage is written and
-    released. The top-level file is made when the run ends or stops; the frame layers of a
+    released. Every file in ``FINAL.clips/`` is written whole through a synced temporary file and a
+    rename (:func:`save_layer`, :func:`write_atomically`), the frame layers and the mesh a worker adds to
+    one alike: a kill, a full disk or a power cut leaves the frame layers written before, each readable,
+    and no half-written one. The top-level file is made when the run ends or stops; the frame layers of a
     crashed run stay readable on their own. ``append=K`` continues after frame K (later frame
     layers are dropped). ``metadata`` (customLayerData of the top-level file) waits in
     OUT.clips/metadata.json."""
@@ -520,36 +555,42 @@ class UsdClipCache:
         self.final = Path(final_path)
         self.dir = self.final.with_name(self.final.stem + ".clips")
         self.dir.mkdir(parents=True, exist_ok=True)
-        for layer in self.dir.glob("frame.*.usdc") if append is not None else ():
+        for leftover in [p for p in self.dir.iterdir() if CLIP_LEFTOVER.fullmatch(p.name) and p.is_file()]:
+            leftover.unlink()  # a killed write's temporary file
+        for layer in self.frame_layers() if append is not None else ():
             if int(layer.name.split(".")[1]) > append:
                 layer.unlink()
         self.fps, self.up_axis = fps, up_axis
         self.boundary = (None if boundary_points is None else np.asarray(boundary_points), boundary_radius)
         self.boundary_file = self.dir / "boundary.npz"
         if boundary_points is not None:
-            np.savez(self.boundary_file, points=np.asarray(boundary_points), radius=boundary_radius)
+            write_atomically(self.boundary_file, _npz_bytes(points=np.asarray(boundary_points), radius=boundary_radius))
         self.metadata_file = self.dir / "metadata.json"
         if metadata:
             import json
 
-            self.metadata_file.write_text(json.dumps(metadata))
+            write_atomically(self.metadata_file, json.dumps(metadata).encode())
         self.domain_file = self.dir / "domain.json"  # warpsph:domain of the top-level file
         if domain is not None:
             import json
 
-            self.domain_file.write_text(json.dumps(domain_record(domain)))
+            write_atomically(self.domain_file, json.dumps(domain_record(domain)).encode())
         self.bodies_file = self.dir / "bodies.npz"
         if bodies:
             arrays = {}
             for n, (name, vertices, faces, moving) in enumerate(bodies):
                 arrays.update({f"name_{n}": np.array(name), f"vertices_{n}": vertices, f"faces_{n}": faces,
                                f"moving_{n}": np.array(moving)})
-            np.savez(self.bodies_file, count=len(bodies), **arrays)
+            write_atomically(self.bodies_file, _npz_bytes(count=len(bodies), **arrays))
         self.frames = 0
         self._last_written = 0  # bytes of the last frame's arrays (the next one's space estimate)
 
     def frame_path(self, frame):
         return self.dir / f"frame.{frame:06d}.usdc"
+
+    def frame_layers(self):
+        """The frame layers in OUT.clips/, in frame order (not a killed save's temporary files)."""
+        return sorted(p for p in self.dir.glob("frame.*.usdc") if FRAME_LAYER.fullmatch(p.name))
 
     def flush(self):
         """Nothing to save: each frame's layer is a whole file when :meth:`write_frame` returns."""
@@ -560,7 +601,7 @@ class UsdClipCache:
         returns the bytes of the arrays written."""
         _check_directory(self.dir)
         check_space(self.dir, frame, _frame_estimate(points, self._last_written))
-        stage = Usd.Stage.CreateNew(str(self.frame_path(frame)))
+        stage = Usd.Stage.CreateInMemory()  # saved whole under its name below
         stage.SetStartTimeCode(frame)  # StitchClips activates each clip at its layer's start
         stage.SetEndTimeCode(frame)
         UsdGeom.Xform.Define(stage, "/World")
@@ -569,8 +610,7 @@ class UsdClipCache:
         if surface is not None:
             write_surface(stage, frame, surface)
         _write_body_poses(stage, frame, body_poses)
-        if not stage.GetRootLayer().Save():
-            raise OSError(f"{self.frame_path(frame)}: USD could not save the layer")
+        save_layer(stage.GetRootLayer(), self.frame_path(frame))
         del stage
         self._last_written = written
         self.frames += 1
@@ -595,14 +635,14 @@ class UsdClipCache:
         import json
 
         self.surface_note = dict(info)
-        (self.dir / "surface.json").write_text(json.dumps(self.surface_note))
+        write_atomically(self.dir / "surface.json", json.dumps(self.surface_note).encode())
 
     def finish(self, final_path=None):
         """Stitches every frame layer into the top-level file (value clips + topology layer). A
         frame layer without the surface mesh (``--surface-every``, frames skipped) holds the mesh of
         the frame before (interpolateMissingClipValues: meshes of different vertex counts are held)."""
         final = Path(final_path or self.final)
-        frames = sorted(self.dir.glob("frame.*.usdc"))
+        frames = self.frame_layers()
         if not frames:
             return
         helpers = [final.with_name(f"{final.stem}.{kind}{final.suffix}") for kind in ("topology", "manifest")]
