@@ -63,13 +63,12 @@ def compute_time_step(
     substeps: wp.array(dtype=wp.int32),
     substep_dt: wp.array(dtype=float),
 ):
-    """One thread: dt = clamp(min(cfl * 0.4 * d / u, max_substeps x viscous_dt), dt_min, dt_max), u = sqrt(max_speed_sq[1])
-    the largest of |v + g dt_last| over the fluid and |v| over moving bodies (SPlisHSPlasH's CFL rule,
-    Simulation::updateTimeStepSizeCFL, and the explicit-viscosity limit, which the viscosity's sub-steps stretch;
-    SPlisHSPlasH has no viscous limit), or ``fixed_dt`` when it is
-    positive, times ``dt_scale`` (< 1 when a step is retried after an instability); the old dt moves to
-    ``dt_previous``. With ``substeps`` (not empty): the viscosity's sub-steps n = ceil(dt / viscous_dt), at most
-    ``max_substeps``, and their dt / n into ``substep_dt``."""
+    """One thread: dt = clamp(min(cfl * 0.4 * d / u, max_substeps x viscous_dt), dt_min, dt_max), u =
+    sqrt(max_speed_sq[1]) the largest of |v + g dt_last| over the fluid and |v| over moving bodies (SPlisHSPlasH's
+    CFL rule, Simulation::updateTimeStepSizeCFL, and the explicit-viscosity limit, which the viscosity's sub-steps
+    stretch; SPlisHSPlasH has no viscous limit), or ``fixed_dt`` when it is positive, times ``dt_scale`` (< 1 when a
+    step is retried after an instability); the old dt moves to ``dt_previous``. With ``substeps`` (not empty): the
+    viscosity's sub-steps n = ceil(dt / viscous_dt), at most ``max_substeps``, and their dt / n into ``substep_dt``."""
     if dt[0] > 0.0:
         dt_previous[0] = dt[0]
     if fixed_dt > 0.0:

@@ -83,7 +83,8 @@ def test_viscosity_substeps_0_lets_the_step_follow_the_cfl_rule_alone():
     plain.step()
     assert float(plain.dt.numpy()[0]) == pytest.approx(plain.viscous_dt, rel=1e-5)
     # never more than 64, however small the limit against dt_max
-    stiff = make_sim(tank_scene(0.02, fluid={"viscosity": 50.0}, time={"dt_max": 0.004}, solver={"viscosity_substeps": 0}))
+    stiff = make_sim(tank_scene(0.02, fluid={"viscosity": 50.0}, time={"dt_max": 0.004},
+                                solver={"viscosity_substeps": 0}))
     assert stiff.max_viscous_substeps == 64
 
 

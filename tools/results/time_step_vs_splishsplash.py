@@ -6,7 +6,8 @@
 
 SPlisHSPlasH runs headless (pysplishsplash's SimulatorBase, a callback after each step; the preload is why
 tools/splishsplash_side_by_side.py gives); its step k took t_k - t_(k-1). warpsph runs on the CPU; ``sub=N`` sets
-solver.viscosity_substeps, ``nolimit`` removes the viscous limit (an experiment: the explicit viscosity at the whole step).
+solver.viscosity_substeps, ``nolimit`` removes the viscous limit (an experiment: the explicit viscosity at the
+whole step).
 Each row: time, dt, the largest fluid speed after the step.
 """
 
@@ -30,7 +31,8 @@ def run_splishsplash(scene, stop, out):
         fm = sim.getFluidModel(0)
         v = np.array(fm.getFieldBuffer("velocity"), copy=True)[: fm.numActiveParticles()]
         t = tm.getTime()
-        rows.append({"t": t, "dt": t - last[0], "next_dt": tm.getTimeStepSize(), "vmax": float(np.sqrt((v * v).sum(1).max()))})
+        rows.append({"t": t, "dt": t - last[0], "next_dt": tm.getTimeStepSize(),
+                     "vmax": float(np.sqrt((v * v).sum(1).max()))})
         last[0] = t
 
     base.setTimeStepCB(on_step)
@@ -57,12 +59,14 @@ def run_warpsph(scene_file, stop, out, opts):
     while sim.time < stop - 1e-9:
         sim.step()
         v = sim.fluid.v.numpy()[: sim.num_fluid]
-        rows.append({"t": sim.time, "dt": float(sim.dt.numpy()[0]), "vmax_end": float(np.sqrt((v * v).sum(1).max()))})
+        rows.append({"t": sim.time, "dt": float(sim.dt.numpy()[0]),
+                     "vmax_end": float(np.sqrt((v * v).sum(1).max()))})
         problem = sim.check_health()
         if problem is not None:
             status = f"failed: {problem}"
             break
-    json.dump({"scene": scene_file, "opts": opts, "status": status, "steps": rows, "wall_s": time.perf_counter() - start,
+    json.dump({"scene": scene_file, "opts": opts, "status": status, "steps": rows,
+               "wall_s": time.perf_counter() - start,
                "viscous_dt": sim.viscous_dt, "max_substeps": sim.max_viscous_substeps,
                "bounds": list(scene.time_step_bounds), "fluid": sim.num_fluid}, open(out, "w"))
 
