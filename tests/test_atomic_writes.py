@@ -83,6 +83,40 @@ def test_a_clip_frame_layer_cut_mid_write_leaves_only_whole_layers(tmp_path, kil
         "boundary.npz", "frame.000000.usdc", "frame.000001.usdc", "frame.000002.usdc"]
 
 
+STITCH_AGAIN = """
+    import numpy as np
+    from warpsph.io.usd import UsdClipCache
+    boundary = np.random.default_rng(3).random((40000, 3))  # 0.6 MB in the top-level file
+    cache = UsdClipCache(sys.argv[1], 25, boundary_points=boundary, boundary_radius=0.01)
+    x = np.random.default_rng(0).random((50, 3))
+    for frame in range(3):
+        cache.write_frame(frame, x, x, np.arange(50), 0.01)
+    cache.finish()
+    cache = UsdClipCache(sys.argv[1], 25, append=2)  # resume: frames 3, 4 more
+    for frame in (3, 4):
+        cache.write_frame(frame, x, x, np.arange(50), 0.01)
+    cap()
+    cache.finish()  # the top-level file's save crosses the limit
+"""
+
+
+@pytest.mark.parametrize("killed", [True, False])
+def test_the_stitched_clips_files_cut_mid_write_keep_the_previous_stitch(tmp_path, killed):
+    """A --clips run (or its resume) stitches OUT, OUT.topology and OUT.manifest when it ends or stops. Before, they
+    were deleted and written again in place: a cut write left no OUT, or one USD could not open. Now the previous
+    stitch opens with its frames 0..2, no scratch file is left under a real name, and the next finish stitches 0..4."""
+    from warpsph.io.usd import UsdClipCache
+
+    out = tmp_path / "c.usdc"
+    expect(*child(STITCH_AGAIN, out, limit=200_000, killed=killed), killed)
+    assert layer_frames(out) == [0, 1, 2]
+    assert len(Usd.Stage.Open(str(out)).GetPrimAtPath("/World/Boundary").GetAttribute("points").Get()) == 40000
+    UsdClipCache(out, 25, append=4).finish()
+    assert layer_frames(out) == [0, 1, 2, 3, 4]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["c.clips", "c.manifest.usdc", "c.topology.usdc", "c.usdc"]
+    assert not [p.name for p in (tmp_path / "c.clips").iterdir() if "tmp" in p.name or "stitch" in p.name]
+
+
 MESH_INTO_LAYER = """
     import numpy as np
     from warpsph.io.usd import UsdClipCache, write_surface_layer

@@ -169,7 +169,7 @@ def _rich_bar():
 
 CLIP_FILE = re.compile(r"frame\.\d{6}\.usdc|boundary\.npz|bodies\.npz|surface\.json|metadata\.json|domain\.json|"
                        r"frame\.\d{6}\.tmp\.(usdc|[A-Za-z0-9]{6})|(boundary\.npz|bodies\.npz|surface\.json|metadata\.json|"
-                       r"domain\.json)\.tmp")  # and what a killed write leaves there
+                       r"domain\.json)\.tmp|stitch\.[A-Za-z0-9.]+")  # and what a killed write leaves there
 
 
 class Outputs:

@@ -535,7 +535,8 @@ class UsdPointCache:
 
 FRAME_LAYER = re.compile(r"frame\.\d{6}\.usdc")
 CLIP_LEFTOVER = re.compile(r"frame\.\d{6}\.tmp\.(usdc|[A-Za-z0-9]{6})|(boundary\.npz|bodies\.npz|surface\.json|"
-                           r"metadata\.json|domain\.json)\.tmp")  # what a killed write in OUT.clips/ leaves
+                           r"metadata\.json|domain\.json)\.tmp|"
+                           r"stitch\.[A-Za-z0-9.]+")  # what a killed write in OUT.clips/ leaves (stitch.*: finish's scratch)
 
 
 class UsdClipCache:
@@ -640,48 +641,74 @@ class UsdClipCache:
     def finish(self, final_path=None):
         """Stitches every frame layer into the top-level file (value clips + topology layer). A
         frame layer without the surface mesh (``--surface-every``, frames skipped) holds the mesh of
-        the frame before (interpolateMissingClipValues: meshes of different vertex counts are held)."""
+        the frame before (interpolateMissingClipValues: meshes of different vertex counts are held).
+
+        The three stitched files are written crash-consistently, like the frame layers: ``StitchClips`` writes
+        scratch layers in OUT.clips/ (stitch.usdc, stitch.topology.usdc, stitch.manifest.usdc), whose asset paths
+        are then pointed at the final names, and each is saved through a synced temporary file and a rename
+        (:func:`save_layer`): the topology, the manifest, then the top-level file. A kill, a full disk or a power
+        cut at any moment leaves the earlier stitched files, each whole, or the new ones (or the earlier
+        top-level file over the new topology and manifest, which declare the same prims and attributes or more);
+        the scratch files are removed here and when the cache is opened again."""
         final = Path(final_path or self.final)
         frames = self.frame_layers()
         if not frames:
             return
         helpers = [final.with_name(f"{final.stem}.{kind}{final.suffix}") for kind in ("topology", "manifest")]
-        for stale in (final, *helpers):
-            if stale.exists():
-                stale.unlink()
-        layer = Sdf.Layer.CreateNew(str(final))
-        numbers = [int(f.name.split(".")[1]) for f in frames]
-        UsdUtils.StitchClips(layer, [str(f) for f in frames], Sdf.Path("/World"), min(numbers), max(numbers), True)
-        for helper in helpers:
-            written = Sdf.Layer.FindOrOpen(str(helper)) if helper.exists() else None
-            if written is not None:
-                _mark(written)
-                written.Save()
-        _mark(layer)
-        note = self.dir / "surface.json"
-        if note.exists():
-            import json
+        scratch = self.dir / f"stitch{final.suffix}"
+        scratch_helpers = [self.dir / f"stitch.{kind}{final.suffix}" for kind in ("topology", "manifest")]
+        for leftover in [p for p in self.dir.iterdir() if p.name.startswith("stitch.") and p.is_file()]:
+            leftover.unlink()
+        for path in (final, *helpers):
+            remove_leftovers(path)
+        try:
+            layer = Sdf.Layer.CreateNew(str(scratch))
+            numbers = [int(f.name.split(".")[1]) for f in frames]
+            UsdUtils.StitchClips(layer, [str(f) for f in frames], Sdf.Path("/World"), min(numbers), max(numbers), True)
+            for helper, written in zip(helpers, scratch_helpers):
+                written = Sdf.Layer.FindOrOpen(str(written)) if written.exists() else None
+                if written is not None:
+                    _mark(written)
+                    save_layer(written, helper)
+            _mark(layer)
+            note = self.dir / "surface.json"
+            if note.exists():
+                import json
 
-            _note_surface(layer, json.loads(note.read_text()))
-        if self.metadata_file.exists():
-            import json
+                _note_surface(layer, json.loads(note.read_text()))
+            if self.metadata_file.exists():
+                import json
 
-            _note_metadata(layer, json.loads(self.metadata_file.read_text()))
-        if self.domain_file.exists():
-            import json
+                _note_metadata(layer, json.loads(self.metadata_file.read_text()))
+            if self.domain_file.exists():
+                import json
 
-            _note_domain(layer, json.loads(self.domain_file.read_text()))
-        stage = Usd.Stage.Open(layer)
-        _set_stage_metadata(stage, self.fps, self.up_axis)
-        stage.SetDefaultPrim(stage.GetPrimAtPath("/World"))
-        if self.boundary_file.exists():
-            data = np.load(self.boundary_file)
-            _define_boundary(stage, data["points"], float(data["radius"]))
-        if self.bodies_file.exists():
-            data = np.load(self.bodies_file)
-            _define_bodies(stage, [(str(data[f"name_{n}"]), data[f"vertices_{n}"], data[f"faces_{n}"],
-                                    bool(data[f"moving_{n}"])) for n in range(int(data["count"]))])
-        layer.Save()
+                _note_domain(layer, json.loads(self.domain_file.read_text()))
+            stage = Usd.Stage.Open(layer)
+            _set_stage_metadata(stage, self.fps, self.up_axis)
+            stage.SetDefaultPrim(stage.GetPrimAtPath("/World"))
+            if self.boundary_file.exists():
+                data = np.load(self.boundary_file)
+                _define_boundary(stage, data["points"], float(data["radius"]))
+            if self.bodies_file.exists():
+                data = np.load(self.bodies_file)
+                _define_bodies(stage, [(str(data[f"name_{n}"]), data[f"vertices_{n}"], data[f"faces_{n}"],
+                                        bool(data[f"moving_{n}"])) for n in range(int(data["count"]))])
+            del stage
+            # the scratch layers refer to each other and to the frames from OUT.clips/; the final ones from final's folder
+            clips_dir = os.path.relpath(self.dir, final.parent).replace(os.sep, "/")
+            layer.subLayerPaths[:] = [f"./{helpers[0].name}"]
+            clips = dict(layer.GetPrimAtPath("/World").GetInfo("clips"))
+            default = dict(clips["default"])
+            default["assetPaths"] = Sdf.AssetPathArray([f"./{clips_dir}/{f.name}" for f in frames])
+            default["manifestAssetPath"] = Sdf.AssetPath(f"./{helpers[1].name}")
+            clips["default"] = default
+            layer.GetPrimAtPath("/World").SetInfo("clips", clips)
+            save_layer(layer, final)
+        finally:
+            for path in (scratch, *scratch_helpers):
+                if path.exists():
+                    path.unlink()
 
 
 def _note_surface(layer, info):
