@@ -418,6 +418,8 @@ def test_dry_run_of_a_micropolar_splishsplash_scene(tmp_path, capsys):
      "device: unknown device 'tpu:7'"),
     ('{"name": "caf\xe9", "scene": "s.json"}'.encode("latin-1"), "not UTF-8"),
     (('{"axes": ' + "[" * 100_000 + "]" * 100_000 + "}").encode(), "nested too deeply"),
+    (json.dumps({"scene": "s.json", "time": 0.05, "axes": {"fluid.viscosity": [0.01] * 200_000}}).encode(),
+     "bytes; a sweep file is at most 1,048,576 bytes"),  # before: read and parsed whole (a 50 MB one took 42 s)
 ])
 def test_bad_sweep_files_are_refused_before_any_cell(tmp_path, capsys, content, words):
     write_scene(tmp_path, TINY, "s.json")

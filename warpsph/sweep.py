@@ -128,6 +128,9 @@ def _tiny_scene(overrides):
     return with_overrides(data, overrides)
 
 
+MAX_SWEEP_BYTES = 2**20  # the most bytes of a sweep file; 10,000 cells written out take about 1 MB
+
+
 def _read(source):
     """(file name, data) of a sweep given as a path (JSON or YAML) or a dict."""
     if isinstance(source, dict):
@@ -138,6 +141,13 @@ def _read(source):
         raise SceneError(file, "", "no such sweep file")
     from .scene import parse_json, read_text
 
+    try:
+        size = path.stat().st_size
+    except OSError as exc:
+        raise SceneError(file, "", f"cannot read the sweep file ({exc.strerror})") from None
+    if size > MAX_SWEEP_BYTES:  # checked before reading: a 50 MB file took 42 s to parse and refuse
+        raise SceneError(file, "", f"{size:,} bytes; a sweep file is at most {MAX_SWEEP_BYTES:,} bytes (1 MiB): give "
+                                   f"an axis the values to try, not every value, or split the sweep")
     text = read_text(path, "sweep")
     if path.suffix.lower() in (".yaml", ".yml"):
         try:
