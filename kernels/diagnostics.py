@@ -2,7 +2,9 @@
 
 import warp as wp
 
+from .particles import Boundary, Neighbours, SymmetricMatrix, separation, symmetric_times
 from .pressure import REDUCE_THREADS
+from .sph_kernel import cubic_kernel_gradient
 
 wp.set_module_options({"enable_backward": False})
 
@@ -86,3 +88,43 @@ def reduce_frame_diagnostics(
     wp.atomic_add(out, 5, error_sum)
     wp.atomic_max(out, 6, error_max)
     wp.atomic_add(out, 7, region)
+
+
+@wp.kernel
+def scatter_by_id(x: wp.array(dtype=wp.vec3), ids: wp.array(dtype=wp.int32), by_id: wp.array(dtype=wp.vec3)):
+    """by_id[ids_i] = x_i: a per-particle vector kept through re-sorting (ids 0 .. n - 1)."""
+    i = wp.tid()
+    by_id[ids[i]] = x[i]
+
+
+@wp.kernel
+def gather_by_id(by_id: wp.array(dtype=wp.vec3), ids: wp.array(dtype=wp.int32), x: wp.array(dtype=wp.vec3)):
+    """x_i = by_id[ids_i] (the inverse of :func:`scatter_by_id` in the current order)."""
+    i = wp.tid()
+    x[i] = by_id[ids[i]]
+
+
+@wp.kernel
+def boundary_pressure_torque(
+    x: wp.array(dtype=wp.vec3),
+    stiffness_a: wp.array(dtype=float),
+    stiffness_b: wp.array(dtype=float),
+    correction: wp.array(dtype=SymmetricMatrix),
+    nb: Neighbours,
+    boundary: Boundary,
+    support_radius: float,
+    dt: wp.array(dtype=float),
+    centre: wp.vec3,
+    torque: wp.array(dtype=wp.vec3),
+):
+    """torque_i = (x_i - centre) x dv_i of the walls' and bodies' pressure in a step (per unit mass): dv_i = -dt
+    sum_b V_b k_i L_i grad W_ib with k_i the step's stiffness of both solves (``stiffness_a + stiffness_b``, as
+    :data:`apply_corrected_pressure_acceleration` applied them at ``x``, the step's starting positions)."""
+    i = wp.tid()
+    xi = x[i]
+    k = stiffness_a[i] + stiffness_b[i]
+    dv = wp.vec3(0.0)
+    for n in range(nb.boundary_offsets[i], nb.boundary_offsets[i + 1]):
+        b = nb.boundary[n]
+        dv += boundary.volume[b] * k * cubic_kernel_gradient(separation(nb, xi, boundary.x[b]), support_radius)
+    torque[i] = wp.cross(xi - centre, -dt[0] * symmetric_times(correction[i], dv))

@@ -602,12 +602,15 @@ class DecomposedSimulation:
         """Particles per subdomain (its own, without ghosts)."""
         return [s.num_fluid for s in self.sims]
 
-    def _advance_to(self, target):
-        """Steps until ``time >= target``, stopping at the first failed health check."""
+    def _advance_to(self, target, on_step=None):
+        """Steps until ``time >= target``, stopping at the first failed health check (``on_step(self)`` after each
+        step that passed it)."""
         while self.time < target - 1e-9:
             self.step()
             problem = self.check_health()
             if problem is not None:
                 raise problem
+            if on_step is not None:
+                on_step(self)
 
     run = Simulation.run

@@ -548,8 +548,8 @@ class Simulation:
             wp.copy(a, arrays[k])
         self.restore_flags(flags)
 
-    def _advance_to(self, target):
-        """Steps until ``time >= target``, checking health after every step. With
+    def _advance_to(self, target, on_step=None):
+        """Steps until ``time >= target``, checking health after every step (then ``on_step(self)``). With
         ``on_instability == "reduce-dt"`` a frame that fails is undone (to the state at its start,
         where the damage had not begun) and redone with dt halved, up to health.RETRIES times."""
         snapshot = self._snapshot() if self.on_instability == "reduce-dt" else None
@@ -561,6 +561,8 @@ class Simulation:
                         problem = self.check_health()
                         if problem is not None:
                             raise problem
+                        if on_step is not None:
+                            on_step(self)
                     return
                 except InstabilityError:
                     if snapshot is None or attempt == health.RETRIES:
@@ -570,10 +572,12 @@ class Simulation:
         finally:
             self._dt_scale = 1.0
 
-    def run(self, frames=None, on_frame=None, until_time=None):
+    def run(self, frames=None, on_frame=None, until_time=None, on_step=None):
         """Advances to output frame ``frames`` at the scene's fps (or to ``until_time``), calling
-        ``on_frame(sim, frame)`` after the initial state and each frame. A simulation restored
-        from a checkpoint continues after its last frame (``self.frame``)."""
+        ``on_frame(sim, frame)`` after the initial state and each frame, and ``on_step(sim)`` after each step that
+        passed its health check (a measurement over every step; with ``on_instability`` "reduce-dt" the steps of a
+        frame that is redone are reported again). A simulation restored from a checkpoint continues after its last
+        frame (``self.frame``)."""
         fps = self.scene.output.fps
         frames = self.scene.output.frames if frames is None and until_time is None else frames
         if until_time is not None:
@@ -582,7 +586,7 @@ class Simulation:
             on_frame(self, 0)
         for frame in range(self.frame + 1, frames + 1):
             target = frame / fps
-            self._advance_to(target)
+            self._advance_to(target, on_step)
             self.frame = frame
             if on_frame is not None:
                 on_frame(self, frame)

@@ -159,8 +159,11 @@ def lamb_oseen_row(models, resolution, device, overrides=None, free_surface=Fals
                              pack_steps=PACK_STEPS, overrides=overrides, free_surface=free_surface)
     setup = time.perf_counter() - start
     rows = []
-    wall, _ = timed_run(sim, lambda cb: sim.run(frames=FRAMES, on_frame=cb),
+    budget = lo.AngularMomentumBudget(sim, p["centre"]) if hasattr(sim.pressure_solver, "pressure_sum") else None
+    wall, _ = timed_run(sim, lambda cb: sim.run(frames=FRAMES, on_frame=cb, on_step=budget),
                      lambda s, f: rows.append(lo.measure(s, p, edges, s.time)))
+    angular = {} if budget is None else budget.shares(rows[0], rows[-1])
+    wall -= 0.0 if budget is None else budget.seconds
     s = lo.summary(lo.kinetic_ratios(rows), lo.NU)
     return {"particles": sim.num_fluid, "error_pct": 100.0 * s["l1_relative_end"], "wall_s": wall,
             "steps": sim.step_count, "setup_s": setup, "time": rows[-1]["time"], "core_radius_m": p["core_radius_0"],
@@ -170,6 +173,7 @@ def lamb_oseen_row(models, resolution, device, overrides=None, free_surface=Fals
             "r_peak_exact": s["r_peak_exact_end"], "ke_ratio": s["ke_ratio_end"],
             "ke_exact_ratio": s["ke_exact_ratio_end"], "centre_offset": s["centre_offset_end"],
             "angular_momentum_ratio": s["angular_momentum_ratio_end"],
+            **{f"angular_momentum_{k}": v for k, v in angular.items() if k != "angular_momentum_ratio"},
             "error_pct_frames": [100.0 * r["l1_relative"] for r in rows], **density_error(sim)}
 
 

@@ -210,6 +210,77 @@ def build(models, resolution=24, nu=0.01, T=0.5, core=3.0, u_peak=0.5, depth=6, 
     return sim, p, edges
 
 
+class AngularMomentumBudget:
+    """What changed the total angular momentum about the vortex axis (z through ``centre``, per unit mass, as
+    :func:`measure`'s ``angular_momentum``), summed over the steps (``on_step`` of :meth:`Simulation.run`):
+
+    - ``wall``: the walls' pressure, sum (x_i - c) x dv_i of the step's two solves against the boundary samples
+      (kernels/diagnostics.py boundary_pressure_torque), at the step's starting positions;
+    - ``gravity``: dt sum (x_i - c) x g at those positions.
+
+    Both are external. In a square box the walls turn a swirling flow's momentum (its pressure is not axisymmetric
+    there, and the analytic start crosses the walls), and under gravity a sloshing surface moves the centre of mass
+    off the axis, so the total is not conserved; what the fluid's own forces (viscosity, shift) change is the
+    total's change less these two (``internal`` of :meth:`shares`). ``seconds``: its own time, device synchronised
+    (the validation subtracts it from the run's wall time). DFSPH only (it reads the solves' stiffness)."""
+
+    def __init__(self, sim, centre):
+        import warp as wp
+
+        self.centre = wp.vec3(*map(float, centre))
+        n = sim.num_fluid
+        self.by_id = wp.zeros(n, dtype=wp.vec3, device=sim.device)
+        self.start = wp.zeros(n, dtype=wp.vec3, device=sim.device)  # x^n in the current order
+        self.torque = wp.zeros(n, dtype=wp.vec3, device=sim.device)
+        self.wall = 0.0
+        self.gravity = 0.0
+        self.seconds = 0.0
+        self._remember(sim)
+
+    def _remember(self, sim):
+        import warp as wp
+
+        from warpsph.kernels.diagnostics import scatter_by_id
+
+        wp.launch(scatter_by_id, sim.num_fluid, inputs=[sim.fluid.x, sim.fluid.ids, self.by_id], device=sim.device)
+
+    def __call__(self, sim):
+        import time
+
+        import warp as wp
+
+        from warpsph.kernels.diagnostics import boundary_pressure_torque, gather_by_id
+        from warpsph.solver import DENSITY, DIVERGENCE
+
+        wp.synchronize_device(sim.device)
+        begin = time.perf_counter()
+        ps, n = sim.pressure_solver, sim.num_fluid
+        # the step re-sorted the particles at its start: x^n in this step's order, from the ids
+        wp.launch(gather_by_id, n, inputs=[self.by_id, sim.fluid.ids, self.start], device=sim.device)
+        wp.launch(boundary_pressure_torque, n, device=sim.device,
+                  inputs=[self.start, ps.pressure_sum[DIVERGENCE], ps.pressure_sum[DENSITY], ps.gradient_correction,
+                          sim.neighbours.lists, sim.boundary.samples, sim.support_radius, sim.dt, self.centre,
+                          self.torque])
+        dt = float(sim.dt.numpy()[0])
+        self.wall += float(self.torque.numpy()[:, 2].astype(np.float64).sum())
+        x = self.start.numpy().astype(np.float64)
+        g = np.asarray(sim.gravity, dtype=np.float64)
+        c = np.asarray(self.centre, dtype=np.float64)
+        self.gravity += dt * float(((x[:, 0] - c[0]) * g[1] - (x[:, 1] - c[1]) * g[0]).sum())
+        self._remember(sim)
+        wp.synchronize_device(sim.device)
+        self.seconds += time.perf_counter() - begin
+
+    def shares(self, first, last):
+        """The changes from frame ``first`` to ``last`` (two :func:`measure` rows, the budget run between them), as
+        fractions of the first's angular momentum: total, wall, gravity and internal (the rest)."""
+        start = first["angular_momentum"]
+        total = last["angular_momentum"] - start
+        return {"angular_momentum_ratio": last["angular_momentum"] / start, "wall_share": self.wall / start,
+                "gravity_share": self.gravity / start,
+                "internal_share": (total - self.wall - self.gravity) / start}
+
+
 def kinetic_ratios(rows):
     """Replaces each row's kinetic energy by its ratio to frame 0's (``ke_ratio``)."""
     k0 = rows[0]["kinetic"]
