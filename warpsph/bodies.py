@@ -63,6 +63,7 @@ class RigidBody:
     angular_velocity: np.ndarray = None
 
     closed: bool = False  # a watertight mesh: it has an inside (no fluid there, samples inset)
+    inset: float = BODY_INSET  # the samples' distance inside the surface [particle radii]; negative: outside
 
     @property
     def kind(self):
@@ -77,9 +78,20 @@ class RigidBody:
         return self.to_world(self.samples).astype(np.float32)
 
 
-def load_body(obstacle: Obstacle, path, spacing, domain_size, default_name, fluid_density=1000.0) -> RigidBody:
+def sample_offset_vertices(mesh, distance):
+    """A closed mesh's vertices moved ``distance`` inwards (``sampling.inset_vertices``), or -distance
+    outwards where it is negative (the least-squares offset is linear in the distance: v - (inset(v, d) - v))."""
+    if distance >= 0.0:
+        return sampling.inset_vertices(mesh, distance)
+    return 2.0 * np.asarray(mesh.vertices, np.float64) - sampling.inset_vertices(mesh, -distance)
+
+
+def load_body(obstacle: Obstacle, path, spacing, domain_size, default_name, fluid_density=1000.0,
+              inset=BODY_INSET) -> RigidBody:
     """Samples an obstacle's mesh at its placement (scale, rotate, translate) and expresses it in
-    body space; a dynamic body gets mass and inertia from its closed mesh and density."""
+    body space; a dynamic body gets mass and inertia from its closed mesh and density. ``inset``: the
+    samples' distance inside a closed mesh's surface [particle radii] (negative: outside), BODY_INSET
+    unless an importer matches another code's boundary (``Conversion.body_insets``)."""
     mesh = sampling.place_mesh(obstacle, path, spacing, domain_size)
     kind = "dynamic" if obstacle.dynamics is not None else "kinematic" if obstacle.motion is not None else "static"
     reference = np.zeros(3)
@@ -96,13 +108,14 @@ def load_body(obstacle: Obstacle, path, spacing, domain_size, default_name, flui
         added_mass = ADDED_MASS * fluid_density * float(mesh.volume)
         mesh.density = 1.0
         inertia = density * np.asarray(mesh.moment_inertia, np.float64)  # about the centre of mass
-    inset = sampling.inset_vertices(mesh, BODY_INSET * 0.5 * spacing)
-    samples = sampling.sample_triangles(inset, mesh.faces, spacing).astype(np.float64) - reference
+    offset = sample_offset_vertices(mesh, inset * 0.5 * spacing)
+    samples = sampling.sample_triangles(offset, mesh.faces, spacing).astype(np.float64) - reference
     body = RigidBody(name=obstacle.name or default_name, obstacle=obstacle,
                      vertices=np.asarray(mesh.vertices, np.float64) - reference, faces=np.asarray(mesh.faces, np.int32),
                      samples=samples, reference=reference, closed=bool(mesh.is_watertight), mass=mass, added_mass=added_mass, inertia=inertia,
                      position=reference.copy(), rotation=np.eye(3), velocity=np.zeros(3), angular_velocity=np.zeros(3),
-                     acceleration=np.zeros(3), angular_acceleration=np.zeros(3))
+                     acceleration=np.zeros(3), angular_acceleration=np.zeros(3),
+                     inset=float(inset) if mesh.is_watertight else 0.0)
     if kind == "dynamic":
         body.velocity = np.asarray(obstacle.dynamics.velocity, np.float64)
         body.angular_velocity = np.asarray(obstacle.dynamics.angular_velocity, np.float64)
@@ -262,7 +275,8 @@ class MovingBodies:
             angle = float(np.linalg.norm(w)) * dt
             if angle > 0.0:
                 body.rotation = orthonormalize(sampling.rotation_matrix(w, angle) @ body.rotation)
-            self._wall_contact(body, np.add(domain_lo, margin), np.subtract(domain_hi, margin), periodic)
+            own = margin * body.inset / BODY_INSET  # the surface, not the samples, stops at the walls
+            self._wall_contact(body, np.add(domain_lo, own), np.subtract(domain_hi, own), periodic)
         self._body_contact()
         self._store_state()
 

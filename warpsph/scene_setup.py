@@ -10,7 +10,7 @@ import numpy as np
 import warp as wp
 
 from warpsph import sampling
-from warpsph.bodies import load_body
+from warpsph.bodies import BODY_INSET, load_body
 from warpsph.errors import SceneError
 from warpsph.kernels.bodies import mark_fluid_clear_of_mesh
 from warpsph.scene import Scene
@@ -92,7 +92,8 @@ def sample_scene(scene: Scene, limit_fluid=True, with_fluid=True):
     bodies = [sampling.sample_box_walls(np.asarray(scene.domain.min) - offset, np.asarray(scene.domain.max) + offset, d,
                                         scene.domain.periodic) if scene.domain.walls else np.zeros((0, 3), np.float32)]
     size = float(np.linalg.norm(np.subtract(scene.domain.max, scene.domain.min)))
-    rigid = [load_body(o, scene.mesh_path(o), d, size, f"{Path(o.mesh).stem}_{n}", scene.fluid.density)
+    insets = _imported_body_insets(scene)
+    rigid = [load_body(o, scene.mesh_path(o), d, size, f"{Path(o.mesh).stem}_{n}", scene.fluid.density, insets[n])
              for n, o in enumerate(scene.obstacles)]
     names = [b.name for b in rigid]
     for n, name in enumerate(names):
@@ -103,6 +104,18 @@ def sample_scene(scene: Scene, limit_fluid=True, with_fluid=True):
     body = np.concatenate([np.full(len(p), n, dtype=np.int32) for n, p in enumerate(bodies)])
     order = sampling.morton_order(boundary_x, np.asarray(scene.domain.min), scene.support_radius)
     return fluid_x, fluid_v, boundary_x[order], body[order], rigid
+
+
+def _imported_body_insets(scene: Scene):
+    """Each obstacle's sample inset [r]: BODY_INSET, or where an imported SPlisHSPlasH scene's boundary holds the
+    fluid (``Conversion.body_insets``, one per obstacle of the conversion)."""
+    from warpsph.io.splishsplash import conversion_of
+
+    conversion = conversion_of(scene)
+    insets = list(conversion.body_insets) if conversion is not None else []
+    if len(insets) != len(scene.obstacles):
+        insets = [BODY_INSET] * len(scene.obstacles)
+    return insets
 
 
 def remove_fluid_inside_bodies(scene, bodies, fluid_x, fluid_v, device, launch):

@@ -197,6 +197,21 @@ def container_inset(boundary_method, map_thickness, radius):
     return WALL_OFFSET * radius, why + f"{WALL_OFFSET:g} r outside the domain's faces"
 
 
+def body_inset(boundary_method, map_thickness, radius):
+    """Where warpsph samples an imported body so that its fluid rests where SPlisHSPlasH's does: the samples'
+    distance inside the mesh surface [r] (negative: outside), and how that was found. warpsph's sample layer holds
+    the fluid ``wall_layer_standoff`` r from itself; SPlisHSPlasH's boundary particles (method 0) lie on the
+    surface; a volume map (2) holds the fluid ``volume_map_standoff`` r from the surface, mapThickness further
+    out. (warpsph's own convention, BODY_INSET = 1.2 r inside, holds it 1.0 r from the surface.)"""
+    if boundary_method == 2:
+        inset = wall_layer_standoff() - volume_map_standoff() - map_thickness / radius
+        return inset, (f"a volume map holds the fluid {volume_map_standoff():.2f} r from the surface"
+                       + (f" and mapThickness {map_thickness:g} m further" if map_thickness else "")
+                       + f", warpsph's samples {wall_layer_standoff():.2f} r from themselves")
+    return 0.0, ("boundary particles on the surface" if boundary_method == 0 else
+                 f"boundaryHandlingMethod {boundary_method}: mapped as boundary particles on the surface (method 0)")
+
+
 class SplishSplashWarning(UserWarning):
     """A SPlisHSPlasH scene runs with approximations, or anyway with physics left out (listed)."""
 
@@ -212,6 +227,7 @@ class Conversion:
     errors: list = field(default_factory=list)  # what keeps the scene from running at all (even anyway)
     notes: list = field(default_factory=list)  # approximations; keys without effect
     splishsplash_particles: int | None = None  # fluid particles at t = 0 by SPlisHSPlasH's rules (None: unknown)
+    body_insets: list = field(default_factory=list)  # per obstacle: its samples' depth inside its surface [r]
     run_anyway: bool = False
 
     def refusal_text(self):
@@ -472,8 +488,8 @@ class _Reader:
         if boundary != 0:
             self.note(f"Configuration.boundaryHandlingMethod {boundary} (volume/density maps): warpsph samples walls and "
                       "bodies with boundary particles (Akinci et al. 2012, SPlisHSPlasH's method 0); the domain's faces "
-                      "stand where the container holds the fluid, bodies hold it r from their surface (a volume map "
-                      f"{volume_map_standoff():.1f} r)")
+                      "and the bodies' samples stand where SPlisHSPlasH's boundary holds the fluid (a volume map "
+                      f"{volume_map_standoff():.1f} r from its surface)")
         for key in ("kernel", "gradKernel"):
             if config.get(key, 0) not in (0, 4, -1):
                 self.note(f"Configuration.{key} {config[key]}: warpsph uses the cubic spline kernel (0)")
@@ -766,14 +782,21 @@ class _Reader:
                                    "wall contact)")
                 if body.get("isAnimated"):
                     self.refuse(f"{key}.isAnimated", "a body moved by a script or animation: it would stand still")
+                thickness = float(_num(body.get("mapThickness"), 0.0)) if self.boundary_method == 2 else 0.0
+                inset, why = body_inset(self.boundary_method, thickness, self.radius)
+                self.c.body_insets.append(inset)
+                self.mapped(f"{key} boundary, Configuration.boundaryHandlingMethod"
+                            + (f", {key}.mapThickness" if thickness else ""),
+                            f"obstacles[{len(obstacles)}] samples", f"{inset:+.3f} r inside the surface ({why})")
                 obstacles.append(obstacle)
                 self.mapped(key, f"obstacles[{len(obstacles) - 1}]", f"{kind} {body['geometryFile']}")
                 if body.get("mapInvert"):
                     self.note(f"{key}.mapInvert: a second container; warpsph samples it as an obstacle's surface")
             if body.get("particleFile"):
                 self.note(f"{key}.particleFile: warpsph samples the body from geometryFile instead")
-            if body.get("mapThickness") and not (body is container and self.boundary_method == 2):
-                self.note(f"{key}.mapThickness {_fmt(body['mapThickness'])}: volume-map thickness is not modelled")
+            if body.get("mapThickness") and self.boundary_method != 2:
+                self.note(f"{key}.mapThickness {_fmt(body['mapThickness'])}: the map thickness of boundaryHandlingMethod "
+                          f"{self.boundary_method} is not modelled")
             if not body.get("isDynamic"):
                 self.no_effect(key, [k for k in body if k in BODY_PBD_CONTACT or k in ("density", "velocity", "angularVelocity")],
                                "rigid-body settings of a static body")

@@ -1,0 +1,278 @@
+"""Dynamic bodies side by side with SPlisHSPlasH on its own scenes (issue #39).
+
+SPlisHSPlasH (pysplishsplash 2.19.0, its own virtual environment, headless) and warpsph run the same
+scene file on the CPU, at a coarser ``particleRadius`` when asked (the copy is written beside a link to
+SPlisHSPlasH's ``data/models``, so the file's relative mesh paths still resolve; both codes read that
+copy). Each dynamic body's position (its centre of mass in both codes) is recorded every step and
+sampled at 0.1 ... ``--stop`` s by linear interpolation between steps. The difference is reported as a
+percentage of the body's travel in SPlisHSPlasH (|x(t_end) - x(0)|).
+
+    nice -n 10 python tools/splishsplash_bodies.py --pss-python /work/splish-venv/bin/python \
+        --scene DamBreakWithObjects.json --radius 0.05 --out tools/results/splishsplash_bodies_dbwo.json
+
+The SPlisHSPlasH half runs this file under the other interpreter (``--worker splishsplash``) with
+``LD_PRELOAD`` of the system libGLdispatch (its import segfaults without it; nothing is drawn).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+GLDISPATCH = "/lib/x86_64-linux-gnu/libGLdispatch.so.0"
+FLUID_TIMES = (0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5)  # fluid positions kept in each code's own JSON (not compared)
+
+
+def blocks_at_rest(data, file):
+    """Moves each fluid block that starts inside the band where SPlisHSPlasH's volume maps push the fluid away
+    (its lattice's first layer 2r from the container's faces, the maps hold it 2.4 r away) by the shift warpsph's
+    importer would make, so that both codes start the fluid where their walls hold it at rest. Unmoved,
+    SPlisHSPlasH's first step compresses the bottom layer to 1.3-2.4 rho0 and shoots it along the floor at
+    3-8 m/s (r = 0.025-0.05 m; the jet, not the dam break, is what first strikes a body beside the column).
+    Returns the shifts {block index: [dx, dy, dz]}."""
+    import re
+    import warnings
+
+    from warpsph.io.splishsplash import translate
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        conversion = translate(data, file)
+    shifts = {}
+    for note in conversion.notes:
+        m = re.match(r"FluidBlocks\[(\d+)\] starts inside the band .* moved by \[([^\]]*)\] m", note)
+        if m:
+            n, delta = int(m.group(1)), [float(c) for c in m.group(2).split(",")]
+            block = data["FluidBlocks"][n]
+            block["translation"] = [float(a) + d for a, d in zip(block.get("translation", [0, 0, 0]), delta)]
+            shifts[n] = delta
+    return shifts
+
+
+def scene_copy(pss_python, scene, radius, work, at_rest=True, map_scale=1):
+    """The scene file at ``radius`` (unchanged when None), in ``work/Scenes`` beside a link to SPlisHSPlasH's
+    models, so its relative paths resolve; with ``at_rest``, its fluid blocks moved out of the walls' band
+    (:func:`blocks_at_rest`). Returns the copy's path and the shifts."""
+    data_dir = Path(pss_python).parent / "data"
+    source = data_dir / "Scenes" / scene
+    data = json.loads(source.read_text())
+    if radius is not None:
+        data["Configuration"]["particleRadius"] = float(radius)
+    shifts = blocks_at_rest(data, source) if at_rest else {}
+    if map_scale != 1:  # SPlisHSPlasH's volume maps only (warpsph samples its boundaries itself)
+        for body in data.get("RigidBodies", []):
+            body["mapResolution"] = [int(round(map_scale * c)) for c in body.get("mapResolution", [10, 10, 10])]
+    scenes = Path(work) / "Scenes"
+    scenes.mkdir(parents=True, exist_ok=True)
+    models = Path(work) / "models"
+    if not models.exists():
+        models.symlink_to(data_dir / "models")
+    out = scenes / (Path(scene).stem + (f"_r{radius:g}" if radius is not None else "") + ("_rest" if at_rest else "")
+                    + (f"_map{map_scale:g}" if map_scale != 1 else "") + ".json")
+    out.write_text(json.dumps(data, indent=1))
+    return out, shifts
+
+
+# -- SPlisHSPlasH (runs under pysplishsplash's interpreter) ---------------------------------------
+def run_splishsplash(scene_file, stop, out_dir):
+    import pysplishsplash as sph
+
+    base = sph.Exec.SimulatorBase()
+    base.init(sceneFile=str(scene_file), useGui=False, stopAt=float(stop), outputDir=str(out_dir), initialPause=False)
+    steps, fluid, pending = [], [], list(FLUID_TIMES)
+    start = time.perf_counter()
+    first = {}
+
+    def bodies(sim):
+        out = []
+        for i in range(sim.numberOfBoundaryModels()):
+            rb = sim.getBoundaryModel(i).getRigidBodyObject()
+            if rb.isDynamic():
+                out.append(rb)
+        return out
+
+    def on_step():
+        sim = sph.Simulation.getCurrent()
+        tm = sph.TimeManager.getCurrent()
+        rbs = bodies(sim)
+        if not first:
+            first.update(particles=sim.getFluidModel(0).numActiveParticles(), radius=sim.getParticleRadius(),
+                         masses=[float(rb.getMass()) for rb in rbs])
+        steps.append([tm.getTime()] + [float(c) for rb in rbs for c in np.asarray(rb.getPosition()).ravel()]
+                     + [float(c) for rb in rbs for c in np.asarray(rb.getVelocity()).ravel()])
+        while pending and tm.getTime() >= pending[0] - 1e-4:
+            fm = sim.getFluidModel(0)
+            fluid.append({"t": pending.pop(0), "x": np.asarray(fm.getFieldBuffer("position"))[
+                :fm.numActiveParticles()].round(4).tolist()})
+
+    base.setTimeStepCB(on_step)
+    base.run()
+    # the bodies exist from the first step on: their start is the first step's position less v t (to O(g t^2))
+    a = np.asarray(steps[0], np.float64)
+    n = len(first["masses"])
+    initial = (a[1:1 + 3 * n] - a[1 + 3 * n:1 + 6 * n] * a[0]).tolist()
+    return {"program": "SPlisHSPlasH (pysplishsplash 2.19.0)", "scene": str(scene_file), "initial": first,
+            "initial_positions": initial, "steps": steps, "fluid": fluid, "wall_s": time.perf_counter() - start}
+
+
+# -- warpsph ---------------------------------------------------------------------------------------
+def run_warpsph(scene_file, stop):
+    import warnings
+
+    import warp as wp
+
+    wp.config.quiet = True
+    from warpsph.io.splishsplash import conversion_of
+    from warpsph.scene import load_scene
+    from warpsph.simulation import Simulation
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scene = load_scene(str(scene_file))
+    sim = Simulation(scene, device="cpu")
+    mb = sim.moving_bodies
+    dynamic = mb.dynamic if mb is not None else []
+    initial = [b.position.tolist() for b in dynamic]
+    steps, fluid, pending = [], [], list(FLUID_TIMES)
+    start = time.perf_counter()
+    while sim.time < stop - 1e-9:
+        sim.step()
+        problem = sim.check_health()
+        if problem is not None:
+            raise problem
+        steps.append([sim.time] + [float(c) for b in dynamic for c in b.position]
+                     + [float(c) for b in dynamic for c in b.velocity])
+        while pending and sim.time >= pending[0] - 1e-4:
+            fluid.append({"t": pending.pop(0), "x": sim.fluid.x.numpy()[:sim.num_fluid].round(4).tolist()})
+    conversion = conversion_of(scene)
+    return {"program": "warpsph", "scene": str(scene_file), "particles": sim.num_fluid,
+            "masses": [b.mass for b in dynamic], "names": [b.name for b in dynamic],
+            "initial_positions": initial, "steps": steps, "fluid": fluid, "wall_s": time.perf_counter() - start,
+            "mapped": conversion.mapped if conversion else None, "notes": conversion.notes if conversion else None}
+
+
+# -- comparison ------------------------------------------------------------------------------------
+def at(steps, initial, times, n_bodies):
+    """Positions [time, body, xyz] interpolated linearly between the recorded steps (t = 0: ``initial``)."""
+    a = np.asarray(steps, np.float64)
+    t = np.concatenate([[0.0], a[:, 0]])
+    x = np.concatenate([np.asarray(initial, np.float64).reshape(1, -1), a[:, 1:1 + 3 * n_bodies]])
+    return np.stack([[np.interp(s, t, x[:, k]) for k in range(3 * n_bodies)] for s in times]).reshape(len(times), n_bodies, 3)
+
+
+def compare(theirs, ours, times):
+    n = len(ours["initial_positions"])
+    x0_s = np.asarray(theirs["initial_positions"] or theirs["steps"][0][1:1 + 3 * n], np.float64).reshape(n, 3)
+    x0_w = np.asarray(ours["initial_positions"], np.float64).reshape(n, 3)
+    xs, xw = at(theirs["steps"], x0_s, times, n), at(ours["steps"], x0_w, times, n)
+    bodies = []
+    for b in range(n):
+        travel = float(np.linalg.norm(xs[-1, b] - x0_s[b]))
+        rows = []
+        for k, t in enumerate(times):
+            ds, dw = xs[k, b] - x0_s[b], xw[k, b] - x0_w[b]
+            rows.append({"t": t, "splishsplash": xs[k, b].round(4).tolist(), "warpsph": xw[k, b].round(4).tolist(),
+                         "difference_m": float(np.linalg.norm(dw - ds)),
+                         "percent_of_travel": 100.0 * float(np.linalg.norm(dw - ds)) / travel if travel else None})
+        bodies.append({"name": ours["names"][b], "mass": {"splishsplash": theirs["initial"]["masses"][b],
+                                                          "warpsph": ours["masses"][b]},
+                       "initial": {"splishsplash": x0_s[b].round(4).tolist(), "warpsph": x0_w[b].round(4).tolist()},
+                       "travel_splishsplash_m": travel, "rows": rows})
+    return bodies
+
+
+def machine():
+    import platform
+
+    cpu = next((line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                if line.startswith("model name")), platform.processor())
+    return {"cpu": cpu, "cores": os.cpu_count(), "python": platform.python_version()}
+
+
+def commit():
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                              cwd=Path(__file__).parent).stdout.strip()
+    except OSError:
+        return None
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--pss-python", default="/work/splish-venv/bin/python", help="interpreter with pysplishsplash 2.19.0")
+    ap.add_argument("--scene", default="DamBreakWithObjects.json", help="a scene of SPlisHSPlasH's data/Scenes")
+    ap.add_argument("--radius", type=float, help="particleRadius of the copy both codes run (default: the file's)")
+    ap.add_argument("--stop", type=float, default=0.5)
+    ap.add_argument("--map-scale", type=float, default=1.0,
+                    help="multiply every body's mapResolution (SPlisHSPlasH's volume maps; the shipped ones are "
+                         "coarse for the container: at r = 0.05 m its first step compresses a corner to 2.3 rho0)")
+    ap.add_argument("--as-shipped", action="store_true",
+                    help="keep the fluid blocks where the file puts them (SPlisHSPlasH's first step then blasts the "
+                         "fluid out of its walls' band; warpsph's importer moves it instead)")
+    ap.add_argument("--out", help="the comparison JSON (required unless --worker or --only)")
+    ap.add_argument("--work", default="/tmp/splishsplash_bodies")
+    ap.add_argument("--splishsplash-json", help="reuse a finished SPlisHSPlasH run (the worker's JSON)")
+    ap.add_argument("--only", choices=["splishsplash", "warpsph"], help="run one code and save its JSON")
+    ap.add_argument("--warpsph-json", help="reuse a finished warpsph run")
+    ap.add_argument("--worker", choices=["splishsplash"], help=argparse.SUPPRESS)
+    ap.add_argument("--scene-file", help=argparse.SUPPRESS)
+    ap.add_argument("--worker-out", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+
+    if args.worker == "splishsplash":
+        result = run_splishsplash(args.scene_file, args.stop, args.work)
+        Path(args.worker_out).write_text(json.dumps(result))
+        return 0
+
+    work = Path(args.work)
+    work.mkdir(parents=True, exist_ok=True)
+    scene_file, shifts = scene_copy(args.pss_python, args.scene, args.radius, work, not args.as_shipped, args.map_scale)
+    stem = scene_file.stem
+    theirs_file = Path(args.splishsplash_json) if args.splishsplash_json else work / f"{stem}.splishsplash.json"
+    if not args.splishsplash_json and args.only != "warpsph":
+        env = dict(os.environ)
+        if os.path.exists(GLDISPATCH):
+            env["LD_PRELOAD"] = GLDISPATCH
+        subprocess.run([args.pss_python, __file__, "--worker", "splishsplash", "--stop", str(args.stop),
+                        "--work", str(work / f"{stem}.out"), "--scene-file", str(scene_file),
+                        "--worker-out", str(theirs_file)], env=env, check=True, stdout=subprocess.DEVNULL)
+    if args.only == "splishsplash":
+        return 0
+    ours_file = Path(args.warpsph_json) if args.warpsph_json else work / f"{stem}.warpsph.json"
+    if not args.warpsph_json:
+        ours_file.write_text(json.dumps(run_warpsph(scene_file, args.stop)))
+    if args.only == "warpsph":
+        return 0
+    theirs, ours = json.loads(theirs_file.read_text()), json.loads(ours_file.read_text())
+    times = [round(0.1 * k, 1) for k in range(1, int(round(args.stop / 0.1)) + 1)]
+    bodies = compare(theirs, ours, times)
+    import warp as wp
+
+    result = {"scene": f"pysplishsplash 2.19.0 data/Scenes/{args.scene}", "particle_radius": args.radius,
+              "fluid_blocks_moved_to_rest_m": shifts, "map_resolution_scale": args.map_scale,
+              "device": "cpu", "machine": machine(), "commit": commit(), "warp": wp.config.version,
+              "splishsplash": "pysplishsplash 2.19.0",
+              "particles": {"splishsplash": theirs["initial"]["particles"], "warpsph": ours["particles"]},
+              "wall_s": {"splishsplash": theirs["wall_s"], "warpsph": ours["wall_s"]},
+              "steps": {"splishsplash": len(theirs["steps"]), "warpsph": len(ours["steps"])},
+              "bodies": bodies, "warpsph_notes": ours["notes"]}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
+    for b in bodies:
+        print(f"{b['name']}: mass {b['mass']['splishsplash']:.4g} / {b['mass']['warpsph']:.4g} kg, "
+              f"travel {b['travel_splishsplash_m']:.3f} m")
+        for r in b["rows"]:
+            print(f"  t={r['t']:.1f}  SPlisHSPlasH {r['splishsplash']}  warpsph {r['warpsph']}  "
+                  f"{r['percent_of_travel']:.1f} % of travel")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
