@@ -62,10 +62,11 @@ def reference(tmp_path_factory):
     return {"scene": scene, "final": points(out, FRAMES), "size": out.stat().st_size}
 
 
-def start(tmp_path, reference, *argv, script=None, limit=None, killed=True):
+def start(tmp_path, reference, *argv, script=None, limit=None, killed=True, group=False):
     """`warpsph run` of the reference scene into tmp_path/long.usdc (or ``argv`` after the verb) in a child process;
     ``script`` runs instead of the CLI's main (it calls main itself). ``limit`` caps the size of any file it writes:
-    the write that crosses it kills the child (SIGXFSZ), or with ``killed`` False fails (EFBIG, as Python has it)."""
+    the write that crosses it kills the child (SIGXFSZ), or with ``killed`` False fails (EFBIG, as Python has it).
+    ``group``: the child leads a process group of its own (with its mesher workers: os.killpg kills them all)."""
     argv = argv or ("run", str(reference["scene"]), "--out", str(tmp_path / "long.usdc"), "--checkpoint-every", str(EVERY))
     code = script or "import sys; from warpsph.cli import main; sys.exit(main(sys.argv[1:]))"
     if limit and killed:  # Python ignores SIGXFSZ; a C program dies of it
@@ -77,7 +78,7 @@ def start(tmp_path, reference, *argv, script=None, limit=None, killed=True):
 
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONDONTWRITEBYTECODE": "1"}
     return subprocess.Popen([sys.executable, "-c", code, *argv, "--device", "cpu", "-q"], stderr=subprocess.PIPE,
-                            text=True, env=env, cwd=tmp_path, preexec_fn=cap if limit else None)
+                            text=True, env=env, cwd=tmp_path, preexec_fn=cap if limit else None, start_new_session=group)
 
 
 def wait_rows(stats, rows, proc):
@@ -119,6 +120,70 @@ def test_sigkill_at_a_frame_then_resume_matches_the_uninterrupted_run(tmp_path, 
     assert proc.returncode == -signal.SIGKILL
     check_killed(tmp_path)
     resume_to_the_end(tmp_path, reference)
+
+
+SURFACE = ("--surface", "--surface-method", "preview")  # Warp's marching cubes: no pysplashsurf needed
+SURFACE_KILLS = list(zip(KILL_FRAMES, [False, True, False, True]))  # (frame, --clips)
+
+
+def samples(path, prim, attribute):
+    """{frame: values} of ``prim``'s ``attribute`` in the cache ``path``."""
+    stage = Usd.Stage.Open(str(path))
+    attr = stage.GetPrimAtPath(prim).GetAttribute(attribute)
+    return {int(t): np.array(attr.Get(t)) for t in attr.GetTimeSamples()}
+
+
+@pytest.fixture(scope="module")
+def surface_reference(reference, tmp_path_factory):
+    """The uninterrupted run --surface (preview), single file and --clips: the cache of each."""
+    caches = {}
+    for clips in (False, True):
+        out = tmp_path_factory.mktemp("surface_clips" if clips else "surface") / "long.usdc"
+        assert main(["run", str(reference["scene"]), "--device", "cpu", "--out", str(out), "--checkpoint-every",
+                     str(EVERY), *SURFACE, *(["--clips"] if clips else []), "-q"]) == 0
+        assert sorted(samples(out, "/World/FluidSurface", "points")) == list(range(FRAMES + 1))
+        caches[clips] = out
+    return caches
+
+
+@pytest.mark.parametrize("frame, clips", SURFACE_KILLS)
+def test_sigkill_of_a_surface_run_then_resume_matches_the_uninterrupted_particles_and_meshes(
+        tmp_path, reference, surface_reference, frame, clips):
+    """run --surface SIGKILLed (its process group) at a seeded frame: the cache opens with frames 0..j and the mesh of every frame up to
+    the checkpoint's; resume ends with the uninterrupted run's particles and meshes in every frame, bit for bit.
+    Before, a checkpoint did not wait for the meshes in flight: the frames meshed after it were lost with the kill,
+    and the resumed run, which meshes only the frames after the checkpoint, left them without a mesh."""
+    out = tmp_path / "long.usdc"
+    clip = ["--clips"] if clips else []
+    proc = start(tmp_path, reference, "run", str(reference["scene"]), "--out", str(out), "--checkpoint-every",
+                 str(EVERY), *SURFACE, *clip, group=True)
+    wait_rows(tmp_path / "long.stats.csv", frame, proc)
+    os.killpg(proc.pid, signal.SIGKILL)  # the run and its mesher workers (`kill -9 -PGID`)
+    proc.communicate(timeout=60)
+    assert proc.returncode == -signal.SIGKILL
+    checkpoint = checkpoint_frame(out.with_suffix(".checkpoint.h5"))
+    if clips:  # the frame layers, each readable with its particles and (up to the checkpoint) its mesh
+        layers = sorted(p for p in (tmp_path / "long.clips").glob("frame.*.usdc") if ".tmp." not in p.name)
+        assert [p.name for p in layers] == [f"frame.{k:06d}.usdc" for k in range(len(layers))]
+        assert len(layers) > checkpoint
+        for k, layer in enumerate(layers[:checkpoint + 1]):
+            assert list(samples(layer, "/World/Fluid", "points")) == [k]
+            assert list(samples(layer, "/World/FluidSurface", "points")) == [k], (k, checkpoint)
+    else:
+        check_killed(tmp_path)
+        meshed = sorted(samples(tmp_path / "long.partial.usdc", "/World/FluidSurface", "points"))
+        assert meshed[:checkpoint + 1] == list(range(checkpoint + 1)), (meshed, checkpoint)
+    assert main(["resume", str(out.with_suffix(".checkpoint.h5")), "--device", "cpu", "-q"]) == 0
+    for prim, attribute in [("/World/Fluid", "points"), ("/World/Fluid", "velocities"),
+                            ("/World/FluidSurface", "points"), ("/World/FluidSurface", "faceVertexIndices")]:
+        got, want = samples(out, prim, attribute), samples(surface_reference[clips], prim, attribute)
+        assert sorted(got) == sorted(want) == list(range(FRAMES + 1)), (prim, attribute)
+        for k in want:
+            np.testing.assert_array_equal(got[k], want[k], err_msg=f"{prim}.{attribute} at frame {k}")
+    expected = ["long.checkpoint.h5", "long.stats.csv", "long.usdc"]
+    if clips:
+        expected = sorted(expected + ["long.clips", "long.manifest.usdc", "long.topology.usdc"])
+    assert sorted(p.name for p in tmp_path.glob("long*")) == expected
 
 
 @pytest.mark.parametrize("share, killed", list(zip(SIZE_LIMITS, [True, True, False])))

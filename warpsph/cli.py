@@ -387,10 +387,16 @@ def _simulate(sim, outputs, frames, args, options, append):
         mesher = BackgroundMesher(mesher_for(surface, radius, sim.device, clip=clip), every=int(options.get("surface_every", 1)),
                                   behind=str(options.get("surface_behind", "wait")))
 
+    mesh_count = {"submitted": 0, "written": 0}  # frames handed to the mesher, and their meshes written to the cache
+
+    def write_meshes():
+        for frame, mesh in mesher.ready():
+            cache.write_surface(frame, mesh, save=False)  # saved with the next frame (or checkpoint)
+            mesh_count["written"] += 1
+
     def write(item):  # on the writer's thread: the USD frame, the meshes done, the HDF5 frame, the CSV row
         if mesher is not None:
-            for frame, mesh in mesher.ready():
-                cache.write_surface(frame, mesh, save=False)  # saved with this frame
+            write_meshes()
         payload["bytes"] += write_host_frame(cache, item, radius, fields)
         if mesher is not None and mesher.wants(item.frame):
             a = item.arrays
@@ -400,7 +406,7 @@ def _simulate(sim, outputs, frames, args, options, append):
             layer = cache.surface_layer(item.frame)
             if layer is not None:  # --clips: the mesher's worker writes the mesh into the frame's layer itself
                 job["layer"] = (layer, item.frame)
-            mesher.submit(item.frame, job)
+            mesh_count["submitted"] += bool(mesher.submit(item.frame, job))
         payload["particle_frames"] += item.count
         if particles is not None:
             particles.write(item.frame, item.time, item.step, item.arrays)
@@ -431,8 +437,23 @@ def _simulate(sim, outputs, frames, args, options, append):
         except WriterFailed as failed:
             raise _write_error(failed) from failed.cause
 
+    def wait_meshes():
+        """Writes the meshes of every frame handed to the mesher (called with the writer drained, so on this thread
+        alone): a checkpoint at frame F claims the meshes of frames <= F too. Without it a kill after the checkpoint
+        lost the meshes still in flight, and the resumed run never meshed those frames again."""
+        try:
+            while True:
+                write_meshes()
+                if mesh_count["written"] >= mesh_count["submitted"]:
+                    return
+                time.sleep(0.002)
+        except Exception as exc:  # the mesher failed or lost a worker: one line, as from the writer
+            raise _write_error(WriterFailed(sim.frame, exc)) from exc
+
     def checkpoint():
         drain()  # the checkpoint claims only frames the cache holds, saved
+        if mesher is not None:
+            wait_meshes()
         with _writing(f"cannot save the cache {outputs.out}"):
             cache.flush()
         if particles is not None:
