@@ -216,6 +216,58 @@ def test_killed_driver_rerun_finishes_the_missing_cells(tmp_path):
     assert table["complete"] and [(r["method"], r["resolution"], r["particles"]) for r in table["rows"]] == EXPECTED
 
 
+def _alive_in_group(pgid):
+    """The pids of the process group ``pgid`` that are not zombies (an exited multiprocessing resource tracker
+    whose parent is gone can stay a zombie where pid 1 does not reap)."""
+    alive = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[2]) == pgid and fields[0] != "Z":
+            alive.append(int(stat.parent.name))
+    return alive
+
+
+def test_ctrl_c_of_the_sweep_keeps_the_finished_cells_and_a_rerun_runs_the_rest(tmp_path):
+    """SIGINT to the sweep's process group (Ctrl-C in a terminal: the driver and the cell in flight) after the first
+    cell: exit 130 and one line, no traceback, the finished cells kept, no table, no cell process left; the rerun
+    runs only the cells not finished and leaves the others' records as they were."""
+    sweep = tmp_path / "sweep.json"
+    sweep.write_text(json.dumps(SWEEP))
+    out = tmp_path / "out"
+    driver = subprocess.Popen([sys.executable, "-m", "warpsph.cli", "sweep", str(sweep), "--out", str(out),
+                               "--workers", "1"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                              start_new_session=True)
+    try:
+        deadline = time.time() + 60
+        while time.time() < deadline and not list((out / "cells").glob("*.json")):
+            time.sleep(0.05)
+        os.killpg(driver.pid, signal.SIGINT)
+        _, err = driver.communicate(timeout=60)
+    finally:
+        if driver.poll() is None:
+            os.killpg(driver.pid, signal.SIGKILL)
+            driver.wait()
+    assert driver.returncode == 130, err
+    last = err.strip().splitlines()[-1]  # after the progress lines
+    assert "Traceback" not in err and last.startswith("warpsph: SIGINT: the sweep stopped; ") and "run the same command again to run the other" in last, err
+    deadline = time.time() + 5  # the resource tracker ends once it sees the driver gone
+    while _alive_in_group(driver.pid) and time.time() < deadline:
+        time.sleep(0.05)
+    assert [Path(f"/proc/{pid}/cmdline").read_bytes()[:200] for pid in _alive_in_group(driver.pid)] == []  # no cell left
+    first = _mtimes(out)
+    assert 1 <= len(first) < 4 and not (out / "table.json").exists()
+    assert all(json.loads((out / "cells" / name).read_text())["status"] == "done" for name in first)
+    lines = []
+    table = run_sweep(sweep, out, workers=1, log=lines.append)
+    assert f"[{4 - len(first)} to run" in lines[0]
+    after = _mtimes(out)
+    assert len(after) == 4 and all(after[name] == first[name] for name in first)
+    assert table["complete"] and [(r["method"], r["resolution"], r["particles"]) for r in table["rows"]] == EXPECTED
+
+
 def test_blow_up_is_a_result(tmp_path):
     # dam-front 4 across with a fixed 50 ms step and two solver iterations leaves the domain at step 2
     sweep = {"base": "dam-front", "axes": {"resolution": [4]}, "warm_up": False,

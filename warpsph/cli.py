@@ -1143,9 +1143,9 @@ def main(argv=None):
     except SceneError as exc:
         logger.error("%s", exc)
         return 2
-    except KeyboardInterrupt:
-        logger.warning("interrupted", extra=PLAIN)
-        return 130
+    except KeyboardInterrupt as exc:  # a sweep's SweepInterrupted says what it kept, and may be a SIGTERM
+        logger.warning("%s", str(exc) or "interrupted", extra=PLAIN)
+        return 128 + int(getattr(exc, "signum", signal.SIGINT))
     finally:
         undo()
 

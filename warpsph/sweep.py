@@ -67,6 +67,7 @@ cells lost with a worker; ``address`` joins a running cluster, otherwise a local
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import difflib
 import hashlib
@@ -925,10 +926,15 @@ def _local(todo, devices, workers, on_record, progress):
                 slot, cell = free.pop(0), queue.pop(0)
                 receive, send = context.Pipe(duplex=False)
                 process = context.Process(target=_cell_process, args=(cell, slots[slot], send), daemon=True)
-                process.start()
-                send.close()
-                running[process.sentinel] = (process, receive, slot, cell)
-                progress.running += 1
+                # SIGINT blocked while the cell's process starts: it inherits the mask and ignores SIGINT only
+                # once it runs _cell_process (Python's start-up and imports, ~1 s, took a group Ctrl-C as a
+                # KeyboardInterrupt with a traceback). Here a Ctrl-C meanwhile (another thread may take it) is
+                # only noted, and raised once the process is in `running`, where the finally below stops it.
+                with _sigint_deferred():
+                    process.start()
+                    send.close()
+                    running[process.sentinel] = (process, receive, slot, cell)
+                    progress.running += 1
             for sentinel in wait(list(running)):
                 process, receive, slot, cell = running.pop(sentinel)
                 try:
@@ -967,11 +973,47 @@ def _signal_name(number):
         return "unknown"
 
 
+@contextlib.contextmanager
+def _sigint_deferred():
+    """SIGINT blocked on this thread and noted (not raised) on any other; raised as KeyboardInterrupt on leaving."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        _block_sigint(True)
+        try:
+            yield
+        finally:
+            _block_sigint(False)
+        return
+    noted = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: noted.append(signum))
+    _block_sigint(True)
+    try:
+        yield
+    finally:
+        _block_sigint(False)  # a SIGINT pending on this thread is handled here: noted
+        signal.signal(signal.SIGINT, previous)
+    if noted and previous is not signal.SIG_IGN:
+        if callable(previous):
+            previous(signal.SIGINT, None)  # Python's default handler raises KeyboardInterrupt
+        raise KeyboardInterrupt
+
+
+def _block_sigint(block):
+    import signal
+
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_BLOCK if block else signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 def _cell_process(cell, device, send):
-    """A cell's process: the terminal's Ctrl-C goes to the sweep, which stops its cells itself."""
+    """A cell's process: the terminal's Ctrl-C goes to the sweep, which stops its cells itself. (It starts with
+    SIGINT blocked: a Ctrl-C pending since then is dropped when it is ignored here.)"""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _block_sigint(False)
     try:
         send.send(run_cell(cell, device))
     finally:
@@ -1122,6 +1164,14 @@ def _local_devices(devices, sweep_device, file):
     return devices
 
 
+class SweepInterrupted(KeyboardInterrupt):
+    """A sweep stopped by SIGINT or SIGTERM (``signum``); the message says what is kept and how to go on."""
+
+    def __init__(self, message, signum):
+        super().__init__(message)
+        self.signum = signum
+
+
 def run_sweep(sweep, out, executor="local", workers=1, devices=None, address=None, num_gpus=None, num_cpus=1,
               max_retries=3, log=None, ray_init=None):
     """Runs the cells of ``sweep`` (a path or dict) not yet finished in ``out``; returns the table (a dict,
@@ -1168,10 +1218,29 @@ def run_sweep(sweep, out, executor="local", workers=1, devices=None, address=Non
         progress.record(record)
 
     if todo:
-        if executor == "local":
-            _local(todo, devices, min(workers, len(todo)), on_record, progress)
-        else:
-            _ray(ray, todo, num_gpus, num_cpus, max_retries, on_record, progress, ray_device)
+        import signal
+        import threading
+
+        def on_sigterm(signum, _frame):
+            raise SweepInterrupted("", signum)
+
+        main_thread = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGTERM, on_sigterm) if main_thread else None
+        try:
+            if executor == "local":
+                _local(todo, devices, min(workers, len(todo)), on_record, progress)
+            else:
+                _ray(ray, todo, num_gpus, num_cpus, max_retries, on_record, progress, ray_device)
+        except KeyboardInterrupt as exc:  # Ctrl-C (or SIGTERM): the cells in flight were stopped by the executor
+            signum = getattr(exc, "signum", signal.SIGINT)
+            kept = sum(finished(out, c) is not None for c in all_cells)
+            raise SweepInterrupted(
+                f"{signal.Signals(signum).name}: the sweep stopped; {kept} of {len(all_cells)} cells are finished and "
+                f"kept in {out / 'cells'}, the cells running were stopped and no table was written; run the same "
+                f"command again to run the other {len(all_cells) - kept}", signum) from None
+        finally:
+            if main_thread:
+                signal.signal(signal.SIGTERM, previous)
     table = assemble(spec, out)
     c = table["counts"]
     say(f"sweep: finished: {c['done']} done, {c['unstable']} unstable, {c['failed']} failed, {c['missing']} missing; "
