@@ -86,7 +86,7 @@ def test_blender_imports_the_surface_mesh_with_a_changing_vertex_count(tmp_path,
 # timeCodesPerSecond or framesPerSecond (bpy's __init__.so calls neither, and a stage with only one of them, or
 # both, at 30 imports at 24 all the same), so the scene keeps the fps it had (24 in the factory settings).
 # Nothing warpsph can write changes that: the USD import hook below (bpy.types.USDHook.on_import, the
-# recipe in docs/notes/renderers.md) sets scene.render.fps / fps_base from the stage.
+# add-on examples/blender_usd_frame_rate.py) sets scene.render.fps / fps_base from the stage.
 FPS_PROBE = r'''
 import json, os, sys
 import bpy
@@ -98,20 +98,9 @@ except ImportError:  # bpy as a Python module: Blender's own USD bindings (the h
                                  "python%d.%d" % sys.version_info[:2], "site-packages"))
 
 
-class WarpsphSceneRate(bpy.types.USDHook):
-    """On USD import: the scene plays at the stage's framesPerSecond (else timeCodesPerSecond)."""
-    bl_idname = "warpsph_scene_rate"
-    bl_label = "Scene frame rate from the USD stage"
-
-    @staticmethod
-    def on_import(import_context):
-        stage = import_context.get_stage()
-        fps = stage.GetFramesPerSecond() if stage.HasAuthoredMetadata("framesPerSecond") else \
-            stage.GetTimeCodesPerSecond()
-        render = bpy.context.scene.render
-        render.fps = max(1, round(fps))
-        render.fps_base = render.fps / fps
-        return True
+hook = {"__name__": "warpsph_blender_usd_frame_rate"}  # the shipped add-on (examples/blender_usd_frame_rate.py)
+exec(open(sys.argv[2]).read(), hook)
+WarpsphSceneRate = hook["WarpsphSceneRate"]
 
 
 def imported(path, hook):
@@ -142,8 +131,9 @@ print(json.dumps({"blender": bpy.app.version_string, "plain": imported(path, Fal
 
 def blender_rates(cache):
     """What Blender makes of ``cache``'s frame rate and range, without and with the import hook."""
-    result = subprocess.run([blender_python(), "-c", FPS_PROBE, str(cache)], capture_output=True, text=True,
-                            timeout=300)
+    addon = Path(__file__).resolve().parents[1] / "examples" / "blender_usd_frame_rate.py"
+    result = subprocess.run([blender_python(), "-c", FPS_PROBE, str(cache), str(addon)], capture_output=True,
+                            text=True, timeout=300)
     assert result.returncode == 0, result.stderr
     return json.loads(result.stdout[result.stdout.index('{"blender"'):])
 
