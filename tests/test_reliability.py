@@ -493,6 +493,123 @@ def test_a_signal_to_the_process_group_stops_a_surface_run_cleanly(tmp_path, sig
     assert done == [float(f) for f in range(len(done))] and len(done) >= 3
 
 
+def _children(pid):
+    """The pids of the live processes whose parent is ``pid`` (read from /proc: no psutil here)."""
+    found = []
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                stat = open(f"/proc/{entry}/stat").read()
+            except OSError:
+                continue
+            state, ppid = stat.rsplit(")", 1)[1].split()[:2]
+            if int(ppid) == pid and state != "Z":
+                found.append(int(entry))
+    return found
+
+
+def _alive(pid):
+    """Whether ``pid`` runs (a zombie, dead but not yet reaped by its new parent, does not)."""
+    try:
+        return open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def _cmdline(pid):
+    try:
+        return open(f"/proc/{pid}/cmdline", "rb").read().replace(b"\0", b" ").decode(errors="replace")
+    except OSError:
+        return ""
+
+
+def _start_surface_run(tmp_path, *extra):
+    """A long ``run --surface --surface-method preview`` on the CPU in a session of its own, once it has written a
+    few frames; (process, out, its mesher worker's pid)."""
+    data = tank_scene(radius=0.03, domain=(0.6, 0.4, 0.2), block=(0.2, 0.3, 0.2), output={"fps": 50, "frames": 400})
+    scene = write_scene(tmp_path, data)
+    out = tmp_path / "long.usdc"
+    proc = subprocess.Popen([sys.executable, "-m", "warpsph.cli", "run", str(scene), "--device", "cpu", "--out", str(out),
+                             "--surface", "--surface-method", "preview", *extra], stderr=subprocess.PIPE, text=True,
+                            cwd=tmp_path, start_new_session=True)
+    stats = out.with_suffix(".stats.csv")
+    workers = []
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None and (
+            not workers or not stats.exists() or len(stats.read_text().splitlines()) < 4):
+        workers = [pid for pid in _children(proc.pid) if "spawn_main" in _cmdline(pid)]
+        time.sleep(0.2)
+    if proc.poll() is not None or len(workers) != 1:
+        os.killpg(proc.pid, signal.SIGKILL)
+        pytest.fail(f"no mesher worker found: {workers}, {proc.communicate()[1]}")
+    return proc, out, workers[0]
+
+
+def test_a_run_killed_alone_leaves_no_mesher_worker(tmp_path):
+    """The out-of-memory killer SIGKILLs the run's process alone, not its group. Its mesher worker, which ignores
+    SIGINT and SIGTERM, and multiprocessing's resource tracker then ran for ever under pid 1. The worker now exits
+    when its parent dies (a thread watching os.getppid()), and the tracker when its pipe's last writer is gone."""
+    proc, out, worker = _start_surface_run(tmp_path, "-q")
+    left = _children(proc.pid)  # the worker and the resource tracker
+    try:
+        proc.kill()  # the run alone
+        proc.wait(timeout=60)  # not communicate(): a worker left holds the stderr pipe open
+        proc.stderr.close()
+        assert proc.returncode == -signal.SIGKILL
+        deadline = time.time() + 10
+        while time.time() < deadline and any(_alive(pid) for pid in left):
+            time.sleep(0.1)
+        assert not [pid for pid in left if _alive(pid)], [(pid, _cmdline(pid)) for pid in left if _alive(pid)]
+    finally:
+        for pid in left:  # the whole group is gone with the session (on the old code, the worker is still there)
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)
+
+
+def test_a_killed_mesher_worker_ends_the_run_with_one_line_and_a_finished_cache(tmp_path):
+    """A mesher worker SIGKILLed (out of memory) during run --surface: before, a BrokenProcessPool traceback, exit 1,
+    the cache left as long.partial.usdc. Now exit 2, one line naming the dead worker, the cache finished."""
+    proc, out, worker = _start_surface_run(tmp_path, "--checkpoint-every", "2", "-q")
+    try:
+        os.kill(worker, signal.SIGKILL)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 2, err
+    lines = [line for line in err.splitlines() if line.strip() and not line.startswith("Warp ")]  # no CUDA here
+    assert len(lines) == 1 and "a mesher worker process died" in lines[0] and "Traceback" not in err, err
+    assert "keeps the frames before it" in lines[0] and "last checkpoint: " in lines[0]
+    assert out.exists() and not (tmp_path / "long.partial.usdc").exists()
+    done = time_samples(out)
+    assert done == [float(f) for f in range(len(done))] and len(done) >= 3
+    assert not [pid for pid in _children(os.getpid()) if _alive(pid) and "spawn_main" in _cmdline(pid)]
+
+
+def test_ctrl_c_of_validate_is_one_line_and_writes_no_json(tmp_path):
+    """SIGINT to the process group of ``validate`` during its study: exit 130, ``warpsph: interrupted``, no traceback,
+    no --json file."""
+    proc = subprocess.Popen([sys.executable, "-m", "warpsph.cli", "validate", "taylor-green", "--resolutions", "16",
+                             "24", "--device", "cpu", "--json", "v.json"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=tmp_path, start_new_session=True,
+                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        seen = []
+        while not (seen and seen[-1].startswith("[1/2]")) and len(seen) < 20:  # "[1/2] taylor-green ...": it runs
+            seen.append(proc.stderr.readline())
+        assert seen[-1].startswith("[1/2]"), seen
+        time.sleep(1.0)
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert [line for line in err.splitlines() if line.strip() and not line.startswith("Warp ")] == [
+        "warpsph: interrupted"], err
+    assert not (tmp_path / "v.json").exists()
+
+
 def test_a_filling_disk_stops_the_run_before_the_cache_is_damaged(tmp_path, monkeypatch, capsys):
     """A single-file cache whose save ran out of space was truncated: USD could not open it and resume ended in a
     traceback. The free space is now checked before each frame: the run stops with ENOSPC and the numbers, the

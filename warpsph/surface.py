@@ -535,7 +535,8 @@ def _init_worker(threads, clip=None):
     """A mesher worker: its share of the cores (splashsurf's rayon pool reads RAYON_NUM_THREADS when it
     starts) at a lower CPU priority than the simulation, and the run's :class:`SurfaceClip` (once, not with
     every frame). It ignores SIGINT and SIGTERM, which a terminal or a process-group kill sends to the whole
-    group: the run's process finishes the frame, saves and stops it."""
+    group: the run's process finishes the frame, saves and stops it. It exits when the run's process dies
+    (:func:`_exit_with_parent`): a run SIGKILLed alone, by the out-of-memory killer, left its worker running."""
     import os
     import signal
 
@@ -544,9 +545,44 @@ def _init_worker(threads, clip=None):
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    _exit_with_parent()
     os.environ.setdefault("RAYON_NUM_THREADS", str(threads))
     if hasattr(os, "nice"):
         os.nice(WORKER_NICENESS)
+
+
+PARENT_POLL_SECONDS = 0.25  # how often a mesher worker looks for its run's process
+
+
+def _exit_with_parent():
+    """Ends this worker process (``os._exit``) soon after the process that started it dies: a daemon thread
+    compares ``os.getppid()`` with the parent's pid every :data:`PARENT_POLL_SECONDS` (a system call; the
+    parent's death reparents the worker at once). The worker ignores SIGINT and SIGTERM, and its pool's
+    pipes are shared with the other workers, so before this a run SIGKILLed alone (not its group: the
+    out-of-memory killer) left its workers, and multiprocessing's resource tracker, running for ever.
+
+    Not ``prctl(PR_SET_PDEATHSIG)``: Linux sends that signal when the *thread* that started the process ends,
+    and the pool starts its workers on the run's mesher threads (``pool.submit``), which end before the pool
+    is shut down. The thread needs the GIL, so a worker inside a reconstruction that holds it (pysplashsurf)
+    exits when that frame's mesh is done."""
+    import multiprocessing
+    import os
+    import threading
+
+    parent = multiprocessing.parent_process()  # its pid as the parent wrote it, not the getppid() of now
+    if parent is None:
+        return
+    if os.getppid() != parent.pid:  # it died while this worker started
+        os._exit(1)
+    threading.Thread(target=_watch_parent, args=(parent.pid,), name="warpsph-parent-watch", daemon=True).start()
+
+
+def _watch_parent(pid):
+    import os
+
+    while os.getppid() == pid:
+        time.sleep(PARENT_POLL_SECONDS)
+    os._exit(1)
 
 
 def _mesh_in_worker(points, radius, velocities, vorticity, options, device, folder=None, layer=None, poses=None):
