@@ -1,11 +1,11 @@
 """The viscous Laplacian: the artificial viscosity of the VR paper (eq 4, after Koschier et al. 2019), and away from the
-free surface the componentwise (Morris et al. 1997) Laplacian with eq 4 on its gradient-corrected residual.
+free surface the divergence of the corrected strain rate, div (2 S), with eq 4 on its gradient-corrected residual.
 """
 
 import warp as wp
 
 from .free_surface import SURFACE, off_surface
-from .particles import Boundary, Neighbours, SymmetricMatrix, boundary_velocity, pack_symmetric, separation, symmetric_quadratic
+from .particles import Boundary, Neighbours, SymmetricMatrix, boundary_velocity, pack_symmetric, separation, symmetric_quadratic, symmetric_times
 from .sph_kernel import cubic_kernel_gradient
 from .vorticity import curl_term
 
@@ -28,14 +28,6 @@ def artificial_laplacian(a_ij: wp.vec3, x_ij: wp.vec3, grad_w: wp.vec3, volume_j
     return residual_laplacian(wp.dot(a_ij, x_ij), x_ij, grad_w, volume_j, support_radius)
 
 
-@wp.func
-def componentwise_laplacian(a_ij: wp.vec3, x_ij: wp.vec3, grad_w: wp.vec3, volume_j: float, support_radius: float):
-    """One neighbour's term of the componentwise Laplacian (Morris, Fox & Zhu 1997):
-    2 V_j (x_ij . grad W_ij) / (|x_ij|^2 + 0.01 H^2) A_ij."""
-    h2 = support_radius * support_radius
-    return (2.0 * volume_j * wp.dot(x_ij, grad_w) / (wp.dot(x_ij, x_ij) + 0.01 * h2)) * a_ij
-
-
 @wp.kernel
 def compute_strain_rate(
     x: wp.array(dtype=wp.vec3),
@@ -43,24 +35,30 @@ def compute_strain_rate(
     density: wp.array(dtype=float),
     nb: Neighbours,
     particle_mass: float,
+    rest_density: float,
     support_radius: float,
     surface: wp.array(dtype=wp.int32),
     strain_rate: wp.array(dtype=SymmetricMatrix),
+    stress_correction: wp.array(dtype=SymmetricMatrix),
 ):
-    """The strain rate (grad v_i + grad v_i^T) / 2 of grad v_i = (sum_f V_j (v_j - v_i) (x) grad W_ij) M_i^-1,
+    """The strain rate S_i = (grad v_i + grad v_i^T) / 2 of grad v_i = (sum_f V_j (v_j - v_i) (x) grad W_ij) M_i^-1,
     M_i = sum_f V_j (x_j - x_i) (x) grad W_ij (Bonet & Lok 1999: exact for a linear field), V_j = m / rho_j; the
     plain sum where M_i is too thin to invert (|det M_i| <= 0.1). Fluid neighbours only: the walls enter through M_i's
-    renormalisation. Zero on the free surface (``surface``): only bulk particles take the corrected operator, and
-    their neighbours are bulk or band; a splash's thin M_i, near the threshold, turned rounding into jumps of the
-    operator. The viscosity reads only x_ij . grad v x_ij, which the symmetric part gives whole."""
+    renormalisation. ``stress_correction``: L_i = M0_i^-T of the same pairs at the rest volume V0 = m / rho0 (the
+    identity where M0_i is too thin), which the divergence of 2 S in :data:`add_corrected_viscosity_acceleration`
+    takes. Zero strain rate (and the identity) on the free surface (``surface``): only bulk particles take the
+    corrected operator, and their neighbours are bulk or band; a splash's thin M_i, near the threshold, turned
+    rounding into jumps of the operator. The viscosity reads only S, the symmetric part of grad v."""
     i = wp.tid()
     if surface[i] == SURFACE:
         strain_rate[i] = SymmetricMatrix()
+        stress_correction[i] = pack_symmetric(wp.identity(3, dtype=float))
         return
     xi = x[i]
     vi = v[i]
     g = wp.mat33(0.0)
     m = wp.mat33(0.0)
+    m0 = wp.mat33(0.0)
     for k in range(nb.fluid_offsets[i], nb.fluid_offsets[i + 1]):
         j = nb.fluid[k]
         x_ij = separation(nb, xi, x[j])
@@ -68,9 +66,15 @@ def compute_strain_rate(
         volume = particle_mass / density[j]
         g += volume * wp.outer(v[j] - vi, gw)
         m -= volume * wp.outer(x_ij, gw)
+        m0 -= wp.outer(x_ij, gw)
     if wp.abs(wp.determinant(m)) > 0.1:
         g = g * wp.inverse(m)
     strain_rate[i] = pack_symmetric(g)
+    m0 = m0 * (particle_mass / rest_density)
+    li = wp.identity(3, dtype=float)
+    if wp.abs(wp.determinant(m0)) > 0.1:
+        li = wp.transpose(wp.inverse(m0))
+    stress_correction[i] = pack_symmetric(li)
 
 
 # weight of eq 4 on the residual v_ij - (grad v_i + grad v_j)/2 x_ij in the corrected operator: 0.25 left
@@ -94,6 +98,8 @@ def _viscosity_acceleration_kernel(corrected: bool):
         with_vorticity: int,
         surface: wp.array(dtype=wp.int32),
         strain_rate: wp.array(dtype=SymmetricMatrix),
+        stress_correction: wp.array(dtype=SymmetricMatrix),
+        rest_density: float,
         acceleration: wp.array(dtype=wp.vec3),
         vorticity: wp.array(dtype=wp.vec3),
     ):
@@ -107,20 +113,23 @@ def _viscosity_acceleration_kernel(corrected: bool):
         :data:`add_corrected_viscosity_acceleration` takes, between two particles both away from the free surface and
         its band (``surface``; a pair that has one there takes eq 4 from both sides, so that the pair's forces are
         equal and opposite: with the choice made per particle, a walled channel gained 6 % of its momentum in 0.45 s),
-        the Laplacian componentwise
-        and adds eq 4 of the residual v_ij - (grad v_i + grad v_j) x_ij / 2, weighted CORRECTED_STABILISER. Eq 4 reads
-        a_ij only through a_ij . x_ij, so of grad v only its symmetric part (``strain_rate`` from
-        :func:`compute_strain_rate`; the plain kernel does not read it).
-        Eq 4 acts as nu on an isotropic neighbourhood, but as 0.7 nu on a shear along particle rows and 1.4 nu
-        at 45 degrees to them; a vortex lines its particles up along the streamlines, and Lamb-Oseen's core
-        then decays as if nu were 0.83 nu. The componentwise form is right in every orientation (0.91-1.00)
-        but alone lets particle noise grow: eq 4 on the residual, zero on a linear field, damps that noise."""
+        the divergence of the viscous stress 2 S, sum_j V0 (2 S_i L_i + 2 S_j L_j) grad W_ij (``strain_rate`` and
+        ``stress_correction`` from :func:`compute_strain_rate`), which is the Laplacian where div v = 0, and adds eq 4
+        of the residual v_ij - (grad v_i + grad v_j) x_ij / 2, weighted CORRECTED_STABILISER (eq 4 reads a_ij only
+        through a_ij . x_ij, so of grad v only its symmetric part). Eq 4 acts as nu on an isotropic neighbourhood, but
+        as 0.7 nu on a shear along particle rows and 1.4 nu at 45 degrees to them; a vortex lines its particles up
+        along the streamlines, and Lamb-Oseen's core then decays as if nu were 0.83 nu. The stress's divergence is
+        right in every orientation, and it keeps angular momentum: S is symmetric and L_i = M0_i^-T, so a particle's
+        pair torques sum to ε : (S_i L_i M0_i^T) = ε : S_i = 0 (the componentwise Laplacian before it, along v_ij, took
+        3.1-3.6 % of a vortex's angular momentum by T). Alone it lets particle noise grow (a velocity that alternates
+        from particle to particle has no strain rate): eq 4 on the residual, zero on a linear field, damps that noise."""
         i = wp.tid()
         xi = x[i]
         vi = v[i]
         lap = wp.vec3(0.0)
         curl = wp.vec3(0.0)
         si = SymmetricMatrix()
+        volume0 = particle_mass / rest_density
         bulk = False  # the corrected operator away from the free surface and its band, eq 4 there
         if wp.static(corrected):
             si = strain_rate[i]
@@ -139,7 +148,10 @@ def _viscosity_acceleration_kernel(corrected: bool):
             if share > 0.0:
                 # (v_ij - (grad v_i + grad v_j) x_ij / 2) . x_ij
                 residual = wp.dot(v_ij, x_ij) - 0.5 * (symmetric_quadratic(si, x_ij) + symmetric_quadratic(strain_rate[j], x_ij))
-                lap += share * componentwise_laplacian(v_ij, x_ij, gw, volume, support_radius)
+                # div (2 S) = sum_j V0 (2 S_i L_i + 2 S_j L_j) grad W_ij
+                stress = symmetric_times(si, symmetric_times(stress_correction[i], gw))
+                stress += symmetric_times(strain_rate[j], symmetric_times(stress_correction[j], gw))
+                lap += (2.0 * share * volume0) * stress
                 lap += (share * CORRECTED_STABILISER) * residual_laplacian(residual, x_ij, gw, volume, support_radius)
             if share < 1.0:
                 lap += (1.0 - share) * artificial_laplacian(v_ij, x_ij, gw, volume, support_radius)

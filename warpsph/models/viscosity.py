@@ -42,6 +42,8 @@ class Viscosity(Model):
         self._empty_flags = wp.empty(0, dtype=wp.int32, device=ctx.device)
         self.strain_rate = (ctx.per_particle("viscosity", SymmetricMatrix) if self.corrected
                             else wp.empty(0, dtype=SymmetricMatrix, device=ctx.device))
+        self.stress_correction = (ctx.per_particle("viscosity", SymmetricMatrix) if self.corrected
+                                  else wp.empty(0, dtype=SymmetricMatrix, device=ctx.device))
         # sub-stepped (solver.viscosity_substeps > 1): each sub-step's acceleration, integrated into v at once
         self.substep_acceleration = (ctx.per_particle("viscosity", wp.vec3) if ctx.viscous_substeps is not None
                                      else None)
@@ -70,15 +72,15 @@ class Viscosity(Model):
         with_vorticity = vorticity is not None
         if self.corrected:
             ctx.launch(compute_strain_rate, ctx.num_fluid,
-                       [f.x, f.v, f.density, ctx.neighbour_lists, ctx.particle_mass, ctx.support_radius,
-                        ctx.surface_flags, self.strain_rate])
-            ctx.exchange(self.strain_rate)
+                       [f.x, f.v, f.density, ctx.neighbour_lists, ctx.particle_mass, ctx.scene.fluid.density,
+                        ctx.support_radius, ctx.surface_flags, self.strain_rate, self.stress_correction])
+            ctx.exchange(self.strain_rate, self.stress_correction)
         kernel = add_corrected_viscosity_acceleration if self.corrected else add_viscosity_acceleration
         ctx.launch(kernel, ctx.num_fluid,
                    [f.x, f.v, f.density, ctx.neighbour_lists, ctx.particle_mass, ctx.scene.fluid.viscosity,
                     ctx.support_radius, ctx.boundary_samples, ctx.scene.fluid.boundary_viscosity, dt,
                     int(with_vorticity), ctx.surface_flags if self.corrected else self._empty_flags, self.strain_rate,
-                    acceleration,
+                    self.stress_correction, ctx.scene.fluid.density, acceleration,
                     vorticity if with_vorticity else self._empty_vec3])
         if with_vorticity:
             ctx.exchange(vorticity)
