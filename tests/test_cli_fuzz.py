@@ -2,6 +2,7 @@
 ordinary mistakes one by one, then random command lines and damaged scene, mesh and checkpoint files."""
 
 import json
+import os
 
 import h5py
 import pytest
@@ -25,6 +26,16 @@ def cli(argv):
         return main([str(a) for a in argv])
     except SystemExit as exc:
         return exc.code
+
+
+def cli_in(root, argv):
+    """:func:`cli` run in the folder ``root`` (the working directory is restored)."""
+    cwd = os.getcwd()
+    os.chdir(root)
+    try:
+        return cli(argv)
+    finally:
+        os.chdir(cwd)
 
 
 def workspace(root):
@@ -138,7 +149,6 @@ def command_lines(draw):
 @given(argv=command_lines(), finished=st.booleans())
 def test_random_command_lines_run_or_say_why(tmp_path_factory, argv, finished):
     """``finished``: the folder holds a finished run o.usdc (with its checkpoint at frame 1)."""
-    import os
 
     root = workspace(tmp_path_factory.mktemp("cli"))
     if finished:
@@ -146,12 +156,7 @@ def test_random_command_lines_run_or_say_why(tmp_path_factory, argv, finished):
                     "--quiet"]) == 0
     if argv[0] != "plot" and "--frames" not in argv:
         argv += ["--frames", "1"]
-    cwd = os.getcwd()
-    os.chdir(root)
-    try:
-        code = cli(argv)
-    finally:
-        os.chdir(cwd)
+    code = cli_in(root, argv)
     event(f"{argv[0]}: exit {code}")
     assert code in (0, 2), argv
     assert (root / "notes.txt").read_text() == "mine" and (root / "folder").is_dir()
@@ -331,7 +336,6 @@ def test_random_command_lines_of_every_verb_end_in_a_result_or_one_clear_error(t
                                                                              verb, examples):
     """Exit 0 (done), 1 (a sweep's table with failed cells) or 2 (warpsph: error ... or argparse's usage), never a
     traceback; the user's files are untouched (but for --overwrite)."""
-    import os
     import shutil
 
     @settings(FUZZ, max_examples=examples)
@@ -341,12 +345,7 @@ def test_random_command_lines_of_every_verb_end_in_a_result_or_one_clear_error(t
         for path in finished_run.iterdir():
             (shutil.copytree if path.is_dir() else shutil.copy2)(path, root / path.name)
         capsys.readouterr()
-        cwd = os.getcwd()
-        os.chdir(root)
-        try:
-            code = cli(argv)
-        finally:
-            os.chdir(cwd)
+        code = cli_in(root, argv)
         err = capsys.readouterr().err
         event(f"{verb}: exit {code}")
         CODES.setdefault(verb, []).append((code, "usage:" in err))

@@ -38,6 +38,7 @@ Two writers with one interface (``write_frame``, ``finish``):
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
 import re
@@ -270,22 +271,29 @@ def remove_leftovers(path):
             p.unlink()
 
 
-def write_atomically(path, data):
-    """``data`` (bytes) to ``path`` through NAME.tmp beside it, synced and renamed: ``path`` holds the old
-    contents or the new, whole, at every moment."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
+@contextlib.contextmanager
+def replacing(path, tmp):
+    """The body writes ``tmp`` whole and synced; then ``tmp`` is renamed over ``path`` and the folder synced. On
+    any failure (or a signal's exception) ``tmp`` is removed and ``path`` is as it was."""
     try:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
+        yield
         os.replace(tmp, path)
     except BaseException:
         if tmp.exists():
             tmp.unlink()
         raise
     fsync(path.parent)
+
+
+def write_atomically(path, data):
+    """``data`` (bytes) to ``path`` through NAME.tmp beside it, synced and renamed: ``path`` holds the old
+    contents or the new, whole, at every moment."""
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    with replacing(path, tmp), open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
 
 
 def _npz_bytes(**arrays):
@@ -303,7 +311,7 @@ def save_layer(layer, path):
     USD cannot open.) ``path`` holds the old file or the new one, whole, at every moment."""
     path = Path(path)
     tmp = temporary_path(path)
-    try:
+    with replacing(path, tmp):
         try:
             written = layer.Export(str(tmp))
         except Exception as exc:  # pxr.Tf.ErrorException: the file system's error among USD's lines
@@ -315,12 +323,6 @@ def save_layer(layer, path):
         if not written:
             raise OSError(f"{path}: USD could not write {tmp.name}")
         fsync(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        if tmp.exists():
-            tmp.unlink()
-        raise
-    fsync(path.parent)
 
 
 class DamagedCache(OSError):
