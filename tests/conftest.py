@@ -96,3 +96,19 @@ def interrupt_a_long_run(tmp_path, script, *options, pause):
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=120)
     return out, proc.returncode, err
+
+
+def signal_group(proc, sig, timeout=60):
+    """Sends ``sig`` to the process group of ``proc`` (started with ``start_new_session``), as a terminal's Ctrl-C
+    does, and waits for it; a group still there after ``timeout`` s (or an error) is killed. Returns its stderr."""
+    import os
+    import signal
+
+    try:
+        os.killpg(proc.pid, sig)
+        _, err = proc.communicate(timeout=timeout)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    return err

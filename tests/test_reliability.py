@@ -16,7 +16,7 @@ from pxr import Usd, UsdGeom
 from warpsph import SceneError, load_scene
 from warpsph.scene import scene_from_dict
 from warpsph.cli import main
-from conftest import tank_scene
+from conftest import signal_group, tank_scene
 
 
 def write_scene(tmp_path, data, name="scene.json"):
@@ -599,11 +599,8 @@ def test_ctrl_c_of_validate_is_one_line_and_writes_no_json(tmp_path):
             seen.append(proc.stderr.readline())
         assert seen[-1].startswith("[1/2]"), seen
         time.sleep(1.0)
-        os.killpg(proc.pid, signal.SIGINT)
-        _, err = proc.communicate(timeout=120)
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
+        err = signal_group(proc, signal.SIGINT, timeout=120)
     assert proc.returncode == 130, err
     assert [line for line in err.splitlines() if line.strip() and not line.startswith("Warp ")] == [
         "warpsph: interrupted"], err

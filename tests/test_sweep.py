@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import tool
+from conftest import signal_group, tool
 from warpsph.cli import main
 from warpsph.errors import SceneError
 from warpsph.sweep import assemble, cells, comparable, load_sweep, records, run_sweep, scene_of
@@ -208,8 +208,14 @@ def test_killed_driver_rerun_finishes_the_missing_cells(tmp_path):
         driver.wait()
     first = _mtimes(out)
     assert 1 <= len(first) < 4 and not (out / "table.json").exists()
+    _rerun_runs_the_rest(sweep, out, first, workers=2)
+
+
+def _rerun_runs_the_rest(sweep, out, first, workers):
+    """The same sweep again: it runs only the cells not in ``first`` (the finished ones' modification times) and
+    leaves those records as they were; the table is complete."""
     lines = []
-    table = run_sweep(sweep, out, workers=2, log=lines.append)
+    table = run_sweep(sweep, out, workers=workers, log=lines.append)
     assert f"[{4 - len(first)} to run" in lines[0]
     after = _mtimes(out)
     assert len(after) == 4 and all(after[name] == first[name] for name in first)
@@ -244,12 +250,8 @@ def test_ctrl_c_of_the_sweep_keeps_the_finished_cells_and_a_rerun_runs_the_rest(
         deadline = time.time() + 60
         while time.time() < deadline and not list((out / "cells").glob("*.json")):
             time.sleep(0.05)
-        os.killpg(driver.pid, signal.SIGINT)
-        _, err = driver.communicate(timeout=60)
     finally:
-        if driver.poll() is None:
-            os.killpg(driver.pid, signal.SIGKILL)
-            driver.wait()
+        err = signal_group(driver, signal.SIGINT)
     assert driver.returncode == 130, err
     last = err.strip().splitlines()[-1]  # after the progress lines
     assert "Traceback" not in err and last.startswith("warpsph: SIGINT: the sweep stopped; ") and "run the same command again to run the other" in last, err
@@ -260,12 +262,7 @@ def test_ctrl_c_of_the_sweep_keeps_the_finished_cells_and_a_rerun_runs_the_rest(
     first = _mtimes(out)
     assert 1 <= len(first) < 4 and not (out / "table.json").exists()
     assert all(json.loads((out / "cells" / name).read_text())["status"] == "done" for name in first)
-    lines = []
-    table = run_sweep(sweep, out, workers=1, log=lines.append)
-    assert f"[{4 - len(first)} to run" in lines[0]
-    after = _mtimes(out)
-    assert len(after) == 4 and all(after[name] == first[name] for name in first)
-    assert table["complete"] and [(r["method"], r["resolution"], r["particles"]) for r in table["rows"]] == EXPECTED
+    _rerun_runs_the_rest(sweep, out, first, workers=1)
 
 
 def test_blow_up_is_a_result(tmp_path):
