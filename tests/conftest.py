@@ -112,3 +112,12 @@ def signal_group(proc, sig, timeout=60):
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
     return err
+
+
+def as_in_a_terminal():
+    """``preexec_fn`` of a child that a test interrupts as a terminal's Ctrl-C would: SIGINT at its default, so
+    Python raises KeyboardInterrupt (a shell's background job, such as CI started with ``&``, has it ignored, and
+    the child inherits that)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

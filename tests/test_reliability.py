@@ -16,7 +16,7 @@ from pxr import Usd, UsdGeom
 from warpsph import SceneError, load_scene
 from warpsph.scene import scene_from_dict
 from warpsph.cli import main
-from conftest import signal_group, tank_scene
+from conftest import as_in_a_terminal, signal_group, tank_scene
 
 
 def write_scene(tmp_path, data, name="scene.json"):
@@ -592,7 +592,7 @@ def test_ctrl_c_of_validate_is_one_line_and_writes_no_json(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "warpsph.cli", "validate", "taylor-green", "--resolutions", "16",
                              "24", "--device", "cpu", "--json", "v.json"], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, cwd=tmp_path, start_new_session=True,
-                            env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                            preexec_fn=as_in_a_terminal, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     try:
         seen = []
         while not (seen and seen[-1].startswith("[1/2]")) and len(seen) < 20:  # "[1/2] taylor-green ...": it runs

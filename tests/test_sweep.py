@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import signal_group, tool
+from conftest import as_in_a_terminal, signal_group, tool
 from warpsph.cli import main
 from warpsph.errors import SceneError
 from warpsph.sweep import assemble, cells, comparable, load_sweep, records, run_sweep, scene_of
@@ -245,7 +245,7 @@ def test_ctrl_c_of_the_sweep_keeps_the_finished_cells_and_a_rerun_runs_the_rest(
     out = tmp_path / "out"
     driver = subprocess.Popen([sys.executable, "-m", "warpsph.cli", "sweep", str(sweep), "--out", str(out),
                                "--workers", "1"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-                              start_new_session=True)
+                              start_new_session=True, preexec_fn=as_in_a_terminal)
     try:
         deadline = time.time() + 60
         while time.time() < deadline and not list((out / "cells").glob("*.json")):
