@@ -280,3 +280,42 @@ def test_a_box_dropped_on_its_edge_tips_over_and_lies_flat():
     turned = np.degrees(np.arccos(np.clip(body.rotation[0, 0], -1.0, 1.0)))
     assert abs(turned - 30.0) < 3.0  # turned back by the placement's 30 degrees: flat; measured 30.0
     assert np.linalg.norm(body.velocity) < 0.05 and np.linalg.norm(body.angular_velocity) < 0.1
+
+
+def _box_in_air(y, dynamics, x=0.3):
+    """A 0.2 m box of density 800 in a 0.7 x 1.0 x 0.4 m tank with a few fluid particles in a far corner."""
+    box = {"mesh": "meshes/unit_box.obj", "scale": [0.2, 0.2, 0.2], "translation": [x, y, 0.2], "name": "box",
+           "dynamics": {"density": 800.0, **dynamics}}
+    data = tank_scene(radius=0.02, domain=(0.7, 1.0, 0.4), block=(0.08, 0.04, 0.08), obstacles=[box], output={"fps": 10})
+    sim = make_sim(data, base_dir=SCENES_DIR)
+    return sim, sim.moving_bodies.dynamic[0]
+
+
+@pytest.mark.parametrize("friction", [0.3, None])  # Coulomb contact, the per-step damping
+def test_a_box_dropped_on_the_floor_bounces_to_e_squared_of_its_drop_height(friction):
+    """Restitution e: the floor sends the box back up at e times its landing speed, to e^2 of the height it fell
+    (before ``dynamics.restitution`` every contact was perfectly inelastic: it stayed on the floor)."""
+    e, h = 0.6, 0.5
+    sim, body = _box_in_air(0.1 + h, {"restitution": e, "friction": friction})
+    landed, peak = False, 0.0
+    while sim.time < 0.8 and not (landed and body.velocity[1] < 0.0):  # to the top of the bounce
+        sim.step()
+        bottom = body.position[1] - 0.1
+        landed = landed or (bottom < 1e-3 and body.velocity[1] > 0.0)
+        if landed:
+            peak = max(peak, bottom)
+    assert landed and abs(peak / (e * e * h) - 1.0) < 0.1
+    assert np.linalg.norm(body.angular_velocity) < 1e-6  # a flat landing does not turn it
+
+
+def test_a_box_sliding_on_the_floor_stops_after_u2_over_2_mu_g():
+    """Coulomb friction mu: a box sliding at u on the floor decelerates at mu g and stops after u^2 / (2 mu g)
+    (before ``dynamics.friction`` its velocity was halved every step: it stopped within a few steps, whatever mu)."""
+    u, mu = 1.0, 0.3
+    sim, body = _box_in_air(0.1, {"velocity": [u, 0, 0], "friction": mu})
+    x0 = body.position[0]
+    while sim.time < 0.6:
+        sim.step()
+    assert abs(body.velocity[0]) < 1e-3
+    assert abs((body.position[0] - x0) / (u * u / (2.0 * mu * 9.81)) - 1.0) < 0.1
+    assert abs(body.position[1] - 0.1) < 0.005  # it slid: it did not tip or jump

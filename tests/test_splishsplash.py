@@ -275,6 +275,12 @@ def test_dynamic_bodies_become_warpsph_dynamic_bodies(scenes):
     heavy, light = scene.obstacles
     assert heavy.dynamics.density == 400 and heavy.dynamics.velocity == (0, -1, 0)
     assert light.dynamics.density == 1.0  # PositionBasedDynamics' default density
+    # contact: PositionBasedDynamics multiplies the restitutions and adds the frictions of the body and the container
+    container = next(b for b in data["RigidBodies"] if b.get("mapInvert"))
+    e_walls, mu_walls = container.get("restitution", 0.6), container.get("friction", 0.2)
+    assert heavy.dynamics.restitution == pytest.approx(0.6 * e_walls)
+    assert heavy.dynamics.friction == pytest.approx(0.1 + mu_walls)
+    assert light.dynamics.friction == pytest.approx(0.2 + mu_walls)
     assert any("PositionBasedDynamics contact" in n for n in conversion_of(scene).notes)
     sim = Simulation(scene, device="cpu")
     assert sum(b.kind == "dynamic" for b in sim.bodies) == 2

@@ -31,7 +31,122 @@ BODY_INSET = 1.2  # particle radii between a closed mesh's surface and its sampl
 ADDED_MASS = 1.0
 STATE_COLUMNS = 24  # a dynamic body's state row: position 3, rotation 9, velocity 3, angular velocity 3,
 # acceleration 3, angular acceleration 3
-WALL_FRICTION = 0.5  # fraction of the tangential velocity a dynamic body keeps per step in wall contact
+WALL_FRICTION = 0.5  # without a friction coefficient: the share of its tangential velocity and spin a dynamic body
+# keeps per step in contact (dt-dependent, no Coulomb law: the behaviour before ``dynamics.friction``)
+REST_SPEED = 2.0  # x |g| dt: a contact approaching slower than this comes to rest (no bounce): gravity's two steps
+
+
+def contact_coefficients(body, other, both):
+    """(restitution, friction) of a contact of dynamic ``body`` with ``other`` (``both``: also dynamic): the body's
+    own against walls and non-dynamic bodies; between two dynamic bodies sqrt(e_a e_b) and the mean of the given
+    friction coefficients (None when neither has one: the per-step damping, WALL_FRICTION)."""
+    d = body.obstacle.dynamics
+    e, mu = float(d.restitution), d.friction
+    if both:
+        o = other.obstacle.dynamics
+        e = float(np.sqrt(e * o.restitution))
+        given = [m for m in (d.friction, o.friction) if m is not None]
+        mu = float(np.mean(given)) if given else None
+    return e, mu
+
+
+def _cross_matrix(a):
+    return np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+
+
+def contact_impulse(body, other, normal, point, both, restitution, friction, rest_speed):
+    """The impulse J at the contact ``point`` on ``body`` (-J on ``other`` when ``both``: dynamic) along ``normal``
+    (out of ``other``, into ``body``), through each body's world inertia tensor: a contact point approaching faster
+    than ``rest_speed`` leaves at -restitution times its normal speed, a slower one comes to rest along the normal;
+    with a ``friction`` coefficient mu the tangential impulse stops the slip if it can with |J_t| <= mu J_n (sticking),
+    else it is mu J_n against the slip (sliding, Coulomb); None: normal impulse only. Applied; returns J."""
+    inv, inv_other = 1.0 / body.mass, (1.0 / other.mass if both else 0.0)
+    r, r_other = point - body.position, point - other.position
+    inv_i = np.linalg.inv(body.rotation @ body.inertia @ body.rotation.T)
+    inv_i_other = np.linalg.inv(other.rotation @ other.inertia @ other.rotation.T) if both else np.zeros((3, 3))
+    relative = body.velocity + np.cross(body.angular_velocity, r)
+    if both:
+        relative = relative - other.velocity - np.cross(other.angular_velocity, r_other)
+    v_n = float(relative @ normal)
+    if v_n >= 0.0:
+        return np.zeros(3)
+    target = -(1.0 + restitution) * v_n if -v_n > rest_speed else -v_n  # the normal velocity change
+    # K: the contact point's velocity change per unit impulse (dv = inv J + (I^-1 (r x J)) x r)
+    rx, rx_other = _cross_matrix(r), _cross_matrix(r_other)
+    k = inv * np.eye(3) - rx @ inv_i @ rx + inv_other * np.eye(3) - rx_other @ inv_i_other @ rx_other
+    if friction is None:
+        j = target / float(normal @ k @ normal) * normal
+    else:
+        slip = relative - v_n * normal
+        j = np.linalg.solve(k, target * normal - slip)  # sticking
+        j_n = float(j @ normal)
+        j_t = j - j_n * normal
+        if float(np.linalg.norm(j_t)) > friction * j_n:  # sliding: mu J_n against the slip
+            s = float(np.linalg.norm(slip))
+            t = slip / s if s > 0.0 else -j_t / float(np.linalg.norm(j_t))
+            d = normal - friction * t
+            j = target / float(normal @ k @ d) * d
+    body.velocity = body.velocity + inv * j
+    body.angular_velocity = body.angular_velocity + inv_i @ np.cross(r, j)
+    if both:
+        other.velocity = other.velocity - inv_other * j
+        other.angular_velocity = other.angular_velocity - inv_i_other @ np.cross(r_other, j)
+    return j
+
+
+WALL_ITERATIONS = 30  # Gauss-Seidel sweeps over a wall contact's points
+
+
+def wall_point_impulses(body, normal, points, restitution, friction, rest_speed):
+    """The contact impulses of a fixed wall (``normal`` into the body) at several contact ``points`` (a face or an
+    edge on the wall: one point at their centre could not hold the friction's torque, and a sliding box rocked):
+    sequential impulses with accumulated, clamped sums (Gauss-Seidel, WALL_ITERATIONS sweeps). Each point that
+    approaches faster than ``rest_speed`` is to leave at -restitution times its normal speed, a slower one to rest;
+    the accumulated normal impulse stays >= 0, each point's tangential one within ``friction`` times it (Coulomb)."""
+    inv = 1.0 / body.mass
+    inv_i = np.linalg.inv(body.rotation @ body.inertia @ body.rotation.T)
+    arms = points - body.position
+
+    def velocity(r):
+        return body.velocity + np.cross(body.angular_velocity, r)
+
+    v_n = np.array([float(velocity(r) @ normal) for r in arms])
+    if not np.any(v_n < 0.0):
+        return
+    target = np.where(-v_n > rest_speed, -restitution * v_n, 0.0)
+    masses = [inv * np.eye(3) - _cross_matrix(r) @ inv_i @ _cross_matrix(r) for r in arms]
+    normal_sum = np.zeros(len(arms))
+    tangent_sum = np.zeros((len(arms), 3))
+
+    def apply(r, j):
+        body.velocity = body.velocity + inv * j
+        body.angular_velocity = body.angular_velocity + inv_i @ np.cross(r, j)
+
+    for _ in range(WALL_ITERATIONS):
+        for p, (r, k) in enumerate(zip(arms, masses)):
+            v = velocity(r)
+            new = max(normal_sum[p] + (target[p] - float(v @ normal)) / float(normal @ k @ normal), 0.0)
+            apply(r, (new - normal_sum[p]) * normal)
+            normal_sum[p] = new
+            v = velocity(r)
+            slip = v - float(v @ normal) * normal
+            s = float(np.linalg.norm(slip))
+            if s == 0.0:
+                continue
+            t = slip / s
+            want = tangent_sum[p] - s / float(t @ k @ t) * t
+            limit = friction * normal_sum[p]
+            size = float(np.linalg.norm(want))
+            if size > limit:
+                want = want * (limit / size)
+            apply(r, want - tangent_sum[p])
+            tangent_sum[p] = want
+
+
+class _Wall:
+    """A domain wall as the other side of a contact: fixed (its position only gives the unused lever arm)."""
+
+    position = np.zeros(3)
 
 
 def orthonormalize(rotation):
@@ -276,16 +391,18 @@ class MovingBodies:
             if angle > 0.0:
                 body.rotation = orthonormalize(sampling.rotation_matrix(w, angle) @ body.rotation)
             own = margin * body.inset / BODY_INSET  # the surface, not the samples, stops at the walls
-            self._wall_contact(body, np.add(domain_lo, own), np.subtract(domain_hi, own), periodic)
-        self._body_contact()
+            self._wall_contact(body, np.add(domain_lo, own), np.subtract(domain_hi, own), periodic,
+                               REST_SPEED * float(np.linalg.norm(gravity)) * dt, own)
+        self._body_contact(REST_SPEED * float(np.linalg.norm(gravity)) * dt)
         self._store_state()
 
-    def _body_contact(self):
+    def _body_contact(self, rest_speed=0.0):
         """Keeps dynamic bodies out of each other and out of every other body (their samples BODY_INSET r
         inside their surface may come no closer than that to another body's surface): each touching pair is
-        pushed apart along the depth-weighted direction (by inverse mass between two dynamic bodies), their
-        approach along it removed (momentum-conserving, inelastic), and the touching bodies' tangential and
-        angular motion damped as at a wall."""
+        pushed apart along the depth-weighted direction (by inverse mass between two dynamic bodies) and takes
+        the contact impulse at the contact point (:func:`contact_impulse`, momentum-conserving; restitution and
+        Coulomb friction from :func:`contact_coefficients`; without a friction coefficient the touching bodies'
+        tangential and angular motion is damped as at a wall)."""
         c = self._contacts
         if c is None:
             return
@@ -318,34 +435,22 @@ class MovingBodies:
                     own, theirs = arm[a, o], (arm[o, a] if both else np.zeros(4))
                     point = (body.position + own[:3] / own[3] if own[3] > 0.0
                              else bodies[o].position + theirs[:3] / theirs[3])
-                    self._separate(body, bodies[o], direction / np.linalg.norm(direction), d, both, point)
+                    self._separate(body, bodies[o], direction / np.linalg.norm(direction), d, both, point, rest_speed)
 
     @staticmethod
-    def _separate(body, other, normal, depth, both, point):
-        """Moves ``body`` out of ``other`` along ``normal`` by ``depth`` and removes their approach along it at the
-        contact ``point`` (an inelastic impulse there, so a body resting on an edge or corner turns about it), then
-        damps their tangential slip by WALL_FRICTION (see :meth:`_body_contact`); ``both``: the other body is
-        dynamic and takes its share (impulses between them are equal and opposite)."""
+    def _separate(body, other, normal, depth, both, point, rest_speed=0.0):
+        """Moves ``body`` out of ``other`` along ``normal`` by ``depth`` and applies the contact impulse at the
+        contact ``point`` (:func:`contact_impulse`: a body resting on an edge or corner turns about it); without a
+        friction coefficient, then damps their tangential slip by WALL_FRICTION (see :meth:`_body_contact`);
+        ``both``: the other body is dynamic and takes its share (impulses between them are equal and opposite)."""
         inv, inv_other = 1.0 / body.mass, (1.0 / other.mass if both else 0.0)
         body.position = body.position + inv / (inv + inv_other) * depth * normal
         if both:
             other.position = other.position - inv_other / (inv + inv_other) * depth * normal
-        r, r_other = point - body.position, point - other.position
-        inv_i = np.linalg.inv(body.rotation @ body.inertia @ body.rotation.T)
-        inv_i_other = np.linalg.inv(other.rotation @ other.inertia @ other.rotation.T) if both else np.zeros((3, 3))
-        relative = body.velocity + np.cross(body.angular_velocity, r)
-        if both:
-            relative = relative - other.velocity - np.cross(other.angular_velocity, r_other)
-        approach = min(float(relative @ normal), 0.0)
-        if approach < 0.0:  # the effective inverse mass along the normal at the contact point
-            k = (inv + inv_other + float(normal @ np.cross(inv_i @ np.cross(r, normal), r))
-                 + float(normal @ np.cross(inv_i_other @ np.cross(r_other, normal), r_other)))
-            j = -approach / k * normal
-            body.velocity = body.velocity + inv * j
-            body.angular_velocity = body.angular_velocity + inv_i @ np.cross(r, j)
-            if both:
-                other.velocity = other.velocity - inv_other * j
-                other.angular_velocity = other.angular_velocity - inv_i_other @ np.cross(r_other, j)
+        restitution, friction = contact_coefficients(body, other, both)
+        contact_impulse(body, other, normal, point, both, restitution, friction, rest_speed)
+        if friction is not None:
+            return
         slip = body.velocity - other.velocity if both else body.velocity
         slip = slip - float(slip @ normal) * normal
         impulse = -(1.0 - WALL_FRICTION) * slip / (inv + inv_other)
@@ -355,10 +460,17 @@ class MovingBodies:
             other.velocity = other.velocity - inv_other * impulse
             other.angular_velocity = WALL_FRICTION * other.angular_velocity
 
-    def _wall_contact(self, body, lo, hi, periodic):
+    def _wall_contact(self, body, lo, hi, periodic, rest_speed=0.0, own=0.0):
         """Keeps the body's samples inside [lo, hi] (the domain less the samples' inset, so the mesh
-        surface stops at the walls): pushed back along each closed axis,
-        the velocity into the wall removed and the tangential motion damped by friction."""
+        surface stops at the walls): pushed back along each closed axis. With a friction coefficient, each
+        touched wall's contact impulses (:func:`wall_point_impulses`: restitution, Coulomb friction) act at the
+        contact points on the wall: the mesh vertices within a particle radius of the one nearest the wall (the
+        corners of a box's face; the vertices, as a face's samples are not placed symmetrically). Without one, the centre of mass's velocity into the wall is reversed times the restitution
+        (removed when slower than ``rest_speed``) and the tangential motion damped by WALL_FRICTION."""
+        restitution, friction = contact_coefficients(body, None, False)
+        if friction is not None:
+            self._wall_impulses(body, lo, hi, periodic, rest_speed, restitution, friction, own)
+            return
         world = body.to_world(body.samples)
         touched = []
         for k in range(3):
@@ -367,16 +479,42 @@ class MovingBodies:
             below, above = lo[k] - world[:, k].min(), world[:, k].max() - hi[k]
             if below > 0.0:
                 body.position[k] += below
-                body.velocity[k] = max(body.velocity[k], 0.0)
+                v = body.velocity[k]
+                body.velocity[k] = -restitution * v if -v > rest_speed else max(v, 0.0)
                 touched.append(k)
             elif above > 0.0:
                 body.position[k] -= above
-                body.velocity[k] = min(body.velocity[k], 0.0)
+                v = body.velocity[k]
+                body.velocity[k] = -restitution * v if v > rest_speed else min(v, 0.0)
                 touched.append(k)
         if touched:
             for k in set(range(3)) - set(touched):
                 body.velocity[k] *= WALL_FRICTION
             body.angular_velocity = WALL_FRICTION * body.angular_velocity
+
+    def _wall_impulses(self, body, lo, hi, periodic, rest_speed, restitution, friction, own):
+        """:meth:`_wall_contact` with a friction coefficient: per touched wall, pushed back and the contact impulse
+        at the contact point (on the wall's face, ``own`` beyond the samples' bound)."""
+        band = self.sim.scene.particle_radius
+        wall = _Wall()
+        for k in range(3):
+            if "xyz"[k] in periodic:
+                continue
+            for side in (-1.0, 1.0):
+                world = body.to_world(body.samples)
+                face = lo[k] if side < 0.0 else hi[k]
+                height = side * (face - world[:, k])  # the samples' distance inside the wall's face
+                depth = -float(height.min())
+                if depth <= 0.0:
+                    continue
+                normal = np.zeros(3)
+                normal[k] = -side
+                body.position = body.position + depth * normal
+                corners = body.to_world(body.vertices)  # the mesh's, evenly placed where the samples are not
+                near = side * (face - corners[:, k])
+                points = corners[near - near.min() < band]
+                points[:, k] = face + side * own
+                wall_point_impulses(body, normal, points, restitution, friction, rest_speed)
 
     # -- state ------------------------------------------------------------------------------------------------
     def _store_state(self):

@@ -169,6 +169,15 @@ class Dynamics:
     density: float = key(doc="body density; mass and inertia come from the closed mesh", unit="kg/m^3", gt=0)
     velocity: Vec3 = key((0.0, 0.0, 0.0), doc="initial velocity", unit="m/s")
     angular_velocity: Vec3 = key((0.0, 0.0, 0.0), doc="initial angular velocity", unit="rad/s")
+    restitution: float = key(0.0, doc="coefficient of restitution e of its contacts with the walls and other bodies: a "
+                                      "contact point approaching faster than 2 |g| dt leaves at -e times its normal "
+                                      "speed, a slower one comes to rest; between two dynamic bodies sqrt(e_a e_b)",
+                             ge=0, le=1)
+    friction: Optional[float] = key(None, doc="Coulomb friction coefficient mu of its contacts: the tangential impulse "
+                                              "at the contact point is at most mu times the normal one (sticking below "
+                                              "it); between two dynamic bodies the mean of the given ones; null: no "
+                                              "Coulomb law, the tangential velocity and the spin are halved every step "
+                                              "in contact (the behaviour before this key)", ge=0)
 
 
 @schema

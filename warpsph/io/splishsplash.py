@@ -780,7 +780,8 @@ class _Reader:
                     obstacle["dynamics"] = dynamics
                     self.mapped(f"{key}.density", f"obstacles[{len(obstacles)}].dynamics.density", density,
                                 default="density" not in body)
-                    self.no_effect(key, [k for k in body if k in BODY_PBD_CONTACT],
+                    self.contact(body, key, f"obstacles[{len(obstacles)}].dynamics", dynamics)
+                    self.no_effect(key, [k for k in body if k in BODY_PBD_CONTACT - {"restitution", "friction"}],
                                    "PositionBasedDynamics contact parameters (warpsph's dynamic bodies have their own "
                                    "wall contact)")
                 if body.get("isAnimated"):
@@ -801,7 +802,10 @@ class _Reader:
                 self.note(f"{key}.mapThickness {_fmt(body['mapThickness'])}: the map thickness of boundaryHandlingMethod "
                           f"{self.boundary_method} is not modelled")
             if not body.get("isDynamic"):
-                self.no_effect(key, [k for k in body if k in BODY_PBD_CONTACT or k in ("density", "velocity", "angularVelocity")],
+                walls = container is not None and any(b.get("isDynamic") for b in self.data.get("RigidBodies") or [])
+                used = {"restitution", "friction"} if walls else set()  # in the dynamic bodies' wall contact
+                self.no_effect(key, [k for k in body if (k in BODY_PBD_CONTACT or k in ("density", "velocity", "angularVelocity"))
+                                     and k not in used],
                                "rigid-body settings of a static body")
             self.no_effect(key, [k for k in body if k in BODY_NO_EFFECT], "rendering and boundary-map settings")
             self.no_effect(key, [k for k in body if k not in BODY_READ | BODY_NO_EFFECT | BODY_PBD_CONTACT],
@@ -809,6 +813,26 @@ class _Reader:
         if domain is not None:
             self.c.scene["domain"] = domain
         self.c.scene["obstacles"] = obstacles
+
+    def contact(self, body, key, ours, dynamics):
+        """A dynamic body's restitution and friction (PositionBasedDynamics' defaults 0.6 and 0.2). Its contacts
+        take the product of the two bodies' restitutions and the sum of their frictions; warpsph's walls are the
+        container's, so the body's wall contact gets e_body e_container and mu_body + mu_container (between two
+        dynamic bodies warpsph takes sqrt(e_a e_b) and the mean of the frictions: not PositionBasedDynamics'
+        product and sum of the wall-contact values)."""
+        container = next((b for b in self.data.get("RigidBodies") or []
+                          if b.get("mapInvert") and not b.get("isDynamic") and b.get("geometryFile")), None)
+        walls = container or {}
+        e = float(_num(body.get("restitution"), 0.6)) * float(_num(walls.get("restitution"), 0.6))
+        mu = float(_num(body.get("friction"), 0.2)) + float(_num(walls.get("friction"), 0.2))
+        dynamics["restitution"], dynamics["friction"] = min(max(e, 0.0), 1.0), max(mu, 0.0)
+        where = "the container's" if container else "no container: PositionBasedDynamics' defaults for"
+        self.mapped(f"{key}.restitution x the container's", f"{ours}.restitution",
+                    f"{_fmt(dynamics['restitution'])} (PositionBasedDynamics multiplies the two bodies'; {where} "
+                    "restitution)", default="restitution" not in body)
+        self.mapped(f"{key}.friction + the container's", f"{ours}.friction",
+                    f"{_fmt(dynamics['friction'])} (PositionBasedDynamics adds the two bodies'; {where} friction)",
+                    default="friction" not in body)
 
     def fit_inside_walls(self):
         """Fluid that SPlisHSPlasH starts closer to its container's walls than they hold it at rest (it pushes it
