@@ -58,7 +58,7 @@ def classify_free_surface(
 ):
     """surface_i = SURFACE where :func:`on_free_surface` (counted in ``surface_count[0]``), BAND where a fluid
     neighbour is, WALL where boundary samples are in the support, else BULK. A surface particle also sets
-    ``free_surface[0]`` (zeroed by the solver beforehand)."""
+    ``free_surface[0]`` (which the solver sets beforehand: 1 under gravity, else 0)."""
     i = wp.tid()
     flag = int(BULK)
     if on_free_surface(i, position_divergence, density, concentration_gradient, down, threshold, density_threshold,

@@ -9,7 +9,7 @@ value accumulated over a step is a physical pressure that warm-starts the next s
 import warp as wp
 
 from .density import dfsph_factor
-from .free_surface import BULK, off_surface
+from .free_surface import BULK, SURFACE, off_surface
 from .particles import Boundary, Neighbours, SymmetricMatrix, boundary_velocity, pack_symmetric, separation, symmetric_times
 from .sph_kernel import cubic_kernel, cubic_kernel_gradient
 
@@ -219,10 +219,13 @@ BULK_RELAXATION = wp.constant(0.5)
 
 @wp.func
 def clamped(surface: int, free_surface: wp.array(dtype=wp.int32)):
-    """Whether particle i keeps p >= 0: on the free surface and in its band, and everywhere in a scene that
-    has a free surface at all. Signed bulk pressure in free-surface flow tripled the 1M dam break's density
-    iterations (6.8 -> 20.8 a step, 5.7 -> 16.6 ms on the H100) with no gain in the front or the hydrostatic
-    pressure (docs/notes/solver.md), so only boxes without free surface solve for signed pressure."""
+    """Whether particle i keeps p >= 0: on the free surface and in its band, and everywhere where
+    ``free_surface[0]`` is set (DFSPHSolver.detect_free_surface: under gravity always, else when a particle is on
+    a free surface). Signed bulk pressure in free-surface flow tripled the 1M dam break's density iterations
+    (6.8 -> 20.8 a step, 5.7 -> 16.6 ms on the H100) with no gain in the front or the hydrostatic pressure, and a
+    sealed tank under gravity whose last gap particle closed switched its whole bulk to signed pressure in one step
+    (36 m/s at 32 across; docs/notes/solver.md), so only a periodic box or one without gravity and without free
+    surface solves for signed pressure."""
     return not off_surface(surface) or free_surface[0] > 0
 
 
@@ -341,11 +344,18 @@ def warm_start_pressure(
 
     It is SPlisHSPlasH's (capped, and kept only where this step's source still has the sign of that
     pressure: still diverging, still compressed, or still expanded in the signed bulk) in the divergence
-    solver, on the free surface and its band, and in a box without free surface (``free_surface[0]`` 0):
-    clamped iterations cannot take back a pressure that is no longer needed where particles can separate.
-    ``bulk_applied`` 1 (the density solve of a free-surface scene): the bulk's warm start was applied
-    whole before this measure (:func:`warm_start_bulk`) and is left alone here."""
+    solver, in the surface band and in a box with signed bulk pressure (``free_surface[0]`` 0): clamped iterations
+    cannot take back a pressure that is no longer needed where particles can separate. None on the free surface
+    itself (both solves): there the stiffness stays this step's source's. Its capped warm start grew a wave of the
+    surface layer of a resting pool at the viscous step (to 1 m/s within 0.03 s at 32 across; without it the pools
+    rest 4-10x calmer, the 1M dam break takes the same density iterations; dropped in the band too, a 14-across
+    tank at dt 0.16 ms opened cavities; docs/notes/solver.md). ``bulk_applied`` 1 (the density solve of a
+    free-surface scene): the bulk's warm start was applied whole before this measure (:func:`warm_start_bulk`)
+    and is left alone here."""
     i = wp.tid()
+    if surface[i] == SURFACE:
+        pressure_sum[i] = 0.0
+        return
     if bulk_applied != 0 and off_surface(surface[i]):
         return
     h = dt[0]

@@ -136,10 +136,11 @@ def test_warm_start_saves_density_iterations(settled_tank):
 
 
 def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
-    """The density solver's warm start (kernels/pressure.py): in the bulk of a free-surface scene half of
-    last step's pressure, whole, whatever this step's source, applied before the first measure; on the
-    surface and its band, in the divergence solver and in a box without free surface, capped and dropped
-    where the source no longer asks for it."""
+    """The solvers' warm start (kernels/pressure.py): in the bulk of a free-surface scene's density solve half of
+    last step's pressure, whole, whatever this step's source, applied before the first measure; in the divergence
+    solver, in the surface band and in a box with signed bulk pressure, capped and dropped where the source no longer
+    asks for it; none on the free surface, whose first stiffness stays the one of this step's source (its warm start
+    grew a wave of a resting pool's surface layer to 1 m/s at 32 across)."""
     import warp as wp
 
     from warpsph.kernels.free_surface import BAND, SURFACE
@@ -152,16 +153,18 @@ def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
     surface = [0, 0, SURFACE, BAND, SURFACE]
     source = [-1e-3, 1e-3, -1e-3, 1e-3, 1e-3]
     pressure = [big, big, big, big, 0.005 * big]
+    measured = 7.0  # the stiffness of this step's source (the measure's), which the surface keeps
     # where capped and clamped: at most WARM_START_RAMP x this step's source (here below WARM_START_CAP), halved
     ramped = 0.5 * WARM_START_RAMP * 1e-3 * factor / dt**2
     capped = 0.5 * WARM_START_CAP * factor / dt**2
     ramped_rate = 0.5 * WARM_START_RAMP * 1e-3 * factor / dt  # the divergence solver's k is per dt, not dt^2
+    m = measured
     expected = {
-        "density": [0.5 * big, 0.5 * big, 0.0, ramped, 0.0025 * big],
-        "density, no free surface": [0.0, capped, 0.0, ramped, 0.0025 * big],  # the signed bulk: the cap alone
-        "divergence": [0.0, ramped_rate, 0.0, ramped_rate, ramped_rate],
+        "density": [0.5 * big, 0.5 * big, m, ramped, m],
+        "density, signed bulk": [0.0, capped, m, ramped, m],  # the cap alone
+        "divergence": [0.0, ramped_rate, m, ramped_rate, m],
     }
-    for kind, per_unit_time, free_surface in (("density", 0, 1), ("density, no free surface", 0, 0),
+    for kind, per_unit_time, free_surface in (("density", 0, 1), ("density, signed bulk", 0, 0),
                                               ("divergence", 1, 1)):
         arrays = dict(
             error=wp.array(source, dtype=float, device=device),
@@ -171,7 +174,7 @@ def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
             surface=wp.array(surface, dtype=wp.int32, device=device),
             free_surface=wp.array([free_surface], dtype=wp.int32, device=device),
             pressure_sum=wp.array(pressure, dtype=float, device=device),
-            stiffness=wp.zeros(5, dtype=float, device=device),
+            stiffness=wp.full(5, measured, dtype=float, device=device),
         )
         wp.launch(warm_start_pressure, 5, inputs=[arrays["error"], arrays["factor"], arrays["dt"],
                                                    arrays["dt_previous"], per_unit_time, arrays["surface"],
@@ -182,18 +185,19 @@ def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
 
     # the density solve of a free-surface scene after dt halved: the bulk's half, whole and not scaled up (a pressure;
     # (dt_prev/dt)^2 = 4 kicked settled tanks), before the first measure (it stays in pressure_sum, already
-    # applied); the surface and band as above, after it, never scaled up by the drop
+    # applied); the band as above, after it, never scaled up by the drop; the surface starts from its source
     arrays["dt_previous"] = wp.array([2 * dt], dtype=float, device=device)
     arrays["pressure_sum"] = wp.array(pressure, dtype=float, device=device)
     arrays["free_surface"] = wp.array([1], dtype=wp.int32, device=device)
     wp.launch(warm_start_bulk, 5, inputs=[arrays["pressure_sum"], arrays["dt"], arrays["dt_previous"], arrays["surface"],
                                           arrays["stiffness"]], device=device)
     np.testing.assert_allclose(arrays["stiffness"].numpy(), [0.5 * big, 0.5 * big, 0, 0, 0], rtol=1e-5)
+    arrays["stiffness"] = wp.full(5, measured, dtype=float, device=device)  # the first measure's
     wp.launch(warm_start_pressure, 5, inputs=[arrays["error"], arrays["factor"], arrays["dt"], arrays["dt_previous"], 0,
                                                arrays["surface"], arrays["free_surface"], arrays["pressure_sum"], 1,
                                                arrays["stiffness"]], device=device)
-    # k dt_prev^2 of the band is ramped, then divided by the larger of dt^2 and dt_prev^2; the small surface one too
-    np.testing.assert_allclose(arrays["stiffness"].numpy(), [0.5 * big, 0.5 * big, 0.0, ramped / 4, ramped / 4],
+    # k dt_prev^2 of the band is ramped, then divided by the larger of dt^2 and dt_prev^2
+    np.testing.assert_allclose(arrays["stiffness"].numpy(), [measured, measured, measured, ramped / 4, measured],
                                rtol=1e-5)
     np.testing.assert_allclose(arrays["pressure_sum"].numpy(), [0.5 * big, 0.5 * big, 0, 0, 0], rtol=1e-5)
 

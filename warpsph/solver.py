@@ -97,7 +97,7 @@ class DFSPHSolver:
             self.shift = sim.scratch(wp.vec3, 0)
         self.surface = sim.per_particle("pressure", wp.int32)  # BULK / BAND / SURFACE / WALL
         self.surface_count = z("pressure", 1, dtype=wp.int32)  # surface particles this step (statistics)
-        # this step: 1 = a free surface exists, p >= 0 everywhere; 0 = none, signed in the bulk (clamped())
+        # this step: 1 = p >= 0 everywhere (under gravity, or a free surface exists); 0 = signed in the bulk (clamped())
         self.free_surface = z("pressure", 1, dtype=wp.int32)
         self.free_surface_known = None
         # accumulated stiffness of the last solve of each kind, for the warm start
@@ -141,7 +141,12 @@ class DFSPHSolver:
         the density pass's divergence of position and density."""
         sim = self.sim
         self.surface_count.zero_()
-        self.free_surface.zero_()
+        # under gravity the bulk is clamped whether or not a particle is on a free surface this step (kernels/
+        # pressure.py clamped): no regime that a closing gap switches for the whole tank
+        if self._removes_mean():
+            self.free_surface.zero_()
+        else:
+            self.free_surface.fill_(1)
         sim.exchange(self.position_divergence, self.concentration_gradient)  # read at the neighbours (the band)
         sim.launch(classify_free_surface, sim.num_fluid,
                    [self.position_divergence, sim.fluid.density, self.concentration_gradient, self._down(),
