@@ -334,6 +334,7 @@ def warm_start_pressure(
     free_surface: wp.array(dtype=wp.int32),
     pressure_sum: wp.array(dtype=float),
     bulk_applied: int,
+    cold_surface: int,
     stiffness: wp.array(dtype=float),
 ):
     """Warm start: k_i = 0.5 x last step's accumulated k_i, rescaled from dt_prev to dt (dt^2 for the
@@ -344,16 +345,18 @@ def warm_start_pressure(
 
     It is SPlisHSPlasH's (capped, and kept only where this step's source still has the sign of that
     pressure: still diverging, still compressed, or still expanded in the signed bulk) in the divergence
-    solver, in the surface band and in a box with signed bulk pressure (``free_surface[0]`` 0): clamped iterations
-    cannot take back a pressure that is no longer needed where particles can separate. None on the free surface
-    itself (both solves): there the stiffness stays this step's source's. Its capped warm start grew a wave of the
-    surface layer of a resting pool at the viscous step (to 1 m/s within 0.03 s at 32 across; without it the pools
-    rest 4-10x calmer, the 1M dam break takes the same density iterations; dropped in the band too, a 14-across
-    tank at dt 0.16 ms opened cavities; docs/notes/solver.md). ``bulk_applied`` 1 (the density solve of a
+    solver, on the free surface and its band, and in a box with signed bulk pressure (``free_surface[0]`` 0):
+    clamped iterations cannot take back a pressure that is no longer needed where particles can separate.
+    ``cold_surface`` 1 (both solves of a scene under gravity): none on the free surface itself, whose stiffness
+    stays this step's source's. Its capped warm start grew a wave of the surface layer of a resting pool at the
+    viscous step (to 1 m/s within 0.03 s at 32 across; without it the pools rest 4-10x calmer, the 1M dam break
+    takes the same density iterations; dropped in the band too, a 14-across tank at dt 0.16 ms opened cavities).
+    Without gravity it stays: a box thrown along a filled periodic channel then handed 12 % of the momentum to
+    the walls instead of 1.2 % (docs/notes/solver.md). ``bulk_applied`` 1 (the density solve of a
     free-surface scene): the bulk's warm start was applied whole before this measure (:func:`warm_start_bulk`)
     and is left alone here."""
     i = wp.tid()
-    if surface[i] == SURFACE:
+    if cold_surface != 0 and surface[i] == SURFACE:
         pressure_sum[i] = 0.0
         return
     if bulk_applied != 0 and off_surface(surface[i]):

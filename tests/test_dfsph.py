@@ -138,9 +138,9 @@ def test_warm_start_saves_density_iterations(settled_tank):
 def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
     """The solvers' warm start (kernels/pressure.py): in the bulk of a free-surface scene's density solve half of
     last step's pressure, whole, whatever this step's source, applied before the first measure; in the divergence
-    solver, in the surface band and in a box with signed bulk pressure, capped and dropped where the source no longer
-    asks for it; none on the free surface, whose first stiffness stays the one of this step's source (its warm start
-    grew a wave of a resting pool's surface layer to 1 m/s at 32 across)."""
+    solver, on the surface and its band and in a box with signed bulk pressure, capped and dropped where the source
+    no longer asks for it; under gravity none on the free surface, whose first stiffness stays the one of this
+    step's source (its warm start grew a wave of a resting pool's surface layer to 1 m/s at 32 across)."""
     import warp as wp
 
     from warpsph.kernels.free_surface import BAND, SURFACE
@@ -163,9 +163,12 @@ def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
         "density": [0.5 * big, 0.5 * big, m, ramped, m],
         "density, signed bulk": [0.0, capped, m, ramped, m],  # the cap alone
         "divergence": [0.0, ramped_rate, m, ramped_rate, m],
+        # without gravity the surface keeps its capped, sign-tested warm start
+        "density, no gravity": [0.5 * big, 0.5 * big, 0.0, ramped, 0.0025 * big],
     }
-    for kind, per_unit_time, free_surface in (("density", 0, 1), ("density, signed bulk", 0, 0),
-                                              ("divergence", 1, 1)):
+    for kind, per_unit_time, free_surface, cold_surface in (
+            ("density", 0, 1, 1), ("density, signed bulk", 0, 0, 1), ("divergence", 1, 1, 1),
+            ("density, no gravity", 0, 1, 0)):
         arrays = dict(
             error=wp.array(source, dtype=float, device=device),
             factor=wp.full(5, factor, dtype=float, device=device),
@@ -179,7 +182,7 @@ def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
         wp.launch(warm_start_pressure, 5, inputs=[arrays["error"], arrays["factor"], arrays["dt"],
                                                    arrays["dt_previous"], per_unit_time, arrays["surface"],
                                                    arrays["free_surface"], arrays["pressure_sum"], 0,
-                                                   arrays["stiffness"]], device=device)
+                                                   cold_surface, arrays["stiffness"]], device=device)
         np.testing.assert_allclose(arrays["stiffness"].numpy(), expected[kind], rtol=1e-5, err_msg=kind)
         assert not arrays["pressure_sum"].numpy().any()
 
@@ -194,7 +197,7 @@ def test_warm_start_keeps_the_bulk_load_and_tests_the_surface(device):
     np.testing.assert_allclose(arrays["stiffness"].numpy(), [0.5 * big, 0.5 * big, 0, 0, 0], rtol=1e-5)
     arrays["stiffness"] = wp.full(5, measured, dtype=float, device=device)  # the first measure's
     wp.launch(warm_start_pressure, 5, inputs=[arrays["error"], arrays["factor"], arrays["dt"], arrays["dt_previous"], 0,
-                                               arrays["surface"], arrays["free_surface"], arrays["pressure_sum"], 1,
+                                               arrays["surface"], arrays["free_surface"], arrays["pressure_sum"], 1, 1,
                                                arrays["stiffness"]], device=device)
     # k dt_prev^2 of the band is ramped, then divided by the larger of dt^2 and dt_prev^2
     np.testing.assert_allclose(arrays["stiffness"].numpy(), [measured, measured, measured, ramped / 4, measured],

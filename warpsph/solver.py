@@ -290,7 +290,7 @@ class DFSPHSolver:
             sim.launch(warm_start_pressure, sim.num_fluid,
                        [self.error, self._factor(kind), sim.dt, sim.dt_previous, int(kind == DIVERGENCE),
                         self.surface, self.free_surface, self.pressure_sum[kind], int(self._bulk_first(kind)),
-                        self.stiffness])
+                        int(not self._removes_mean()), self.stiffness])
         sim.launch(reduce_error, REDUCE_THREADS, [self.error, sim.num_fluid, self.error_stats])
         sim.allreduce((self.error_stats, "sm-"))
         sim.launch(update_solver_status, 1,
