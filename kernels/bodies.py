@@ -80,13 +80,12 @@ def measure_body_contacts(
     body_count: int,
     depth: wp.array(dtype=float),
     push: wp.array(dtype=wp.vec3),
-    arm: wp.array(dtype=wp.vec4),
+    touch: wp.array(dtype=float),
 ):
     """Launched over (dynamic body samples, bodies): how deep sample s of body b lies within ``reach`` of body o's
     mesh surface (inside a closed mesh counts from the surface inward). depth[b body_count + o] takes the largest
     such depth, push[b body_count + o] the depth-weighted sum of the world directions that move b out of o, and
-    arm[b body_count + o] the depth-weighted sum of the touching samples' offsets from b's centre (xyz) and of the
-    weights (w): the contact point, where the contact's impulse acts."""
+    touch[s body_count + o] the sample's own depth (0: not touching), from which the contact's points are chosen."""
     s, o = wp.tid()
     b = sample_body[s]
     if b == o:
@@ -106,5 +105,4 @@ def measure_body_contacts(
     if d > 0.0:
         wp.atomic_max(depth, b * body_count + o, d)
         wp.atomic_add(push, b * body_count + o, d * (rotation[o] * direction))
-        r = x - position[b]
-        wp.atomic_add(arm, b * body_count + o, wp.vec4(d * r[0], d * r[1], d * r[2], d))
+        touch[s * body_count + o] = d
