@@ -396,8 +396,8 @@ def warm_start_bulk(
     its density error with 100x the pressure, which the next step must not apply whole) and never scaled up where
     it dropped (k is a pressure: scaled by 100, a settled tank kicked by one step at dt / 10 jumped from 0.012 to
     0.23 m/s), into ``stiffness`` and
-    ``pressure_sum``; 0 on the free surface and its band, whose warm start :func:`warm_start_pressure` tests
-    against the measured source. In the bulk it is mostly the hydrostatic load, still needed; as the first
+    ``pressure_sum``; 0 on the free surface and its band, whose warm start :func:`warm_start_pressure` decides (none
+    on the surface itself, the band's tested against the measured source). In the bulk it is mostly the hydrostatic load, still needed; as the first
     iteration's stiffness, added after the measure, it agitated a resting tank at small steps (50 across,
     dt 0.16 ms: up to 1.2 m/s), and sign-testing it cost the 1M dam break 0.6-0.8 iterations a step
     (docs/notes/solver.md)."""
