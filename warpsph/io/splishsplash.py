@@ -33,6 +33,8 @@ The container (the first static body with mapInvert) becomes the domain, its fac
 SPlisHSPlasH's walls hold the fluid (:func:`container_inset`): its boundary particles lie on the mesh
 surface, its volume maps hold a fluid at rest :func:`volume_map_standoff` (2.40 r) from it, and warpsph's
 wall layer, 1.2 r outside the domain's faces, holds it :func:`wall_layer_standoff` (2.20 r) from itself.
+A static body that touches the container then reaches past the faces: its samples behind the wall layer are dropped
+(``scene_setup.inside_wall_layer``).
 """
 
 from __future__ import annotations
