@@ -30,7 +30,12 @@ BODY_INSET = 1.2  # particle radii between a closed mesh's surface and its sampl
 # unchanged, and a body in air (w = 0) falls at g.
 ADDED_MASS = 1.0
 STATE_COLUMNS = 24  # a dynamic body's state row: position 3, rotation 9, velocity 3, angular velocity 3,
-# acceleration 3, angular acceleration 3
+# acceleration 3, angular acceleration 3 (float64: the bodies step in float64, and a resume must be bit-identical)
+# The contacts' accumulated impulses a step hands to the next (:meth:`PointContact.remember`), one contact point a
+# row: kind (0 wall, 1 body; -1 unused), two indices, the wall's side, the point and the tangential impulse in the
+# body's frame, the normal impulse. Rows past the room are dropped (those points start cold).
+CONTACT_MEMORY_ROWS = 4096
+CONTACT_MEMORY_COLUMNS = 11
 WALL_FRICTION = 0.5  # without a friction coefficient: the share of its tangential velocity and spin a dynamic body
 # keeps per step in contact (dt-dependent, no Coulomb law: the behaviour before ``dynamics.friction``)
 REST_SPEED = 2.0  # x |g| dt: a contact approaching slower than this comes to rest (no bounce): gravity's two steps
@@ -377,14 +382,17 @@ class MovingBodies:
         self.sample_counts = np.asarray(counts, np.float64)
         # dynamic state for checkpoints and retried frames: position, rotation, velocity, angular velocity,
         # and the last step's accelerations
-        self.state = sim.zeros("bodies", (max(len(self.dynamic), 1), STATE_COLUMNS), dtype=float)
+        self.state = sim.zeros("bodies", (max(len(self.dynamic), 1), STATE_COLUMNS), dtype=wp.float64)
+        self.contact_memory = sim.zeros("bodies", (CONTACT_MEMORY_ROWS if self.dynamic else 1, CONTACT_MEMORY_COLUMNS),
+                                        dtype=wp.float64)
         if self.dynamic:
             sim.state.carry("bodies/state", self.state)
+            sim.state.carry("bodies/contacts", self.contact_memory, optional=True)
+        # the last step's contacts' impulses, for the warm start (:meth:`PointContact.warm_start`); checkpointed
+        # through ``contact_memory``
+        self._warm = {}
         self._store_state()
         self.sweeps = 0  # the last step's contact sweeps (:func:`solve_contacts`)
-        # the last step's contacts' impulses, for the warm start (:meth:`PointContact.warm_start`); not in checkpoints:
-        # a resumed run (and a retried frame, :meth:`load_state`) starts its contacts cold
-        self._warm = {}
         # each body's slice of the dynamic samples (the contact kernel's rows)
         starts = np.concatenate([[0], np.cumsum(counts)]) - dynamic_local
         self._dynamic_slices = [slice(int(starts[k]), int(starts[k + 1])) for k in range(n)]
@@ -591,7 +599,7 @@ class MovingBodies:
                 points[:, k] = face + side * own
                 contacts.append(PointContact(body, None, False, normal, points, restitution, friction, rest_speed,
                                              slack=(near[chosen] - near.min()) / dt))
-                contacts[-1].key = ("wall", id(body), k, side)
+                contacts[-1].key = ("wall", self.bodies.index(body), k, side)
                 touched.add(k)
         if touched and friction is None:
             for k in set(range(3)) - touched:
@@ -605,15 +613,29 @@ class MovingBodies:
             return
         rows = [np.concatenate([b.position, b.rotation.ravel(), b.velocity, b.angular_velocity, b.acceleration,
                                 b.angular_acceleration]) for b in self.dynamic]
-        self.state.assign(np.asarray(rows, np.float32))
+        self.state.assign(np.asarray(rows, np.float64))
+        memory = np.full((CONTACT_MEMORY_ROWS, CONTACT_MEMORY_COLUMNS), -1.0)
+        row = 0
+        for key, (points, normal_sum, tangent_sum) in self._warm.items():
+            head = [0.0 if key[0] == "wall" else 1.0, key[1], key[2], key[3] if key[0] == "wall" else 0.0]
+            for p in range(min(len(points), CONTACT_MEMORY_ROWS - row)):
+                memory[row] = head + list(points[p]) + list(tangent_sum[p]) + [normal_sum[p]]
+                row += 1
+        self.contact_memory.assign(memory)
 
     def load_state(self):
-        """Reads the dynamic bodies' pose and velocity back from ``state`` (after a restore); the contacts start cold,
-        as in a run resumed from a checkpoint."""
+        """Reads the dynamic bodies' pose and velocity and the contacts' impulses back from ``state`` and
+        ``contact_memory`` (after a restore: a checkpoint or a retried frame)."""
         if not self.dynamic:
             return
         self._warm = {}
-        for row, body in zip(self.state.numpy().astype(np.float64), self.dynamic):
+        for r in self.contact_memory.numpy():
+            if r[0] < 0.0:
+                continue
+            key = ("wall", int(r[1]), int(r[2]), r[3]) if r[0] == 0.0 else ("body", int(r[1]), int(r[2]))
+            points, normal_sum, tangent_sum = self._warm.get(key, (np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3))))
+            self._warm[key] = (np.vstack([points, r[4:7]]), np.append(normal_sum, r[10]), np.vstack([tangent_sum, r[7:10]]))
+        for row, body in zip(self.state.numpy(), self.dynamic):
             body.position, body.rotation = row[0:3].copy(), row[3:12].reshape(3, 3).copy()
             body.velocity, body.angular_velocity = row[12:15].copy(), row[15:18].copy()
             body.acceleration, body.angular_acceleration = row[18:21].copy(), row[21:24].copy()

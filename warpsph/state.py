@@ -37,6 +37,7 @@ class State:
         self.num_fluid = num_fluid
         self.allocations = defaultdict(int)  # owner -> bytes
         self.carried = {}  # name -> array that a step carries to the next (checkpoints, retries)
+        self.optional = set()  # carried names an older checkpoint may lack
         self._per_particle = []
         self.fluid = None
         self.step_count = 0
@@ -62,11 +63,14 @@ class State:
         self._per_particle.append(a)
         return a
 
-    def carry(self, name, array):
-        """Registers ``array`` as state a step carries to the next, under ``name`` (a checkpoint's key)."""
+    def carry(self, name, array, optional=False):
+        """Registers ``array`` as state a step carries to the next, under ``name`` (a checkpoint's key);
+        ``optional``: a checkpoint written before it existed loads without it (the array keeps its start)."""
         if name in self.carried:
             raise ValueError(f"state {name!r} is registered twice")
         self.carried[name] = array
+        if optional:
+            self.optional.add(name)
         return array
 
     def allocate_fluid(self, x, v, factor=True, ids=None):

@@ -126,6 +126,8 @@ def load_checkpoint(path, scene=None, device=None):
             raise SceneError(path, "", "particle count differs from the scene's")
         try:
             for name, a in sim.state_arrays().items():
+                if name not in f and name in sim.state.optional:
+                    continue  # written before the array existed: it keeps its start
                 stored = f[name][...]
                 if len(a.shape) == 2 and stored.ndim == 2 and stored.shape[:1] == a.shape[:1] and stored.shape[1] < a.shape[1]:
                     # a row that has grown columns since (a dynamic body's accelerations): they start at zero
