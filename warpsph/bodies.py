@@ -383,8 +383,9 @@ class MovingBodies:
         # dynamic state for checkpoints and retried frames: position, rotation, velocity, angular velocity,
         # and the last step's accelerations
         self.state = sim.zeros("bodies", (max(len(self.dynamic), 1), STATE_COLUMNS), dtype=wp.float64)
-        self.contact_memory = sim.zeros("bodies", (CONTACT_MEMORY_ROWS if self.dynamic else 1, CONTACT_MEMORY_COLUMNS),
-                                        dtype=wp.float64)
+        self.contact_memory = sim.array("bodies", np.full((CONTACT_MEMORY_ROWS if self.dynamic else 1,
+                                                           CONTACT_MEMORY_COLUMNS), -1.0), wp.float64)
+        self._memory_rows = 0  # rows of contact_memory the last store wrote
         if self.dynamic:
             sim.state.carry("bodies/state", self.state)
             sim.state.carry("bodies/contacts", self.contact_memory, optional=True)
@@ -539,23 +540,23 @@ class MovingBodies:
                     if both:
                         points.append(touched(o, a) + reach * normal)
                     points = contact_points(np.concatenate(points), normal, sim.scene.particle_radius)
-                    self._separate(body, bodies[o], normal, d, both)
                     restitution, friction = contact_coefficients(body, bodies[o], both)
+                    self._separate(body, bodies[o], normal, d, both, friction)
                     contacts.append(PointContact(body, bodies[o], both, normal, points, restitution, friction,
                                                  rest_speed))
                     contacts[-1].key = ("body", a, o)
         return contacts
 
     @staticmethod
-    def _separate(body, other, normal, depth, both):
+    def _separate(body, other, normal, depth, both, friction):
         """Moves ``body`` out of ``other`` along ``normal`` by ``depth`` (by inverse mass when ``both``: the other is
-        dynamic) and, without a friction coefficient, damps their tangential slip and spin by WALL_FRICTION (see
-        :meth:`_body_contact`; impulses between two dynamic bodies are equal and opposite)."""
+        dynamic) and, without a ``friction`` coefficient (None), damps their tangential slip and spin by WALL_FRICTION
+        (see :meth:`_body_contact`; impulses between two dynamic bodies are equal and opposite)."""
         inv, inv_other = 1.0 / body.mass, (1.0 / other.mass if both else 0.0)
         body.position = body.position + inv / (inv + inv_other) * depth * normal
         if both:
             other.position = other.position - inv_other / (inv + inv_other) * depth * normal
-        if contact_coefficients(body, other, both)[1] is not None:
+        if friction is not None:
             return
         slip = body.velocity - other.velocity if both else body.velocity
         slip = slip - float(slip @ normal) * normal
@@ -614,14 +615,18 @@ class MovingBodies:
         rows = [np.concatenate([b.position, b.rotation.ravel(), b.velocity, b.angular_velocity, b.acceleration,
                                 b.angular_acceleration]) for b in self.dynamic]
         self.state.assign(np.asarray(rows, np.float64))
-        memory = np.full((CONTACT_MEMORY_ROWS, CONTACT_MEMORY_COLUMNS), -1.0)
-        row = 0
+        rows = []
         for key, (points, normal_sum, tangent_sum) in self._warm.items():
             head = [0.0 if key[0] == "wall" else 1.0, key[1], key[2], key[3] if key[0] == "wall" else 0.0]
-            for p in range(min(len(points), CONTACT_MEMORY_ROWS - row)):
-                memory[row] = head + list(points[p]) + list(tangent_sum[p]) + [normal_sum[p]]
-                row += 1
-        self.contact_memory.assign(memory)
+            rows += [head + list(points[p]) + list(tangent_sum[p]) + [normal_sum[p]] for p in range(len(points))]
+        rows = rows[:CONTACT_MEMORY_ROWS]
+        # the rows in use, and those the last step used marked unused: the rest of the room is unused already
+        written = max(len(rows), self._memory_rows)
+        if written:
+            memory = np.full((written, CONTACT_MEMORY_COLUMNS), -1.0)
+            memory[:len(rows)] = np.asarray(rows, np.float64).reshape(-1, CONTACT_MEMORY_COLUMNS)
+            self.contact_memory[:written].assign(memory)
+        self._memory_rows = len(rows)
 
     def load_state(self):
         """Reads the dynamic bodies' pose and velocity and the contacts' impulses back from ``state`` and
@@ -629,9 +634,9 @@ class MovingBodies:
         if not self.dynamic:
             return
         self._warm = {}
-        for r in self.contact_memory.numpy():
-            if r[0] < 0.0:
-                continue
+        memory = self.contact_memory.numpy()
+        self._memory_rows = int((memory[:, 0] >= 0.0).sum())  # the rows in use come first
+        for r in memory[:self._memory_rows]:
             key = ("wall", int(r[1]), int(r[2]), r[3]) if r[0] == 0.0 else ("body", int(r[1]), int(r[2]))
             points, normal_sum, tangent_sum = self._warm.get(key, (np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3))))
             self._warm[key] = (np.vstack([points, r[4:7]]), np.append(normal_sum, r[10]), np.vstack([tangent_sum, r[7:10]]))
