@@ -152,3 +152,50 @@ def vertex_attributes(vertices: wp.array(dtype=wp.vec3), grid: wp.uint64, x: wp.
             velocities[tid] = vel / weight
         if scalar.shape[0] > 0:
             scalars[tid] = s / weight
+
+
+@wp.kernel
+def magnitudes(values: wp.array(dtype=wp.vec3), out: wp.array(dtype=float)):
+    """out[i] = |values[i]| (the vorticity magnitude the mesh carries)."""
+    i = wp.tid()
+    out[i] = wp.length(values[i])
+
+
+@wp.kernel
+def signed_volume(points: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32), total: wp.array(dtype=float)):
+    """total[0] += the signed volume of the tetrahedron of face f and the origin (positive: faces counter-clockwise
+    seen from outside)."""
+    f = wp.tid()
+    a = points[indices[3 * f]]
+    b = points[indices[3 * f + 1]]
+    c = points[indices[3 * f + 2]]
+    wp.atomic_add(total, 0, wp.dot(a, wp.cross(b, c)) / 6.0)
+
+
+@wp.kernel
+def count_neighbours(indices: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32)):
+    """counts[i] += 2 for every face at vertex i (its two other corners: each edge is counted from its two faces,
+    so every neighbour weighs the same)."""
+    f = wp.tid()
+    for k in range(3):
+        wp.atomic_add(counts, indices[3 * f + k], 2)
+
+
+@wp.kernel
+def sum_neighbours(points: wp.array(dtype=wp.vec3), indices: wp.array(dtype=wp.int32), sums: wp.array(dtype=wp.vec3)):
+    """sums[i] += the other two corners of every face at vertex i."""
+    f = wp.tid()
+    for k in range(3):
+        i = indices[3 * f + k]
+        wp.atomic_add(sums, i, points[indices[3 * f + (k + 1) % 3]] + points[indices[3 * f + (k + 2) % 3]])
+
+
+@wp.kernel
+def relax(points: wp.array(dtype=wp.vec3), sums: wp.array(dtype=wp.vec3), counts: wp.array(dtype=wp.int32),
+          factor: float):
+    """One Laplacian step of Taubin's smoothing: x_i += factor (mean of the neighbours - x_i) (factor lambda > 0
+    smooths, mu < -lambda undoes the shrinking)."""
+    i = wp.tid()
+    n = counts[i]
+    if n > 0:
+        points[i] = points[i] + factor * (sums[i] / float(n) - points[i])

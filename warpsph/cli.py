@@ -381,11 +381,17 @@ def _simulate(sim, outputs, frames, args, options, append):
     payload = {"bytes": 0, "particle_frames": 0, "surface_seconds": 0.0}
     mesher = None
     if surface is not None:  # meshes on a thread of its own, fed by the writer (bounded: --surface-behind)
-        from .surface import BackgroundMesher, mesher_for, surface_clip
+        from .surface import BackgroundMesher, DeviceMesher, mesher_for, surface_clip
 
         clip = surface_clip(scene.domain, body_meshes(sim))  # the meshes stop at the walls and bodies (#42)
-        mesher = BackgroundMesher(mesher_for(surface, radius, sim.device, clip=clip), every=int(options.get("surface_every", 1)),
-                                  behind=str(options.get("surface_behind", "wait")))
+        every = int(options.get("surface_every", 1))
+        parts = sim.parts()
+        if surface.method == "preview" and len(parts) == 1 and parts[0].device.is_cuda:  # on the GPU, between steps
+            mesher = DeviceMesher(surface, radius, clip=clip, every=every)
+        else:
+            mesher = BackgroundMesher(mesher_for(surface, radius, sim.device, clip=clip), every=every,
+                                      behind=str(options.get("surface_behind", "wait")))
+    mesh_on_device = getattr(mesher, "mesh_now", None)
 
     mesh_count = {"submitted": 0, "written": 0}  # frames handed to the mesher, and their meshes written to the cache
 
@@ -465,6 +471,8 @@ def _simulate(sim, outputs, frames, args, options, append):
 
     def on_frame(sim, frame):
         row = diagnostics.measure(sim, frame)  # a few numbers reduced on the device
+        if mesh_on_device is not None:
+            mesh_on_device(sim, frame)
         try:
             writer.submit(sim, frame, row)
         except WriterFailed as failed:
@@ -586,6 +594,14 @@ def _report_surface(mesher, surface, loop_wall, writer):
         keep_up = max(2, int(np.ceil(per_mesh / max(simulated, 1e-9))))
         logger.warning(f"surface: the simulation waited {writer.waited:.1f} s for the writer and mesher: "
                        f"--surface-every {keep_up} or --surface-behind skip would not make it wait")
+
+
+def _default_surface_method(args):
+    """``--surface-method`` left out: preview (marching cubes on the GPU, between the steps) where the run is on
+    CUDA, splashsurf (the host's cores) on the CPU."""
+    if args.devices:
+        return "preview" if "cpu" not in str(args.devices) else "splashsurf"
+    return "preview" if _pick_device(args.device).startswith("cuda") else "splashsurf"
 
 
 def _surface_options(options):
@@ -769,7 +785,7 @@ def run_command(args):
     _check_options(args)
     surface = {"surface": int(args.surface), "surface_cube": args.surface_cube, "surface_smoothing": args.surface_smoothing,
                "surface_every": args.surface_every, "surface_behind": args.surface_behind,
-               "surface_method": args.surface_method}
+               "surface_method": args.surface_method or (_default_surface_method(args) if args.surface else "splashsurf")}
     _surface_options(surface)  # a bad value or no pysplashsurf: refused before anything is written
     scene = load_scene(args.scene, scale=args.scale, run_anyway=True if args.run_anyway else None)
     frames = scene.output.frames if args.frames is None else args.frames
@@ -990,15 +1006,16 @@ def build_parser():
                      help="a SPlisHSPlasH scene: run without the physics warpsph refuses (the list is printed and recorded "
                           "in the cache's metadata warpsph:import_dropped and in OUT.stats.meta.json)")
     run.add_argument("--surface", action="store_true",
-                     help="also write the fluid's surface mesh /World/FluidSurface every frame (splashsurf, in the "
-                          "background writer; needs pip install 'warpsph[surface]')")
+                     help="also write the fluid's surface mesh /World/FluidSurface every frame (see "
+                          "--surface-method)")
     run.add_argument("--surface-cube", type=float, default=0.75, metavar="C",
                      help="marching-cubes cell of the surface in particle radii (default 0.75; 0.5 is finer)")
     run.add_argument("--surface-smoothing", type=float, default=2.0, metavar="L",
                      help="smoothing length of the surface's colour field in particle radii (default 2.0)")
-    run.add_argument("--surface-method", choices=["splashsurf", "preview"], default="splashsurf",
-                     help="splashsurf (default: smoothed, on the host's cores) or preview (Warp's sparse marching "
-                          "cubes on the simulation's device, iso 0.5, no smoothing: quick looks)")
+    run.add_argument("--surface-method", choices=["splashsurf", "preview"], default=None,
+                     help="preview (the default on a GPU: Warp's sparse marching cubes and Taubin smoothing on the "
+                          "simulation's device, between its steps) or splashsurf (the default on the CPU: on the "
+                          "host's cores, needs pip install 'warpsph[surface]')")
     run.add_argument("--surface-every", type=int, default=1, metavar="K",
                      help="mesh every K-th frame only (default 1); a frame between holds the last mesh")
     run.add_argument("--surface-behind", choices=["wait", "skip"], default="wait",
