@@ -76,6 +76,7 @@ def measure_body_contacts(
     position: wp.array(dtype=wp.vec3),
     meshes: wp.array(dtype=wp.uint64),
     closed: wp.array(dtype=wp.int32),
+    band: wp.array(dtype=float),
     reach: float,
     body_count: int,
     depth: wp.array(dtype=float),
@@ -85,7 +86,11 @@ def measure_body_contacts(
     """Launched over (dynamic body samples, bodies): how deep sample s of body b lies within ``reach`` of body o's
     mesh surface (inside a closed mesh counts from the surface inward). depth[b body_count + o] takes the largest
     such depth, push[b body_count + o] the depth-weighted sum of the world directions that move b out of o, and
-    touch[s body_count + o] the sample's own depth (0: not touching), from which the contact's points are chosen."""
+    touch[s body_count + o] the sample's own depth (0: not touching), from which the contact's points are chosen.
+    A sample up to band[o] short of touching counts as touching, with its depth + band[o] as weight and touch
+    (depth takes the true depths only: 0 for a pair that touches in the band alone): a kinematic body's band, so
+    that a contact held exactly at the surface (a box pushed along, at the pusher's speed) is not lost to rounding
+    every other step; 0 for every other body."""
     s, o = wp.tid()
     b = sample_body[s]
     if b == o:
@@ -102,7 +107,8 @@ def measure_body_contacts(
     if closed[o] != 0 and query.sign < 0.0:
         d = reach + distance
         direction = -direction
-    if d > 0.0:
+    if d > -band[o]:
+        w = d + band[o]
         wp.atomic_max(depth, b * body_count + o, d)
-        wp.atomic_add(push, b * body_count + o, d * (rotation[o] * direction))
-        touch[s * body_count + o] = d
+        wp.atomic_add(push, b * body_count + o, w * (rotation[o] * direction))
+        touch[s * body_count + o] = w

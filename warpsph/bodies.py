@@ -48,6 +48,11 @@ REST_SPEED = 2.0  # x |g| dt: a contact approaching slower than this comes to re
 CONTACT_SWEEPS = 30
 CONTACT_TOLERANCE = 1.0e-7
 CONTACT_DIRECTIONS = 8  # a body-body contact's points: its touching samples farthest along 8 directions in the plane
+# [particle radii] a dynamic body's sample this close to touching a kinematic body counts as touching it: a box pushed
+# along the floor by a kinematic paddle is left exactly at the paddle's surface, and moves on with it, so without a
+# band the float32 depth (+-2e-8 m) found the contact every other step only (the floor's friction slowed the box by
+# mu g dt in between, and a contact of 1 or 2 of its 4 points spun it). Far above the rounding, far below a radius.
+KINEMATIC_CONTACT_BAND = 1.0e-3
 
 
 def contact_coefficients(body, other, both):
@@ -82,7 +87,10 @@ class PointContact:
     is to leave at -restitution times its normal speed, a slower one to rest; the accumulated normal impulse stays
     >= 0 and, with a ``friction`` coefficient, each point's tangential one within friction times it (Coulomb;
     None: normal impulses only); a point ``slack`` > 0 dt short of the other (a corner in the band, not yet down)
-    may approach at up to that speed. The impulse J on the body is -J on a dynamic other (momentum-conserving)."""
+    may approach at up to that speed. The impulse J on the body is -J on a dynamic other (momentum-conserving). A
+    kinematic other has infinite mass and moves: each point's relative velocity is taken against the other's rigid
+    velocity there, v + omega x (x - c), from its prescribed motion at this step's pose (issue #39: it acted as if at
+    rest, so a plate lifting a box or a paddle pushing one moved it by the position projections alone, at rest)."""
 
     def __init__(self, body, other, both, normal, points, restitution, friction, rest_speed, slack=None):
         self.body, self.other, self.both = body, other, both
@@ -99,6 +107,10 @@ class PointContact:
                  for m, r in zip(k, self.arms_other)]
         else:
             self.inv_other = 0.0
+        # a kinematic other's velocity at each point (None: a wall or a static body, at rest)
+        self.other_velocity = None
+        if other is not None and not both and other.kind == "kinematic":
+            self.other_velocity = [kinematic_point_velocity(other, x) for x in np.asarray(points, np.float64)]
         self.masses = k  # K: a point's relative velocity change per unit impulse (dv = inv J + (I^-1 (r x J)) x r)
         v_n = np.array([float(self.velocity(p) @ normal) for p in range(len(self.arms))])
         self.target = np.where(-v_n > rest_speed, -restitution * v_n, 0.0)
@@ -142,6 +154,8 @@ class PointContact:
         if self.both:
             o = self.other
             v = v - o.velocity - _cross(o.angular_velocity, self.arms_other[p])
+        elif self.other_velocity is not None:
+            v = v - self.other_velocity[p]
         return v
 
     def _apply(self, p, j):
@@ -182,6 +196,12 @@ class PointContact:
             change = max(change, float(np.linalg.norm(want - self.tangent_sum[p])) * scale)
             self.tangent_sum[p] = want
         return change
+
+
+def kinematic_point_velocity(body, point):
+    """The rigid velocity v + omega x (x - c) of kinematic ``body`` at world ``point``, at its current pose (its
+    prescribed motion at this step, :meth:`MovingBodies.place`)."""
+    return body.velocity + _cross(body.angular_velocity, np.asarray(point, np.float64) - body.position)
 
 
 def solve_contacts(contacts):
@@ -409,6 +429,10 @@ class MovingBodies:
         return {"bodies": bodies, "meshes": meshes, "count": m,
                 "ids": sim.array("bodies", np.array([mesh.id for mesh in meshes], np.uint64), wp.uint64),
                 "closed": sim.array("bodies", np.array([int(b.closed) for b in bodies], np.int32), wp.int32),
+                "band": sim.array("bodies", np.array([KINEMATIC_CONTACT_BAND * sim.scene.particle_radius
+                                                      if b.kind == "kinematic" else 0.0 for b in bodies], np.float32),
+                                  wp.float32),
+                "kinematic": np.array([b.kind == "kinematic" for b in bodies]),
                 "rotation": sim.array("bodies", np.stack([b.rotation for b in bodies]).astype(np.float32), wp.mat33),
                 "position": sim.array("bodies", np.stack([b.position for b in bodies]).astype(np.float32), wp.vec3),
                 "depth": sim.zeros("bodies", m * m), "push": sim.zeros("bodies", m * m, dtype=wp.vec3),
@@ -501,17 +525,20 @@ class MovingBodies:
         reach = BODY_INSET * sim.scene.particle_radius
         sim.launch(measure_body_contacts, (self.num_samples - dynamic_local, m),
                    [self.local[dynamic_local:], self._dynamic_sample_body, c["rotation"], c["position"], c["ids"],
-                    c["closed"], reach, m, c["depth"], c["push"], c["touch"]])
+                    c["closed"], c["band"], reach, m, c["depth"], c["push"], c["touch"]])
         depth = c["depth"].numpy().reshape(m, m).astype(np.float64)
         push = c["push"].numpy().reshape(m, m, 3).astype(np.float64)
-        if not np.any(depth > 0.0):
+        kinematic = c["kinematic"]
+        # a sample within a kinematic body's band (KINEMATIC_CONTACT_BAND) touches it at depth 0
+        banded = np.any(push[:, kinematic], axis=(1, 2))
+        if not np.any(depth > 0.0) and not np.any(banded):
             return []
         bodies = c["bodies"]
         # body k's samples where they were measured (the separations below move the bodies) and its rows of touch,
         # read for the bodies whose samples touch another
         touching = {}
         for k, body in enumerate(self.bodies):
-            if body.kind == "dynamic" and np.any(depth[k] > 0.0):
+            if body.kind == "dynamic" and (np.any(depth[k] > 0.0) or banded[k]):
                 rows = self._dynamic_slices[k]
                 touching[k] = (body.to_world(body.samples),
                                c["touch"][rows.start * m:rows.stop * m].numpy().reshape(-1, m))
@@ -533,7 +560,7 @@ class MovingBodies:
                     continue
                 d = max(depth[a, o], depth[o, a]) if both else depth[a, o]
                 direction = push[a, o] - push[o, a] if both else push[a, o]
-                if d > 0.0 and np.any(direction):
+                if (d > 0.0 or kinematic[o]) and np.any(direction):
                     normal = direction / np.linalg.norm(direction)
                     # the touching samples of each, on its surface: b's towards o (against the normal), o's towards b
                     points = [touched(a, o) - reach * normal]
@@ -541,22 +568,31 @@ class MovingBodies:
                         points.append(touched(o, a) + reach * normal)
                     points = contact_points(np.concatenate(points), normal, sim.scene.particle_radius)
                     restitution, friction = contact_coefficients(body, bodies[o], both)
-                    self._separate(body, bodies[o], normal, d, both, friction)
+                    self._separate(body, bodies[o], normal, d, both, friction, points.mean(axis=0))
                     contacts.append(PointContact(body, bodies[o], both, normal, points, restitution, friction,
                                                  rest_speed))
                     contacts[-1].key = ("body", a, o)
         return contacts
 
     @staticmethod
-    def _separate(body, other, normal, depth, both, friction):
+    def _separate(body, other, normal, depth, both, friction, centre=None):
         """Moves ``body`` out of ``other`` along ``normal`` by ``depth`` (by inverse mass when ``both``: the other is
         dynamic) and, without a ``friction`` coefficient (None), damps their tangential slip and spin by WALL_FRICTION
-        (see :meth:`_body_contact`; impulses between two dynamic bodies are equal and opposite)."""
+        (see :meth:`_body_contact`; impulses between two dynamic bodies are equal and opposite). Against a kinematic
+        other the slip is taken against its velocity at ``centre`` (the contact points' centre) and the spin is damped
+        towards its own (a box on a moving or turning platform is carried along)."""
         inv, inv_other = 1.0 / body.mass, (1.0 / other.mass if both else 0.0)
         body.position = body.position + inv / (inv + inv_other) * depth * normal
         if both:
             other.position = other.position - inv_other / (inv + inv_other) * depth * normal
         if friction is not None:
+            return
+        if not both and other.kind == "kinematic":
+            slip = body.velocity - kinematic_point_velocity(other, body.position if centre is None else centre)
+            slip = slip - float(slip @ normal) * normal
+            body.velocity = body.velocity - (1.0 - WALL_FRICTION) * slip
+            body.angular_velocity = other.angular_velocity + WALL_FRICTION * (body.angular_velocity
+                                                                              - other.angular_velocity)
             return
         slip = body.velocity - other.velocity if both else body.velocity
         slip = slip - float(slip @ normal) * normal
