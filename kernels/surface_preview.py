@@ -199,3 +199,19 @@ def relax(points: wp.array(dtype=wp.vec3), sums: wp.array(dtype=wp.vec3), counts
     n = counts[i]
     if n > 0:
         points[i] = points[i] + factor * (sums[i] / float(n) - points[i])
+
+
+@wp.kernel
+def clamp_points(points: wp.array(dtype=wp.vec3), lo: wp.vec3, hi: wp.vec3):
+    """points[i] clamped into the box [lo, hi] (the domain's walled faces: the mesh stops at the walls)."""
+    i = wp.tid()
+    points[i] = wp.min(wp.max(points[i], lo), hi)
+
+
+@wp.kernel
+def reverse_faces(indices: wp.array(dtype=wp.int32)):
+    """Face f's winding reversed (its first and last corners swapped)."""
+    f = wp.tid()
+    a = indices[3 * f]
+    indices[3 * f] = indices[3 * f + 2]
+    indices[3 * f + 2] = a

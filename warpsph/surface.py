@@ -91,6 +91,16 @@ class SurfaceMesh:
     primvars: dict = field(default_factory=dict)
     seconds: float = 0.0
     layer: str | None = None
+    pending: object = None  # a Warp event: the arrays (pinned host memory) are being copied until it completes
+
+    def wait(self):
+        """Waits for the copies of :func:`preview_on_device` (``pending``); the arrays are readable after it."""
+        if self.pending is not None:
+            import warp as wp
+
+            wp.synchronize_event(self.pending)
+            self.pending = None
+        return self
 
     @staticmethod
     def empty(velocities=True):
@@ -172,13 +182,20 @@ def clip_mesh(mesh, clip, poses=None):
 
         moved |= push_out_of_bodies(points, clip.bodies, poses)
     if clip.walled:
-        lo, hi = np.asarray(clip.lo, np.float32), np.asarray(clip.hi, np.float32)  # rounded inwards to float32:
-        lo = np.where(lo < np.asarray(clip.lo), np.nextafter(lo, np.float32(np.inf)), lo)  # on or inside the faces
-        hi = np.where(hi > np.asarray(clip.hi), np.nextafter(hi, np.float32(-np.inf)), hi)
+        lo, hi = wall_bounds(clip)
         moved |= ((points < lo) | (points > hi)).any(axis=1)
         np.clip(points, lo, hi, out=points)
     mesh.points = points
     return int(moved.sum())
+
+
+def wall_bounds(clip):
+    """The walled faces of ``clip`` as float32 (lo, hi), rounded inwards (on or inside the faces); +-inf (float32
+    max) along an axis without walls."""
+    lo, hi = np.asarray(clip.lo, np.float32), np.asarray(clip.hi, np.float32)
+    lo = np.where(lo < np.asarray(clip.lo), np.nextafter(lo, np.float32(np.inf)), lo)
+    hi = np.where(hi > np.asarray(clip.hi), np.nextafter(hi, np.float32(-np.inf)), hi)
+    return lo, hi
 
 
 def require_pysplashsurf(option="--surface"):
@@ -258,7 +275,7 @@ def reconstruct_preview(points, radius, velocities=None, vorticity=None, options
             if velocities is not None else None
         scalar = wp.array(np.ascontiguousarray(magnitude, np.float32), dtype=float, device=device) \
             if magnitude is not None else None
-        mesh = preview_on_device(x, radius, v, scalar, options)
+        mesh = preview_on_device(x, radius, v, scalar, options).wait()
     mesh.seconds = time.perf_counter() - start
     return mesh
 
@@ -270,11 +287,13 @@ def _empty_preview(velocities, vorticity):
     return mesh
 
 
-def preview_on_device(x, radius, velocities=None, scalar=None, options=None):
+def preview_on_device(x, radius, velocities=None, scalar=None, options=None, walls=None):
     """The preview surface of the particles ``x`` (a Warp array of vec3 on its device: the simulation's own, no
     copy to the host), the host arrays of a :class:`SurfaceMesh` back. ``velocities`` (vec3) and ``scalar``
     (float, the vorticity magnitude) are Warp arrays of the same rows, or None. Every launch goes to the device's
-    current stream: on a simulation's device, called between its steps.
+    current stream: on a simulation's device, called between its steps. On a GPU the mesh's arrays are copied
+    into pinned host memory without waiting: call :meth:`SurfaceMesh.wait` before reading them. ``walls``:
+    (lo, hi) of :func:`wall_bounds`, the box the vertices are clamped into (the domain's walled faces), or None.
 
     The colour field c(x) = sum_j (2 r)^3 W(|x - x_j|) (cubic spline, support ``2 * smoothing`` r) is sampled at
     the nodes of the blocks of 8^3 cells of ``cube`` r that some particle's support overlaps, and the cells that
@@ -357,14 +376,24 @@ def preview_on_device(x, radius, velocities=None, scalar=None, options=None):
                   inputs=[vertices, grid.id, x, v, s, support, volume, normals, vertex_v, vertex_s])
         signed = wp.zeros(1, dtype=float, device=device)
         wp.launch(K.signed_volume, nf, inputs=[vertices, indices, signed], device=device)
-        faces = indices.numpy().reshape(-1, 3)
         if signed.numpy()[0] < 0:  # outward: counter-clockwise seen from outside
-            faces = faces[:, ::-1]
-        mesh = SurfaceMesh(vertices.numpy(), np.ascontiguousarray(faces, np.int32), normals.numpy())
+            wp.launch(K.reverse_faces, nf, inputs=[indices], device=device)
+        if walls is not None:
+            wp.launch(K.clamp_points, nv, inputs=[vertices, wp.vec3(*walls[0]), wp.vec3(*walls[1])], device=device)
+        pinned = device.is_cuda
+
+        def host(a):
+            out = wp.empty(a.shape, dtype=a.dtype, device="cpu", pinned=pinned)
+            wp.copy(out, a)
+            return out.numpy()
+
+        mesh = SurfaceMesh(host(vertices), host(indices).reshape(-1, 3), host(normals))
         if velocities is not None:
-            mesh.velocities = vertex_v.numpy()
+            mesh.velocities = host(vertex_v)
         if scalar is not None:
-            mesh.primvars["vorticity_magnitude"] = vertex_s.numpy()
+            mesh.primvars["vorticity_magnitude"] = host(vertex_s)
+        if pinned:
+            mesh.pending = wp.record_event()
     return mesh
 
 
@@ -539,7 +568,8 @@ class DeviceMesher:
             if "vorticity" in fields:
                 scalar = wp.empty(n, dtype=float, device=sim.device)
                 wp.launch(K.magnitudes, n, inputs=[fields["vorticity"][:n], scalar], device=sim.device)
-            mesh = preview_on_device(fluid.x[:n], self.radius, fluid.v[:n], scalar, self.options)
+            walls = wall_bounds(self.clip) if self.clip is not None and self.clip.walled else None
+            mesh = preview_on_device(fluid.x[:n], self.radius, fluid.v[:n], scalar, self.options, walls)
         except Exception as exc:
             self.error = (frame, exc)
             return
@@ -555,10 +585,11 @@ class DeviceMesher:
             mesh = self._made.pop(frame, None)
         if mesh is None:
             return False
-        if self.clip is not None:
-            start = time.perf_counter()
-            clip_mesh(mesh, self.clip, arrays.get("poses"))
-            mesh.seconds += time.perf_counter() - start
+        start = time.perf_counter()
+        mesh.wait()
+        if self.clip is not None and self.clip.bodies:  # the walls were clamped on the device
+            clip_mesh(mesh, SurfaceClip(bodies=self.clip.bodies), arrays.get("poses"))
+        mesh.seconds += time.perf_counter() - start
         with self._lock:
             self.seconds += mesh.seconds
             self._done.append((frame, mesh))
