@@ -609,6 +609,35 @@ def test_the_device_mesher_meshes_the_simulation_s_own_arrays_between_steps(tmp_
     assert mesher.note(options)["meshed"] == 1
 
 
+def test_the_device_mesher_writes_a_clips_frame_s_mesh_into_its_layer_from_a_process_of_its_own(tmp_path, device):
+    """In a --clips cache the device mesher's meshes go into their frame layers from a process of its own (pxr's
+    layer save holds the GIL): the layer holds the mesh beside the particles, the main process gets it back
+    without its arrays, and nothing is left of the arrays' files."""
+    import os
+
+    from warpsph.io.usd import UsdClipCache
+    from warpsph.scene import load_scene
+    from warpsph.simulation import Simulation
+    from warpsph.surface import DeviceMesher
+
+    scene = load_scene(small_scene(tmp_path))
+    sim = Simulation(scene, device=device)
+    sim.run(frames=1)
+    cache = UsdClipCache(tmp_path / "run.usda", 25)
+    x = sim.positions()
+    cache.write_frame(1, x, sim.velocities(), np.arange(len(x)), scene.particle_radius)
+    mesher = DeviceMesher(SurfaceOptions(method="preview"), scene.particle_radius)
+    mesher.mesh_now(sim, 1)
+    assert mesher.submit(1, {"layer": (cache.surface_layer(1), 1)})
+    [(frame, mesh)] = mesher.close()
+    assert frame == 1 and mesh.layer == cache.surface_layer(1) and len(mesh.points) == 0
+    assert mesher.pool is None and not os.path.exists(mesher.folder)
+    stage = Usd.Stage.Open(cache.surface_layer(1))
+    faces = np.array(stage.GetPrimAtPath("/World/FluidSurface").GetAttribute("faceVertexIndices").Get(1)).reshape(-1, 3)
+    assert len(faces) > 100 and boundary_edges(faces) == 0
+    assert len(stage.GetPrimAtPath("/World/Fluid").GetAttribute("points").Get(1)) == len(x)
+
+
 @pytest.mark.skipif(not __import__("warp").is_cuda_available(), reason="needs a CUDA device (the GPU's default mesher)")
 def test_a_run_on_the_gpu_meshes_with_the_preview_on_its_device_by_default(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "pysplashsurf", None)

@@ -534,11 +534,18 @@ class DeviceMesher:
     done (:meth:`ready`). It is never behind: no frame waits or is skipped.
 
     A mesher process of its own (:class:`ProcessMesher`) had a CUDA context of its own, which the GPU time-slices
-    with the simulation's: on the 1M dam break (H100, 25 frames) the run's wall grew by 25-31 %."""
+    with the simulation's: on the 1M dam break (H100, 25 frames) the run's wall grew by 25-31 %.
+
+    In a --clips cache (a frame with its ``layer``), a process of its own writes the mesh into the frame's layer
+    (:func:`_write_layer_in_worker`, the arrays through files as :class:`ProcessMesher`'s): pxr's layer save holds
+    the GIL for its whole length, which the simulation's host thread needs every step."""
 
     def __init__(self, options, radius, clip=None, every=1):
         import threading
 
+        self.pool = self.folder = None  # the layer writer's process, started by the first frame with a layer
+        self._writing = []  # (frame, future, its folder) of the meshes being written into their layers
+        self._jobs = 0
         self.options, self.radius, self.clip, self.every = options, float(radius), clip, max(1, int(every))
         self.behind, self.workers = "wait", 1
         self.skipped, self.meshed, self.seconds, self.waited = [], 0, 0.0, 0.0
@@ -590,21 +597,70 @@ class DeviceMesher:
         if self.clip is not None and self.clip.bodies:  # the walls were clamped on the device
             clip_mesh(mesh, SurfaceClip(bodies=self.clip.bodies), arrays.get("poses"))
         mesh.seconds += time.perf_counter() - start
+        if arrays.get("layer") is not None:
+            self._write_in_layer(frame, mesh, arrays["layer"])
+            return True
         with self._lock:
             self.seconds += mesh.seconds
             self._done.append((frame, mesh))
         return True
 
-    def ready(self):
-        """The (frame, mesh) pairs done since the last call."""
+    def _write_in_layer(self, frame, mesh, layer):
+        import os
+
+        if self.pool is None:
+            import multiprocessing
+            import shutil
+            import tempfile
+            import weakref
+            from concurrent.futures import ProcessPoolExecutor
+
+            self.folder = tempfile.mkdtemp(prefix=f"warpsph-mesh-{os.getpid()}-", dir=_exchange_root())
+            self._remove_folder = weakref.finalize(self, shutil.rmtree, self.folder, True)
+            self.pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
+                                            initializer=_init_worker, initargs=(1,))
+        job = os.path.join(self.folder, str(self._jobs))
+        self._jobs += 1
+        os.mkdir(job)
+        future = self.pool.submit(_write_layer_in_worker, _store_mesh(mesh, job), layer)
+        with self._lock:
+            self._writing.append((frame, future, job))
+
+    def ready(self, wait=False):
+        """The (frame, mesh) pairs done since the last call (``wait``: with every mesh still being written)."""
+        import shutil
+
         with self._lock:
             done, self._done = self._done, []
+            writing, self._writing = self._writing, []
+        for frame, future, job in writing:
+            if not (wait or future.done()):
+                with self._lock:
+                    self._writing.append((frame, future, job))
+                continue
+            try:
+                mesh = future.result()
+                with self._lock:
+                    self.seconds += mesh.seconds
+                done.append((frame, mesh))
+            except BaseException as exc:
+                if self.error is None:
+                    self.error = (frame, exc)
+            finally:
+                shutil.rmtree(job, ignore_errors=True)
         self.meshed += len(done)
         self.check()
         return done
 
     def close(self):
-        return self.ready()
+        """Waits for the meshes still being written into their layers; stops the layer writer's process."""
+        try:
+            return self.ready(wait=True)
+        finally:
+            if self.pool is not None:
+                self.pool.shutdown(wait=True)
+                self.pool = None
+                self._remove_folder()
 
 
 class ProcessMesher:
@@ -744,14 +800,25 @@ def _mesh_in_worker(points, radius, velocities, vorticity, options, device, fold
 
     mesh = mesh_frame(_load(points), radius, _load(velocities), _load(vorticity), options, device, _worker_clip, poses)
     if layer is not None:
-        from .io.usd import write_surface_layer
-
-        path, frame = layer
-        write_surface_layer(path, frame, mesh)
-        written = SurfaceMesh.empty(mesh.velocities is not None)
-        written.seconds, written.layer = mesh.seconds, str(path)
-        return written, os.getpid()
+        return _write_layer(mesh, layer), os.getpid()
     return (mesh if folder is None else _store_mesh(mesh, folder)), os.getpid()
+
+
+def _write_layer(mesh, layer):
+    """``mesh`` written into the --clips frame layer ``layer`` (path, frame); the mesh without its arrays back."""
+    from .io.usd import write_surface_layer
+
+    path, frame = layer
+    start = time.perf_counter()
+    write_surface_layer(path, frame, mesh)
+    written = SurfaceMesh.empty(mesh.velocities is not None)
+    written.seconds, written.layer = mesh.seconds + time.perf_counter() - start, str(path)
+    return written
+
+
+def _write_layer_in_worker(mesh, layer):
+    """A device mesher's frame (arrays as :func:`_store_mesh` left them) written into its frame layer."""
+    return _write_layer(_load_mesh(mesh), layer)
 
 
 def _exchange_root():
