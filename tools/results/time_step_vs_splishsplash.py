@@ -1,14 +1,15 @@
 """The dt of every step, warpsph and SPlisHSPlasH on the same scene file (time_step_vs_splishsplash_cpu.json).
 
     LD_PRELOAD=/lib/x86_64-linux-gnu/libGLdispatch.so.0 SPLISH_VENV/bin/python \
-        tools/results/time_step_vs_splishsplash.py splishsplash SCENE.json 0.3 OUT.json
-    python tools/results/time_step_vs_splishsplash.py warpsph SCENE.json 0.3 OUT.json [sub=N] [nolimit]
+        tools/results/time_step_vs_splishsplash.py splishsplash SCENE.json 0.3 OUT.json [where]
+    python tools/results/time_step_vs_splishsplash.py warpsph SCENE.json 0.3 OUT.json [sub=N] [nolimit] [where]
 
 SPlisHSPlasH runs headless (pysplishsplash's SimulatorBase, a callback after each step; the preload is why
 tools/splishsplash_side_by_side.py gives); its step k took t_k - t_(k-1). warpsph runs on the CPU; ``sub=N`` sets
 solver.viscosity_substeps, ``nolimit`` removes the viscous limit (an experiment: the explicit viscosity at the
-whole step).
-Each row: time, dt, the largest fluid speed after the step.
+whole step). ``where`` (either code) adds to each row the position of the fastest particle (``x_fastest``).
+Each row: time, dt, the largest fluid speed after the step. The SPlisHSPlasH output also gives the fluid count, the
+boundary method and, for boundary particles (method 0), their count.
 """
 
 import dataclasses
@@ -19,26 +20,36 @@ import time
 import numpy as np
 
 
-def run_splishsplash(scene, stop, out):
+def run_splishsplash(scene, stop, out, opts=()):
     import pysplishsplash as sph
 
     base = sph.Exec.SimulatorBase()
     base.init(sceneFile=scene, useGui=False, stopAt=stop, outputDir="/tmp/time_step_pss_out", initialPause=False)
-    rows, last = [], [0.0]
+    rows, last, info = [], [0.0], {}
 
     def on_step():
         sim, tm = sph.Simulation.getCurrent(), sph.TimeManager.getCurrent()
         fm = sim.getFluidModel(0)
         v = np.array(fm.getFieldBuffer("velocity"), copy=True)[: fm.numActiveParticles()]
         t = tm.getTime()
+        speed = (v * v).sum(1)
         rows.append({"t": t, "dt": t - last[0], "next_dt": tm.getTimeStepSize(),
-                     "vmax": float(np.sqrt((v * v).sum(1).max()))})
+                     "vmax": float(np.sqrt(speed.max()))})
+        if "where" in opts:
+            x = np.array(fm.getFieldBuffer("position"), copy=True)[: fm.numActiveParticles()]
+            rows[-1]["x_fastest"] = x[int(speed.argmax())].tolist()
         last[0] = t
+        if not info:
+            method = int(sim.getBoundaryHandlingMethod())
+            info.update(fluid=int(fm.numActiveParticles()), boundary_method=method,
+                        boundary_particles=[int(sim.getBoundaryModel(i).numberOfParticles())
+                                            for i in range(sim.numberOfBoundaryModels())] if method == 0 else None)
 
     base.setTimeStepCB(on_step)
     start = time.perf_counter()
-    base.run()
-    json.dump({"steps": rows, "wall_s": time.perf_counter() - start}, open(out, "w"))
+    base.run()  # the simulation is gone after it (Simulation.getCurrent() then crashes): counts taken in on_step
+    json.dump({"scene": scene, "opts": list(opts), "steps": rows, "wall_s": time.perf_counter() - start, **info},
+              open(out, "w"))
 
 
 def run_warpsph(scene_file, stop, out, opts):
@@ -59,8 +70,11 @@ def run_warpsph(scene_file, stop, out, opts):
     while sim.time < stop - 1e-9:
         sim.step()
         v = sim.fluid.v.numpy()[: sim.num_fluid]
+        speed = (v * v).sum(1)
         rows.append({"t": sim.time, "dt": float(sim.dt.numpy()[0]),
-                     "vmax_end": float(np.sqrt((v * v).sum(1).max()))})
+                     "vmax_end": float(np.sqrt(speed.max()))})
+        if "where" in opts:
+            rows[-1]["x_fastest"] = sim.fluid.x.numpy()[int(speed.argmax())].tolist()
         problem = sim.check_health()
         if problem is not None:
             status = f"failed: {problem}"
@@ -74,6 +88,6 @@ def run_warpsph(scene_file, stop, out, opts):
 if __name__ == "__main__":
     what, scene, stop, out, *opts = sys.argv[1:]
     if what == "splishsplash":
-        run_splishsplash(scene, float(stop), out)
+        run_splishsplash(scene, float(stop), out, opts)
     else:
         run_warpsph(scene, float(stop), out, opts)
