@@ -41,7 +41,6 @@ thin depth: with 2 r there (6 cells across) the 20-across run blows up.
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -52,7 +51,7 @@ A = 0.05715  # m, as dam_front.py
 G = 9.81
 T_END = 6.0
 DEPTH = 4
-SPLISH_PY = "/work/splish-venv/bin/python"
+from splishsplash_host import SPLISH_PY, machine, splish_version  # noqa: E402
 SCENES = "/work/splish-venv/bin/data/Scenes"
 UNIT_BOX = "/work/splish-venv/bin/data/models/UnitBox.obj"
 PRELOAD = "/lib/x86_64-linux-gnu/libGLdispatch.so.0"
@@ -263,20 +262,6 @@ def run_all(a):
                                                           "steps", "raw_rms", "time_shift_T", "shifted_rms",
                                                           "wall_s")}), flush=True)
                 json.dump(doc, open(a.json, "w"), indent=1)
-
-
-def machine():
-    model = ""
-    try:
-        model = next(l.split(":", 1)[1].strip() for l in open("/proc/cpuinfo") if l.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return {"cpu": model, "cores": os.cpu_count(), "platform": platform.platform()}
-
-
-def splish_version():
-    p = subprocess.run([SPLISH_PY, "-m", "pip", "show", "pysplishsplash"], capture_output=True, text=True)
-    return next((l.split(":", 1)[1].strip() for l in p.stdout.splitlines() if l.startswith("Version")), "unknown")
 
 
 if __name__ == "__main__":

@@ -28,7 +28,6 @@ start of that step (before its last position update), walls included (its bounda
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -40,7 +39,7 @@ T_END = 5.0
 RAMP = 0.2
 G = 9.81
 POOL_FILL = 0.88
-SPLISH_PY = "/work/splish-venv/bin/python"
+from splishsplash_host import SPLISH_PY, machine, splish_version  # noqa: E402
 SCENES = "/work/splish-venv/bin/data/Scenes"
 UNIT_BOX = "/work/splish-venv/bin/data/models/UnitBox.obj"
 PRELOAD = "/lib/x86_64-linux-gnu/libGLdispatch.so.0"
@@ -267,20 +266,6 @@ def collect(files, path, notes=NOTES):
            "splishsplash": splish_version(), "notes": list(notes),
            "summary": [{k: r.get(k) for k in SUMMARY} for r in runs], "runs": runs}
     json.dump(doc, open(path, "w"), indent=1)
-
-
-def machine():
-    model = ""
-    try:
-        model = next(l.split(":", 1)[1].strip() for l in open("/proc/cpuinfo") if l.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    return {"cpu": model, "cores": os.cpu_count(), "platform": platform.platform()}
-
-
-def splish_version():
-    p = subprocess.run([SPLISH_PY, "-m", "pip", "show", "pysplishsplash"], capture_output=True, text=True)
-    return next((l.split(":", 1)[1].strip() for l in p.stdout.splitlines() if l.startswith("Version")), "unknown")
 
 
 if __name__ == "__main__":
