@@ -110,7 +110,7 @@ class PointContact:
         # a kinematic other's velocity at each point (None: a wall or a static body, at rest)
         self.other_velocity = None
         if other is not None and not both and other.kind == "kinematic":
-            self.other_velocity = [kinematic_point_velocity(other, x) for x in np.asarray(points, np.float64)]
+            self.other_velocity = [rigid_velocity(other, x - other.position) for x in np.asarray(points, np.float64)]
         self.masses = k  # K: a point's relative velocity change per unit impulse (dv = inv J + (I^-1 (r x J)) x r)
         v_n = np.array([float(self.velocity(p) @ normal) for p in range(len(self.arms))])
         self.target = np.where(-v_n > rest_speed, -restitution * v_n, 0.0)
@@ -150,10 +150,9 @@ class PointContact:
     def velocity(self, p):
         """Point p's velocity on the body relative to the other."""
         b = self.body
-        v = b.velocity + _cross(b.angular_velocity, self.arms[p])
+        v = rigid_velocity(b, self.arms[p])
         if self.both:
-            o = self.other
-            v = v - o.velocity - _cross(o.angular_velocity, self.arms_other[p])
+            v = v - rigid_velocity(self.other, self.arms_other[p])
         elif self.other_velocity is not None:
             v = v - self.other_velocity[p]
         return v
@@ -198,10 +197,10 @@ class PointContact:
         return change
 
 
-def kinematic_point_velocity(body, point):
-    """The rigid velocity v + omega x (x - c) of kinematic ``body`` at world ``point``, at its current pose (its
-    prescribed motion at this step, :meth:`MovingBodies.place`)."""
-    return body.velocity + _cross(body.angular_velocity, np.asarray(point, np.float64) - body.position)
+def rigid_velocity(body, arm):
+    """The rigid velocity v + omega x arm of ``body`` at the point ``arm`` (x - c, world axes) from its centre; a
+    kinematic body's at its current pose (its prescribed motion at this step, :meth:`MovingBodies.place`)."""
+    return body.velocity + _cross(body.angular_velocity, arm)
 
 
 def solve_contacts(contacts):
@@ -588,7 +587,8 @@ class MovingBodies:
         if friction is not None:
             return
         if not both and other.kind == "kinematic":
-            slip = body.velocity - kinematic_point_velocity(other, body.position if centre is None else centre)
+            at = body.position if centre is None else centre
+            slip = body.velocity - rigid_velocity(other, at - other.position)
             slip = slip - float(slip @ normal) * normal
             body.velocity = body.velocity - (1.0 - WALL_FRICTION) * slip
             body.angular_velocity = other.angular_velocity + WALL_FRICTION * (body.angular_velocity
