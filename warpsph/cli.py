@@ -600,8 +600,12 @@ def _default_surface_method(args):
     """``--surface-method`` left out: preview (marching cubes on the GPU, between the steps) where the run is on
     CUDA, splashsurf (the host's cores) on the CPU."""
     if args.devices:
-        return "preview" if "cpu" not in str(args.devices) else "splashsurf"
-    return "preview" if _pick_device(args.device).startswith("cuda") else "splashsurf"
+        from .decomposition import device_names
+
+        names = device_names(args.devices)
+    else:
+        names = [_pick_device(args.device)]
+    return "preview" if all(name.startswith("cuda") for name in names) else "splashsurf"
 
 
 def _surface_options(options):

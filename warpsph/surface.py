@@ -547,6 +547,9 @@ class DeviceMesher:
         self._writing = []  # (frame, future, its folder) of the meshes being written into their layers
         self._jobs = 0
         self.options, self.radius, self.clip, self.every = options, float(radius), clip, max(1, int(every))
+        # what each frame is clipped to: the walls on the device (mesh_now), the bodies on the writer's (submit)
+        self._walls = wall_bounds(clip) if clip is not None and clip.walled else None
+        self._bodies = SurfaceClip(bodies=clip.bodies) if clip is not None and clip.bodies else None
         self.behind, self.workers = "wait", 1
         self.skipped, self.meshed, self.seconds, self.waited = [], 0, 0.0, 0.0
         self.error = None  # (frame, exception)
@@ -575,8 +578,7 @@ class DeviceMesher:
             if "vorticity" in fields:
                 scalar = wp.empty(n, dtype=float, device=sim.device)
                 wp.launch(K.magnitudes, n, inputs=[fields["vorticity"][:n], scalar], device=sim.device)
-            walls = wall_bounds(self.clip) if self.clip is not None and self.clip.walled else None
-            mesh = preview_on_device(fluid.x[:n], self.radius, fluid.v[:n], scalar, self.options, walls)
+            mesh = preview_on_device(fluid.x[:n], self.radius, fluid.v[:n], scalar, self.options, self._walls)
         except Exception as exc:
             self.error = (frame, exc)
             return
@@ -594,8 +596,8 @@ class DeviceMesher:
             return False
         start = time.perf_counter()
         mesh.wait()
-        if self.clip is not None and self.clip.bodies:  # the walls were clamped on the device
-            clip_mesh(mesh, SurfaceClip(bodies=self.clip.bodies), arrays.get("poses"))
+        if self._bodies is not None:  # the walls were clamped on the device
+            clip_mesh(mesh, self._bodies, arrays.get("poses"))
         mesh.seconds += time.perf_counter() - start
         if arrays.get("layer") is not None:
             self._write_in_layer(frame, mesh, arrays["layer"])
@@ -609,16 +611,7 @@ class DeviceMesher:
         import os
 
         if self.pool is None:
-            import multiprocessing
-            import shutil
-            import tempfile
-            import weakref
-            from concurrent.futures import ProcessPoolExecutor
-
-            self.folder = tempfile.mkdtemp(prefix=f"warpsph-mesh-{os.getpid()}-", dir=_exchange_root())
-            self._remove_folder = weakref.finalize(self, shutil.rmtree, self.folder, True)
-            self.pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"),
-                                            initializer=_init_worker, initargs=(1,))
+            self.folder, self._remove_folder, self.pool = _start_workers(self, 1, 1)
         job = os.path.join(self.folder, str(self._jobs))
         self._jobs += 1
         os.mkdir(job)
@@ -658,9 +651,8 @@ class DeviceMesher:
             return self.ready(wait=True)
         finally:
             if self.pool is not None:
-                self.pool.shutdown(wait=True)
+                _stop_workers(self.pool, self._remove_folder)
                 self.pool = None
-                self._remove_folder()
 
 
 class ProcessMesher:
@@ -685,12 +677,7 @@ class ProcessMesher:
     neither reads the mesh nor writes it into USD."""
 
     def __init__(self, options, radius, device="cpu", workers=None, clip=None):
-        import multiprocessing
         import os
-        import shutil
-        import tempfile
-        import weakref
-        from concurrent.futures import ProcessPoolExecutor
         from itertools import count
 
         self.options, self.radius, self.device = options, radius, str(device)
@@ -702,11 +689,9 @@ class ProcessMesher:
             workers = 1 if options.method == "preview" else max(1, min(4, cores // 8))
         self.workers = max(1, int(workers))
         spare = 2 if cores > 4 else 0  # the simulation's host thread and the writer keep a core each
-        self.folder = tempfile.mkdtemp(prefix=f"warpsph-mesh-{os.getpid()}-", dir=_exchange_root())
-        self._remove_folder = weakref.finalize(self, shutil.rmtree, self.folder, True)  # also at exit
         self._jobs = count()
-        self.pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"),
-                                        initializer=_init_worker, initargs=(max(1, (cores - spare) // self.workers), clip))
+        self.folder, self._remove_folder, self.pool = _start_workers(self, self.workers,
+                                                                     max(1, (cores - spare) // self.workers), clip)
         self.worker_pid = None
 
     def __call__(self, arrays):
@@ -726,10 +711,33 @@ class ProcessMesher:
             shutil.rmtree(job, ignore_errors=True)
 
     def close(self):
-        try:
-            self.pool.shutdown(wait=True)
-        finally:
-            self._remove_folder()
+        _stop_workers(self.pool, self._remove_folder)
+
+
+def _start_workers(owner, workers, threads, clip=None):
+    """(folder, its remover, pool): ``workers`` spawned mesher processes (:func:`_init_worker`: ``threads`` each,
+    ``clip``) and a folder of ``owner``'s own for the arrays that go to and fro (:func:`_store`; in /dev/shm where
+    there is one), removed by the remover, when ``owner`` is collected, or at exit."""
+    import multiprocessing
+    import os
+    import shutil
+    import tempfile
+    import weakref
+    from concurrent.futures import ProcessPoolExecutor
+
+    folder = tempfile.mkdtemp(prefix=f"warpsph-mesh-{os.getpid()}-", dir=_exchange_root())
+    remove = weakref.finalize(owner, shutil.rmtree, folder, True)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
+                               initializer=_init_worker, initargs=(threads, clip))
+    return folder, remove, pool
+
+
+def _stop_workers(pool, remove):
+    """Waits for ``pool``'s jobs and stops its processes, then removes their folder (``remove``)."""
+    try:
+        pool.shutdown(wait=True)
+    finally:
+        remove()
 
 
 WORKER_NICENESS = 10  # the simulation's host thread launches the GPU's work: it goes first on a busy CPU
