@@ -3,7 +3,7 @@
 import json
 
 import numpy as np
-from pxr import Usd, UsdGeom
+from pxr import Sdf, Usd, UsdGeom
 
 from warpsph.cli import main
 from warpsph.io.usd import UsdPointCache, frame_writer
@@ -174,3 +174,32 @@ def test_a_cache_plays_at_the_scenes_fps(tmp_path, device, clips):
     assert layer.HasTimeCodesPerSecond() and layer.HasFramesPerSecond()
     assert layer.HasStartTimeCode() and layer.HasEndTimeCode()
     assert (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (0, 3)
+
+
+def test_a_single_file_cache_grows_by_appending_each_save(tmp_path, monkeypatch):
+    """A save of the single-file cache appends the frames since the last one to a working copy and renames it over
+    the file: the layer is written whole (``Export``) once, when the cache is made, and earlier frames are never
+    written (and their meshes' indices compressed) again. Before, each save exported the whole layer anew. Every save
+    leaves a cache that opens with the frames so far, and no working copy is left at the end."""
+    exports = []
+    export = Sdf.Layer.Export
+    monkeypatch.setattr(Sdf.Layer, "Export", lambda layer, *a, **k: exports.append(a[0]) or export(layer, *a, **k))
+    rng = np.random.default_rng(7)
+    path = tmp_path / "grow.usdc"
+    cache = UsdPointCache(path, fps=25)
+    assert len(exports) == 1
+    sizes = []
+    for frame in range(6):
+        x = rng.random((2000, 3), dtype=np.float32)
+        cache.write_frame(frame, x, rng.random((2000, 3), dtype=np.float32), np.arange(2000), 0.01,
+                          {"density": rng.random(2000, dtype=np.float32)})
+        cache.flush()
+        stage = Usd.Stage.Open(Sdf.Layer.OpenAsAnonymous(str(path)))  # read anew, not the layer of the loop before
+        got = UsdGeom.Points(stage.GetPrimAtPath("/World/Fluid")).GetPointsAttr()
+        assert [int(t) for t in got.GetTimeSamples()] == list(range(frame + 1))
+        np.testing.assert_array_equal(np.array(got.Get(frame)), x)
+        sizes.append(path.stat().st_size)
+    cache.finish(path)
+    assert len(exports) == 1 and cache.flushes == 6
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["grow.usdc"]  # no working copy left
+    assert np.all(np.diff(sizes) > 0)

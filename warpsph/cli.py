@@ -357,7 +357,7 @@ def _simulate(sim, outputs, frames, args, options, append):
                                   domain=scene.domain)
         except DamagedCache as exc:
             raise SceneError(outputs.out, "", exc.reason) from None
-        cache.flush_share = FLUSH_SHARE  # saved whole (crash-consistent) while cheap, at each checkpoint and at the end
+        cache.flush_share = FLUSH_SHARE  # saved (crash-consistent) while cheap, at each checkpoint and at the end
     diagnostics = DiagnosticsWriter(outputs.stats, append=append, metadata=metadata)
     particles = None
     if options.get("particles_h5"):

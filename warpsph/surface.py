@@ -1155,9 +1155,9 @@ def remesh(source, frames, out, radius, options=SurfaceOptions(), log=None, devi
     """Meshes ``frames`` of ``source`` (:func:`open_frames`) into the new layer ``out``: stage
     metadata of the cache, the cache itself as a sublayer (so ``out`` shows the particles and the
     surface), and ``/World/FluidSurface``, clipped to ``clip`` ("cache": the walls and bodies the cache
-    records, ``source.clip``; a :class:`SurfaceClip`; None: not clipped). Written as OUT.partial, saved
-    whole through a synced temporary file and a rename (:func:`warpsph.io.usd.save_layer`; a kill or a full
-    disk leaves OUT.partial with the frames of the last save, and ``out`` as it was) after a frame while a save
+    records, ``source.clip``; a :class:`SurfaceClip`; None: not clipped). Written as OUT.partial, which
+    grows by crash-consistent saves (:class:`warpsph.io.usd.GrowingLayer`; a kill or a full disk leaves OUT.partial
+    with the frames of the last save, and ``out`` as it was) after a frame while a save
     costs at most ``FLUSH_SHARE`` of the time since the last, and renamed to ``out`` at the end or when stopped.
     Returns {"frames", "seconds" (meshing), "vertices", "triangles", "clipped" (what the meshes were clipped to)}."""
     import os
@@ -1166,7 +1166,8 @@ def remesh(source, frames, out, radius, options=SurfaceOptions(), log=None, devi
     from pxr import Usd, UsdGeom
 
     from .io import fsync
-    from .io.usd import FLUSH_SHARE, _mark, _set_stage_metadata, remove_leftovers, save_layer, write_surface
+    from .io.usd import (FLUSH_SHARE, GrowingLayer, _mark, _set_stage_metadata, remove_leftovers, save_layer,
+                         write_surface)
 
     partial = out.with_name(out.stem + ".partial" + out.suffix)
     remove_leftovers(partial)
@@ -1184,18 +1185,16 @@ def remesh(source, frames, out, radius, options=SurfaceOptions(), log=None, devi
     UsdGeom.Xform.Define(stage, "/World")
     stage.SetDefaultPrim(stage.GetPrimAtPath("/World"))
     save_layer(stage.GetRootLayer(), partial)
-    stage = Usd.Stage.Open(str(partial))  # read from its file: later saves reload it, memory stays at one frame
-    layer = stage.GetRootLayer()
-    layer.Reload(True)
+    grown = GrowingLayer(partial)  # each save appends the frames since the last; memory stays at one frame
+    layer = grown.layer
+    stage = Usd.Stage.Open(layer)
     if source.usd is not None:  # a path relative to the file (an in-memory layer would resolve it elsewhere)
         layer.subLayerPaths.append(os.path.relpath(os.path.abspath(source.usd), os.path.abspath(out.parent)))
     saved = [0.0, 0.0]  # (start, seconds) of the last save
 
-    def save():
-        if layer.dirty:
-            start = time.perf_counter()
-            save_layer(layer, partial)
-            layer.Reload(True)
+    def save(again=True):
+        start = time.perf_counter()
+        if grown.save(again):
             saved[:] = [start, time.perf_counter() - start]
     if isinstance(clip, str):
         clip = getattr(source, "clip", None)
@@ -1227,7 +1226,10 @@ def remesh(source, frames, out, radius, options=SurfaceOptions(), log=None, devi
                 log(f"frame {frame}: {len(points)} particles -> {len(mesh.points)} vertices, {len(mesh.faces)} triangles "
                     f"in {mesh.seconds:.2f} s")
     finally:
-        save()  # a failed save raises here: OUT.partial keeps the frames of the save before, ``out`` is as it was
+        try:
+            save(again=False)  # a failed save raises here: OUT.partial keeps the frames of the save before
+        finally:
+            grown.close()
         del stage
         if done["frames"]:
             os.replace(partial, out)

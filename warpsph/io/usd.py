@@ -27,10 +27,10 @@ Layout of the stage (``metersPerUnit`` = 1, ``upAxis`` from the scene,
 
 Two writers with one interface (``write_frame``, ``finish``):
 
-- :class:`UsdPointCache`, a single file, saved crash-consistently (a whole new file, synced and renamed
-  over the old one: a kill or power cut at any moment leaves the frames of the last save) after every
-  frame, or with ``flush_share`` (the CLI, :class:`UsdWriter`) when the rewrite costs at most that share
-  of the time since the last one, at a checkpoint and at the end (small runs);
+- :class:`UsdPointCache`, a single file, saved crash-consistently (the new frames appended to a working
+  copy, synced and renamed over the file: a kill or power cut at any moment leaves the frames of the last
+  save, :class:`GrowingLayer`) after every frame, or with ``flush_share`` (the CLI, :class:`UsdWriter`) when
+  a save costs at most that share of the time since the last one, at a checkpoint and at the end;
 - :class:`UsdClipCache`, one layer per frame stitched with USD value clips
   (``UsdUtils.StitchClips``: a topology layer with the prim and attribute declarations, a
   manifest, and a small top-level file), for large runs: the writer holds one frame at a time.
@@ -304,6 +304,16 @@ def _npz_bytes(**arrays):
     return buffer.getvalue()
 
 
+def _write_failed(exc, path, tmp):
+    """The OSError for a pxr ``Tf.ErrorException`` raised writing ``tmp`` (a save of ``path``): the file system's
+    error among USD's lines; any other exception as it is."""
+    if type(exc).__name__ != "ErrorException":
+        return exc
+    found = re.findall(r"Error occurred writing file: ([^'\n]*)", str(exc))
+    return OSError(f"{path}: USD could not write {Path(tmp).name}"
+                   + (f": {found[0]}" if found else f" ({str(exc).strip().splitlines()[0][:200]})"))
+
+
 def save_layer(layer, path):
     """Saves ``layer`` to ``path`` crash-consistently: the whole layer to NAME.tmp.usdc, synced, renamed over
     ``path``, the folder synced. (``layer.Save()`` of a crate file read from ``path`` writes in place: the new
@@ -315,14 +325,66 @@ def save_layer(layer, path):
         try:
             written = layer.Export(str(tmp))
         except Exception as exc:  # pxr.Tf.ErrorException: the file system's error among USD's lines
-            if type(exc).__name__ != "ErrorException":
-                raise
-            found = re.findall(r"Error occurred writing file: ([^'\n]*)", str(exc))
-            raise OSError(f"{path}: USD could not write {tmp.name}"
-                          + (f": {found[0]}" if found else f" ({str(exc).strip().splitlines()[0][:200]})")) from None
+            raise _write_failed(exc, path, tmp) from None
         if not written:
             raise OSError(f"{path}: USD could not write {tmp.name}")
         fsync(tmp)
+
+
+class GrowingLayer:
+    """A crate file that grows by saves, each crash-consistent and costing what it adds, not the whole file.
+
+    ``layer.Export`` writes every value again (and re-encodes it: the integer compression of a 1M-face mesh's
+    indices is 0.1-1 s), so a single file saved whole after each frame cost the whole run again at each save.
+    Here the layer is the working copy NAME.tmp.usdc of ``path``: a save is ``layer.Save()`` in place (new
+    values appended, a new table of contents), a sync, and a rename over ``path``; then the file is copied back to
+    NAME.tmp.usdc (a copy in the kernel, no encoding) for the next save to grow. ``path`` holds the last save,
+    whole, at every moment: a kill during a save damages only the working copy (a leftover the next run removes).
+    On disk: ``path`` and its copy."""
+
+    def __init__(self, path):
+        self.path = Path(path)
+        self.tmp = temporary_path(self.path)
+        self.failed = None  # the exception of a failed save
+        self._copy()
+        self.layer = Sdf.Layer.FindOrOpen(str(self.tmp))
+        self.layer.Reload(True)  # a layer of this name still open in this process: the file anew
+
+    def _copy(self):
+        import shutil
+
+        shutil.copyfile(self.path, self.tmp)
+
+    def save(self, again=True):
+        """Saves what the layer holds beyond ``path`` into ``path`` (``again`` False: the last save; no working
+        copy is made for a next one); False when there was nothing to save. After a failed save (a full disk, a
+        file-size limit) the working copy is gone and every later save raises: ``path`` keeps the save before."""
+        if self.failed is not None:
+            raise OSError(f"{self.path}: not saved since an earlier save failed ({self.failed})")
+        if not self.layer.dirty:
+            return False
+        try:
+            with replacing(self.path, self.tmp):
+                try:
+                    written = self.layer.Save()
+                except Exception as exc:  # pxr.Tf.ErrorException: the file system's error among USD's lines
+                    raise _write_failed(exc, self.path, self.tmp) from None
+                if not written:
+                    raise OSError(f"{self.path}: USD could not write {self.tmp.name}")
+                fsync(self.tmp)
+            if again:
+                self._copy()
+        except BaseException as exc:
+            self.failed = exc
+            if self.tmp.exists():  # half a copy, or a save's half-written values: never saved over ``path``
+                self.tmp.unlink()
+            raise
+        return True
+
+    def close(self):
+        """Removes the working copy (``path`` holds the last save)."""
+        if self.tmp.exists():
+            self.tmp.unlink()
 
 
 class DamagedCache(OSError):
@@ -393,16 +455,15 @@ def recover_cache(out, partial, frame):
                                    "only): start the run again (warpsph run ... --overwrite)")
 
 
-FLUSH_SHARE = 0.1  # the CLI's single-file cache: whole-file saves take at most this share of the writer's time
+FLUSH_SHARE = 0.1  # the CLI's single-file cache: saves take at most this share of the writer's time
 
 
 class UsdPointCache:
-    """A single file, rewritten whole at each save through a synced temporary file and a rename
-    (:func:`save_layer`): a kill or power cut at any moment leaves a cache that opens, with the frames of the
-    last save. ``flush_share`` None saves after every frame; a number saves after a frame only when the last
-    save took at most that share of the time since it began (a save costs the whole file: every frame of a
-    small cache, fewer of a large one); :meth:`flush` (at a checkpoint), :meth:`note_surface` and
-    :meth:`finish` save at once.
+    """A single file that grows by crash-consistent saves (:class:`GrowingLayer`: the frames since the last
+    save appended to a working copy, synced and renamed over the file): a kill or power cut at any moment leaves
+    a cache that opens, with the frames of the last save. ``flush_share`` None saves after every frame; a number
+    saves after a frame only when the last save took at most that share of the time since it began;
+    :meth:`flush` (at a checkpoint), :meth:`note_surface` and :meth:`finish` save at once.
     ``append=K`` reopens an existing cache to continue it after frame K (later frames, from a run
     resumed before, are dropped: each frame once)."""
 
@@ -415,12 +476,14 @@ class UsdPointCache:
         self.flushes = 0  # saves so far
         self._flushed = (0.0, 0.0)  # (start, seconds) of the last save
         self.frames = 0
+        self.written_bytes = 0  # of the particle arrays written (write_frame's returns)
         self._ids = None  # the ids and particle count of the last time samples written
         self._count = None
         self._last_written = 0
         if append is not None:
             try:
-                self.stage = Usd.Stage.Open(str(self.path))
+                self.file = GrowingLayer(self.path)
+                self.stage = Usd.Stage.Open(self.file.layer)
             except Exception as exc:  # pxr.Tf.ErrorException: a truncated or damaged crate file
                 raise DamagedCache(self.path, exc) from None
             self.points = UsdGeom.Points(self.stage.GetPrimAtPath("/World/Fluid"))
@@ -435,25 +498,20 @@ class UsdPointCache:
             return
         if self.path.exists():
             self.path.unlink()
-        self.stage = Usd.Stage.CreateInMemory()  # the file appears at the first save, whole and marked
-        _mark(self.stage.GetRootLayer())
-        _note_metadata(self.stage.GetRootLayer(), metadata)
-        _note_domain(self.stage.GetRootLayer(), domain_record(domain) if domain is not None else None)
-        _set_stage_metadata(self.stage, fps, up_axis)
-        self.stage.SetStartTimeCode(0)
-        self.stage.SetEndTimeCode(0)
-        self.stage.SetDefaultPrim(UsdGeom.Xform.Define(self.stage, "/World").GetPrim())
-        self.points = UsdGeom.Points.Define(self.stage, "/World/Fluid")
-        _define_boundary(self.stage, boundary_points, boundary_radius)
-        _define_bodies(self.stage, bodies)
-        self._save_first()
-
-    def _save_first(self):
-        """Saves the new cache (no frames yet) and reopens it from its file: later saves reload the layer from the
-        file, which an in-memory layer cannot."""
-        save_layer(self.stage.GetRootLayer(), self.path)
-        self.stage = Usd.Stage.Open(str(self.path))
-        self.stage.GetRootLayer().Reload(True)  # a layer of this name still open in this process: the file anew
+        stage = Usd.Stage.CreateInMemory()  # the file appears whole and marked
+        _mark(stage.GetRootLayer())
+        _note_metadata(stage.GetRootLayer(), metadata)
+        _note_domain(stage.GetRootLayer(), domain_record(domain) if domain is not None else None)
+        _set_stage_metadata(stage, fps, up_axis)
+        stage.SetStartTimeCode(0)
+        stage.SetEndTimeCode(0)
+        stage.SetDefaultPrim(UsdGeom.Xform.Define(stage, "/World").GetPrim())
+        UsdGeom.Points.Define(stage, "/World/Fluid")
+        _define_boundary(stage, boundary_points, boundary_radius)
+        _define_bodies(stage, bodies)
+        save_layer(stage.GetRootLayer(), self.path)
+        self.file = GrowingLayer(self.path)  # later frames are added to its working copy
+        self.stage = Usd.Stage.Open(self.file.layer)
         self.points = UsdGeom.Points(self.stage.GetPrimAtPath("/World/Fluid"))
 
     def write_frame(self, frame, points, velocities, ids, radius, fields=None, body_poses=None, widths=True,
@@ -463,7 +521,7 @@ class UsdPointCache:
         one (USD holds a sample until the next), so a cache in id order without emitters or sinks
         has them once; the first frame a run writes (or appends) always has them."""
         _check_directory(self.path.parent)
-        size = self.path.stat().st_size if self.path.exists() else 0  # a save writes the whole file anew
+        size = self.path.stat().st_size if self.path.exists() else 0  # a save grows the file, then copies it again
         check_space(self.path.parent, frame, _frame_estimate(points, self._last_written) + size)
         count = len(points)
         if ids is not None:
@@ -480,6 +538,7 @@ class UsdPointCache:
         self.stage.SetEndTimeCode(max(frame, self.stage.GetEndTimeCode()))
         self._count = count
         self._last_written = written
+        self.written_bytes += written
         self.frames += 1
         if self._due():
             self.flush()
@@ -491,19 +550,14 @@ class UsdPointCache:
         start, seconds = self._flushed
         return time.perf_counter() - start >= seconds / self.flush_share
 
-    def flush(self):
-        """Saves what is not on disk yet (:func:`save_layer`); the layer then reads the new file, so the
-        frames saved leave the memory."""
-        layer = self.stage.GetRootLayer()
-        if not layer.dirty:
-            return
+    def flush(self, again=True):
+        """Saves what is not on disk yet (:meth:`GrowingLayer.save`: the frames since the last save, appended;
+        ``again`` False: the last save, no working copy for a next one)."""
         start = time.perf_counter()
         _check_directory(self.path.parent)
-        save_layer(layer, self.path)
-        layer.Reload(True)  # the same content, read from the new file (the stage's prims are new objects)
-        self.points = UsdGeom.Points(self.stage.GetPrimAtPath("/World/Fluid"))
-        self._flushed = (start, time.perf_counter() - start)
-        self.flushes += 1
+        if self.file.save(again):
+            self._flushed = (start, time.perf_counter() - start)
+            self.flushes += 1
 
     def surface_layer(self, frame):
         """None: the mesher's worker cannot write into this cache (see :meth:`UsdClipCache.surface_layer`)."""
@@ -528,8 +582,9 @@ class UsdPointCache:
         """The cache is complete up to its last frame: saves it and moves it to its final name (a save that fails
         raises after the move: the file holds the frames of the save before)."""
         try:
-            self.flush()
+            self.flush(again=False)
         finally:
+            self.file.close()
             if Path(final_path) != self.path and self.path.exists():
                 os.replace(self.path, final_path)
                 fsync(Path(final_path).parent)
@@ -815,8 +870,7 @@ class UsdWriter:
     ``fields``: the ``--fields`` names to write (``points``, ``velocities``, ``ids``, ``widths``,
     ``density``, ``vorticity``, ...; None: all). ``clips=True`` writes one layer per frame
     (:class:`UsdClipCache`, for large runs) instead of a single file (:class:`UsdPointCache`, saved
-    whenever the rewrite costs at most ``FLUSH_SHARE`` of the time since the last save, and at
-    :meth:`close`). Frames are written on the calling thread (the CLI writes in the background)."""
+    whenever a save costs at most ``FLUSH_SHARE`` of the time since the last one, and at :meth:`close`). Frames are written on the calling thread (the CLI writes in the background)."""
 
     def __init__(self, path, sim, fields=None, clips=False):
         scene = sim.scene
