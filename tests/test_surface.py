@@ -358,7 +358,8 @@ def test_a_run_meshes_in_a_worker_process_of_its_own(method):
     with the mesher: the preview's mesh (deterministic) comes back bit for bit."""
     if method == "splashsurf":
         need_pysplashsurf()
-    from warpsph.surface import _exchange_root, mesh_frame, mesher_for
+    from warpsph.io.processes import exchange_root as _exchange_root
+    from warpsph.surface import mesh_frame, mesher_for
 
     r = 0.02
     x = lattice_sphere(r, 0.3).astype(np.float32)
@@ -435,7 +436,8 @@ def test_the_worker_writes_a_clips_frame_s_mesh_into_its_layer_as_the_run_s_proc
 
 def test_mesher_workers_run_below_the_simulation_s_cpu_priority():
     """The simulation's host thread feeds the GPU: on a busy CPU the meshing workers yield to it."""
-    from warpsph.surface import WORKER_NICENESS, ProcessMesher
+    from warpsph.io.processes import WORKER_NICENESS
+    from warpsph.surface import ProcessMesher
 
     mesher = ProcessMesher(SurfaceOptions(method="preview"), 0.02)
     try:

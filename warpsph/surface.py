@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .errors import SceneError
+from .io.processes import load, load_tree, start_workers, stop_workers, store, store_tree
 
 __all__ = ["SurfaceOptions", "SurfaceMesh", "reconstruct", "reconstruct_preview", "mesh_frame", "mesh_volume",
            "SurfaceClip", "ClipBody", "surface_clip", "clip_mesh", "open_frames", "UsdFrames", "H5Frames", "plan_remesh",
@@ -611,7 +612,7 @@ class DeviceMesher:
         import os
 
         if self.pool is None:
-            self.folder, self._remove_folder, self.pool = _start_workers(self, 1, 1)
+            self.folder, self._remove_folder, self.pool = start_workers(self, 1, prefix="warpsph-mesh")
         job = os.path.join(self.folder, str(self._jobs))
         self._jobs += 1
         os.mkdir(job)
@@ -651,7 +652,7 @@ class DeviceMesher:
             return self.ready(wait=True)
         finally:
             if self.pool is not None:
-                _stop_workers(self.pool, self._remove_folder)
+                stop_workers(self.pool, self._remove_folder)
                 self.pool = None
 
 
@@ -665,12 +666,8 @@ class ProcessMesher:
     current device and stream are process-wide, not per thread). ``workers`` processes mesh frames at
     once (default: one per 8 cores), each on its share of the cores.
 
-    The arrays go through files in a folder of its own (``folder``, in /dev/shm where there is one).
-    By pickle the main process pickled a 1M-particle frame's 36 MB and unpickled its ~100 MB mesh, read
-    off the pipe in 64 KB pieces, holding the GIL that the simulation's host thread needs: 190-310 ms
-    of that thread's time a frame on a 2-core VM, next to ~0.5 s of GPU work a frame on an H100
-    (tools/bench_surface_host.py). A file is written or read in one system call, outside the GIL (0 ms).
-    Each frame's files are removed when its mesh is back or its worker failed; :meth:`close` (or the
+    The arrays go through files in a folder of its own (``folder``, in /dev/shm where there is one;
+    :mod:`warpsph.io.processes`). Each frame's files are removed when its mesh is back or its worker failed; :meth:`close` (or the
     end of the process) removes the folder. An array whose file cannot be written (a full /dev/shm)
     goes by pickle. With ``arrays["layer"]`` (a --clips frame layer and its frame) the worker writes the
     mesh into that layer itself and returns it without its arrays (``layer`` set): the main process then
@@ -690,8 +687,8 @@ class ProcessMesher:
         self.workers = max(1, int(workers))
         spare = 2 if cores > 4 else 0  # the simulation's host thread and the writer keep a core each
         self._jobs = count()
-        self.folder, self._remove_folder, self.pool = _start_workers(self, self.workers,
-                                                                     max(1, (cores - spare) // self.workers), clip)
+        self.folder, self._remove_folder, self.pool = start_workers(
+            self, self.workers, max(1, (cores - spare) // self.workers), _set_worker_clip, (clip,), "warpsph-mesh")
         self.worker_pid = None
 
     def __call__(self, arrays):
@@ -701,7 +698,7 @@ class ProcessMesher:
         job = os.path.join(self.folder, str(next(self._jobs)))  # a frame's files: its arrays, then its mesh
         os.mkdir(job)
         try:
-            points, velocities, vorticity = (_store(os.path.join(job, name), arrays.get(name))
+            points, velocities, vorticity = (store(os.path.join(job, name), arrays.get(name))
                                              for name in ("x", "v", "vorticity"))
             future = self.pool.submit(_mesh_in_worker, points, self.radius, velocities, vorticity, self.options,
                                       self.device, job, arrays.get("layer"), arrays.get("poses"))
@@ -711,102 +708,25 @@ class ProcessMesher:
             shutil.rmtree(job, ignore_errors=True)
 
     def close(self):
-        _stop_workers(self.pool, self._remove_folder)
+        stop_workers(self.pool, self._remove_folder)
 
 
-def _start_workers(owner, workers, threads, clip=None):
-    """(folder, its remover, pool): ``workers`` spawned mesher processes (:func:`_init_worker`: ``threads`` each,
-    ``clip``) and a folder of ``owner``'s own for the arrays that go to and fro (:func:`_store`; in /dev/shm where
-    there is one), removed by the remover, when ``owner`` is collected, or at exit."""
-    import multiprocessing
-    import os
-    import shutil
-    import tempfile
-    import weakref
-    from concurrent.futures import ProcessPoolExecutor
-
-    folder = tempfile.mkdtemp(prefix=f"warpsph-mesh-{os.getpid()}-", dir=_exchange_root())
-    remove = weakref.finalize(owner, shutil.rmtree, folder, True)
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_init_worker, initargs=(threads, clip))
-    return folder, remove, pool
+_worker_clip = None  # a mesher worker's SurfaceClip (:func:`_set_worker_clip`)
 
 
-def _stop_workers(pool, remove):
-    """Waits for ``pool``'s jobs and stops its processes, then removes their folder (``remove``)."""
-    try:
-        pool.shutdown(wait=True)
-    finally:
-        remove()
-
-
-WORKER_NICENESS = 10  # the simulation's host thread launches the GPU's work: it goes first on a busy CPU
-
-
-_worker_clip = None  # a mesher worker's SurfaceClip (from _init_worker)
-
-
-def _init_worker(threads, clip=None):
-    """A mesher worker: its share of the cores (splashsurf's rayon pool reads RAYON_NUM_THREADS when it
-    starts) at a lower CPU priority than the simulation, and the run's :class:`SurfaceClip` (once, not with
-    every frame). It ignores SIGINT and SIGTERM, which a terminal or a process-group kill sends to the whole
-    group: the run's process finishes the frame, saves and stops it. It exits when the run's process dies
-    (:func:`_exit_with_parent`): a run SIGKILLed alone, by the out-of-memory killer, left its worker running."""
-    import os
-    import signal
-
+def _set_worker_clip(clip):
+    """A mesher worker's :class:`SurfaceClip`, once (not with every frame)."""
     global _worker_clip
     _worker_clip = clip
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    _exit_with_parent()
-    os.environ.setdefault("RAYON_NUM_THREADS", str(threads))
-    if hasattr(os, "nice"):
-        os.nice(WORKER_NICENESS)
-
-
-PARENT_POLL_SECONDS = 0.25  # how often a mesher worker looks for its run's process
-
-
-def _exit_with_parent():
-    """Ends this worker process (``os._exit``) soon after the process that started it dies: a daemon thread
-    compares ``os.getppid()`` with the parent's pid every :data:`PARENT_POLL_SECONDS` (a system call; the
-    parent's death reparents the worker at once). The worker ignores SIGINT and SIGTERM, and its pool's
-    pipes are shared with the other workers, so before this a run SIGKILLed alone (not its group: the
-    out-of-memory killer) left its workers, and multiprocessing's resource tracker, running for ever.
-
-    Not ``prctl(PR_SET_PDEATHSIG)``: Linux sends that signal when the *thread* that started the process ends,
-    and the pool starts its workers on the run's mesher threads (``pool.submit``), which end before the pool
-    is shut down. The thread needs the GIL, so a worker inside a reconstruction that holds it (pysplashsurf)
-    exits when that frame's mesh is done."""
-    import multiprocessing
-    import os
-    import threading
-
-    parent = multiprocessing.parent_process()  # its pid as the parent wrote it, not the getppid() of now
-    if parent is None:
-        return
-    if os.getppid() != parent.pid:  # it died while this worker started
-        os._exit(1)
-    threading.Thread(target=_watch_parent, args=(parent.pid,), name="warpsph-parent-watch", daemon=True).start()
-
-
-def _watch_parent(pid):
-    import os
-
-    while os.getppid() == pid:
-        time.sleep(PARENT_POLL_SECONDS)
-    os._exit(1)
 
 
 def _mesh_in_worker(points, radius, velocities, vorticity, options, device, folder=None, layer=None, poses=None):
     """A frame's mesh in a worker, clipped to the worker's clip (the moving bodies at ``poses``): arrays as
-    :func:`_store` left them; the mesh stored in ``folder`` (None: by pickle), or, with ``layer`` (path,
+    :func:`~warpsph.io.processes.store` left them; the mesh stored in ``folder`` (None: by pickle), or, with ``layer`` (path,
     frame), written into that USD layer and returned without its arrays."""
     import os
 
-    mesh = mesh_frame(_load(points), radius, _load(velocities), _load(vorticity), options, device, _worker_clip, poses)
+    mesh = mesh_frame(load(points), radius, load(velocities), load(vorticity), options, device, _worker_clip, poses)
     if layer is not None:
         return _write_layer(mesh, layer), os.getpid()
     return (mesh if folder is None else _store_mesh(mesh, folder)), os.getpid()
@@ -829,78 +749,14 @@ def _write_layer_in_worker(mesh, layer):
     return _write_layer(_load_mesh(mesh), layer)
 
 
-def _exchange_root():
-    """Where :class:`ProcessMesher` puts its folder: /dev/shm (memory) where there is one, else the temp folder."""
-    import os
-
-    shm = "/dev/shm"
-    return shm if os.path.isdir(shm) and os.access(shm, os.W_OK | os.X_OK) else None
-
-
-@dataclass(frozen=True)
-class _Stored:
-    """An array in a file of its own (raw bytes in C order): what goes between processes instead of it."""
-
-    path: str
-    dtype: str
-    shape: tuple
-
-
-def _store(path, array):
-    """``array`` written to ``path`` (one write, outside the GIL) as a :class:`_Stored`; None stays None. Where the
-    file cannot be written (no space: /dev/shm is small in some containers), the array itself (goes by pickle)."""
-    import os
-
-    if array is None:
-        return None
-    array = np.ascontiguousarray(array)
-    try:
-        with open(path, "wb", buffering=0) as f:
-            view = memoryview(array.reshape(-1).view(np.uint8))
-            while len(view):
-                view = view[f.write(view):]
-    except OSError:
-        try:
-            os.unlink(path)
-        except OSError:
-            pass
-        return array
-    return _Stored(path, array.dtype.str, array.shape)
-
-
-def _load(item):
-    """The array of a :class:`_Stored` (read in one call, outside the GIL); anything else as it is."""
-    if not isinstance(item, _Stored):
-        return item
-    array = np.empty(item.shape, np.dtype(item.dtype))
-    with open(item.path, "rb", buffering=0) as f:
-        view = memoryview(array.reshape(-1).view(np.uint8))
-        while len(view):
-            n = f.readinto(view)
-            if not n:
-                raise EOFError(f"{item.path}: {len(view)} bytes short")
-            view = view[n:]
-    return array
-
-
-def _with_arrays(mesh, convert):
-    """``mesh`` with ``convert(name, array)`` of each of its arrays (primvars named primvar0, primvar1, ...)."""
-    return SurfaceMesh(convert("points", mesh.points), convert("faces", mesh.faces), convert("normals", mesh.normals),
-                       convert("velocities", mesh.velocities),
-                       {name: convert(f"primvar{n}", values) for n, (name, values) in enumerate(mesh.primvars.items())},
-                       mesh.seconds, mesh.layer)
-
-
 def _store_mesh(mesh, folder):
-    """``mesh`` with its arrays stored in ``folder`` (:func:`_store`)."""
-    import os
-
-    return _with_arrays(mesh, lambda name, array: _store(os.path.join(folder, name), array))
+    """``mesh`` with its arrays stored in ``folder`` (:func:`warpsph.io.processes.store_tree`)."""
+    return store_tree(mesh, folder)
 
 
 def _load_mesh(mesh):
     """A mesh from :func:`_store_mesh` with its arrays read back (the files stay: the caller removes them)."""
-    return _with_arrays(mesh, lambda name, array: _load(array))
+    return load_tree(mesh)
 
 
 def mesher_for(options, radius, device="cpu", workers=None, clip=None):
