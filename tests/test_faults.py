@@ -341,3 +341,58 @@ def test_resume_of_a_cache_behind_its_checkpoint_says_what_is_lost_and_changes_n
     assert "frames 0..4 cannot be recovered" in err and "Traceback" not in err
     assert snapshot(tmp_path) == before
 
+
+
+def _children(pid):
+    """The pids of ``pid``'s child processes (Linux: /proc/PID/task/*/children)."""
+    found = set()
+    for task in os.listdir(f"/proc/{pid}/task"):
+        try:
+            found.update(int(c) for c in open(f"/proc/{pid}/task/{task}/children").read().split())
+        except OSError:
+            pass
+    return found
+
+
+def _alive(pid):
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    try:  # a zombie (not yet reaped by its new parent) counts as gone
+        return open(f"/proc/{pid}/stat").read().split(") ")[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_sigkill_of_a_run_with_its_cache_in_a_process_of_its_own(tmp_path, reference):
+    """run --cache-process, SIGKILLed alone (as the out-of-memory killer does): the cache's writer process exits
+    with it, the cache opens with frames 0..j past the checkpoint, and resume ends as the uninterrupted run."""
+    proc = start(tmp_path, reference, "run", str(reference["scene"]), "--out", str(tmp_path / "long.usdc"),
+                 "--checkpoint-every", str(EVERY), "--cache-process")
+    wait_rows(tmp_path / "long.stats.csv", KILL_FRAMES[1], proc)
+    children = _children(proc.pid)
+    assert children  # the writer (and multiprocessing's resource tracker)
+    proc.kill()
+    proc.communicate(timeout=60)
+    assert proc.returncode == -signal.SIGKILL
+    deadline = time.time() + 20
+    while time.time() < deadline and any(_alive(c) for c in children):
+        time.sleep(0.05)
+    assert not [c for c in children if _alive(c)]
+    check_killed(tmp_path)
+    resume_to_the_end(tmp_path, reference)
+
+
+def test_a_failing_save_in_the_cache_s_process_stops_the_run_in_one_line(tmp_path, reference):
+    """The file-size limit (EFBIG, like a full disk half-way) hits a save in the writer process: the run stops
+    (exit 2) with the same one line as a cache in the run's own process, the cache keeps the frames before."""
+    proc = start(tmp_path, reference, "run", str(reference["scene"]), "--out", str(tmp_path / "long.usdc"),
+                 "--checkpoint-every", str(EVERY), "--cache-process", limit=int(SIZE_LIMITS[0] * reference["size"]),
+                 killed=False)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 2, err
+    check_killed(tmp_path, "long.usdc")
+    assert "USD could not write long.partial.tmp.usdc: File too large" in err and "keeps the frames before" in err
+    assert len(err.splitlines()) == 1, err
+    resume_to_the_end(tmp_path, reference)

@@ -203,3 +203,31 @@ def test_a_single_file_cache_grows_by_appending_each_save(tmp_path, monkeypatch)
     assert len(exports) == 1 and cache.flushes == 6
     assert sorted(p.name for p in tmp_path.iterdir()) == ["grow.usdc"]  # no working copy left
     assert np.all(np.diff(sizes) > 0)
+
+
+def _all_samples(path):
+    """{(prim, attribute): {frame: values}} of every time-sampled attribute of the cache ``path``."""
+    stage = Usd.Stage.Open(Sdf.Layer.OpenAsAnonymous(str(path)))
+    return {(str(prim.GetPath()), attr.GetName()): {t: np.array(attr.Get(t)) for t in attr.GetTimeSamples()}
+            for prim in stage.Traverse() for attr in prim.GetAttributes() if attr.GetTimeSamples()}
+
+
+def test_the_cache_written_by_a_process_of_its_own_is_the_thread_s_bit_for_bit(tmp_path):
+    """``--cache-process`` (the default of a GPU run): the writer process writes the same cache, particles and the
+    surface meshes alike, as the writer thread of the run's own process; it leaves no file of its own behind."""
+    scene = tmp_path / "tank.json"
+    scene.write_text(json.dumps(tank_scene(radius=0.04, output={"fps": 20, "frames": 4})))
+    caches = {}
+    for flag in ("--cache-process", "--no-cache-process"):
+        out = tmp_path / flag.strip("-") / "tank.usdc"
+        assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "--surface", "--surface-method",
+                     "preview", flag, "-q"]) == 0
+        assert sorted(p.name for p in out.parent.iterdir()) == ["tank.stats.csv", "tank.usdc"]
+        caches[flag] = _all_samples(out)
+    got, want = caches["--cache-process"], caches["--no-cache-process"]
+    assert sorted(got) == sorted(want)
+    assert ("/World/FluidSurface", "faceVertexIndices") in want and ("/World/Fluid", "points") in want
+    for key, frames in want.items():
+        assert sorted(got[key]) == sorted(frames) == [0.0, 1.0, 2.0, 3.0, 4.0] or key[1] in ("ids", "widths"), key
+        for t, values in frames.items():
+            np.testing.assert_array_equal(got[key][t], values, err_msg=f"{key} at {t}")

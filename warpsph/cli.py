@@ -2,8 +2,9 @@
 
     warpsph run SCENE.json [--device auto|cpu|cuda] [--out FILE.usdc] [--frames N] [--scale S]
                            [--overwrite] [--checkpoint-every N] [--on-instability stop|reduce-dt] [--dry-run]
-                           [--fields points,velocities,...] [--sync-output] [--surface [--surface-cube C]
-                           [--surface-method splashsurf|preview] [--surface-every K] [--surface-behind wait|skip]]
+                           [--fields points,velocities,...] [--sync-output] [--[no-]cache-process]
+                           [--surface [--surface-cube C] [--surface-method splashsurf|preview] [--surface-every K]
+                           [--surface-behind wait|skip]]
     warpsph resume CHECKPOINT.h5 [--device ...] [--frames N]
     warpsph surface OUT.usdc|OUT.particles.h5 [--cube C] [--smoothing L] [--frames A B] [--out NEW.usdc]
                     [--method splashsurf|preview] [--device cpu|cuda]
@@ -335,8 +336,8 @@ def _simulate(sim, outputs, frames, args, options, append):
     from .diagnostics import DiagnosticsWriter
     from .io.checkpoint import save_checkpoint
     from .io.frames import FrameWriter, WriterFailed, parse_fields
-    from .io.usd import (FLUSH_SHARE, DamagedCache, UsdClipCache, UsdPointCache, body_meshes, recover_cache,
-                         run_metadata, write_host_frame)
+    from .io.usd import (FLUSH_SHARE, CacheProcess, DamagedCache, UsdClipCache, UsdPointCache, body_meshes,
+                         recover_cache, run_metadata, write_host_frame)
 
     scene = sim.scene
     fields = parse_fields(options.get("fields") or None, sim)
@@ -352,12 +353,16 @@ def _simulate(sim, outputs, frames, args, options, append):
         try:
             if append is not None:  # the copy holding frames 0..append, moved to NAME.partial (else nothing changes)
                 recover_cache(outputs.out, outputs.partial, append)
-            cache = UsdPointCache(outputs.partial, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
-                                  boundary_radius=scene.particle_radius, append=append, bodies=meshes, metadata=metadata,
-                                  domain=scene.domain)
+            in_process = getattr(args, "cache_process", None)
+            if in_process is None:  # a GPU run's host thread launches the steps: USD's calls would hold its GIL
+                in_process = any(p.device.is_cuda for p in sim.parts())
+            settings = dict(boundary_points=boundary, boundary_radius=scene.particle_radius, append=append,
+                            bodies=meshes, metadata=metadata, domain=scene.domain,
+                            flush_share=FLUSH_SHARE)  # saved while cheap, at each checkpoint and at the end
+            where = (outputs.partial, scene.output.fps, scene.output.up_axis)
+            cache = CacheProcess(UsdPointCache, *where, **settings) if in_process else UsdPointCache(*where, **settings)
         except DamagedCache as exc:
             raise SceneError(outputs.out, "", exc.reason) from None
-        cache.flush_share = FLUSH_SHARE  # saved (crash-consistent) while cheap, at each checkpoint and at the end
     diagnostics = DiagnosticsWriter(outputs.stats, append=append, metadata=metadata)
     particles = None
     if options.get("particles_h5"):
@@ -1129,6 +1134,9 @@ def build_parser():
         p.add_argument("--sync-output", action="store_true",
                        help="write each frame on the simulation's thread (default: a background writer thread, "
                             "so the simulation goes on while a frame is written)")
+        p.add_argument("--cache-process", action=argparse.BooleanOptionalAction, default=None,
+                       help="write the single-file cache in a process of its own, so that USD's encoding and saves "
+                            "never hold the simulation's thread (default: on a GPU run)")
     _verbosity_flags(parser, default=0)
     return parser
 

@@ -396,8 +396,11 @@ class DamagedCache(OSError):
             first = str(cause).strip().splitlines()[0] if str(cause).strip() else type(cause).__name__
             reason = (f"USD cannot open this cache ({first[:200]}); its frames cannot be recovered. Start the run "
                       "again (a --clips run keeps every frame's layer on its own)")
-        self.reason = reason
+        self.path, self.reason = path, reason
         super().__init__(f"{path}: {self.reason}")
+
+    def __reduce__(self):  # raised in the cache's writer process, re-raised in the run's
+        return type(self), (self.path, None, self.reason)
 
 
 def cache_frames(path):
@@ -588,6 +591,110 @@ class UsdPointCache:
             if Path(final_path) != self.path and self.path.exists():
                 os.replace(self.path, final_path)
                 fsync(Path(final_path).parent)
+
+
+class CacheProcess:
+    """A cache (:class:`UsdPointCache`, same calls and attributes) written by a process of its own.
+
+    pxr holds the GIL for the whole of each call: the arrays' conversion, the encoding of a save (a 1M-face mesh's
+    indices: 0.1-1 s of integer compression), which the simulation's host thread, launching the GPU's work, needs
+    for every step. Here the run's process writes each call's arrays to files (/dev/shm, one system call each,
+    outside the GIL: :mod:`warpsph.io.processes`) and waits, outside the GIL too, for the writer process, which
+    owns the cache and makes the call. The caller (the run's writer thread) gets what the call returns or raises,
+    as from the cache itself; the simulation goes on stepping meanwhile. The writer process ignores SIGINT and
+    SIGTERM (the run saves and stops it) and exits when the run's process dies: the file keeps its last save, as
+    with a cache in the run's process. :meth:`finish` stops it."""
+
+    def __init__(self, kind, *args, **kwargs):
+        from itertools import count
+
+        from .processes import start_workers
+
+        self.path = Path(args[0] if args else kwargs["path"])
+        self._jobs = count()
+        self._state = {"frames": 0, "flushes": 0, "written_bytes": 0, "flush_share": kwargs.get("flush_share")}
+        self.folder, self._remove, self.pool = start_workers(self, 1, prefix="warpsph-writer")
+        try:
+            self._call("open", kind, args, kwargs)
+        except BaseException:
+            self._stop()
+            raise
+
+    def __getattr__(self, name):
+        state = self.__dict__.get("_state", {})
+        if name in state:
+            return state[name]
+        raise AttributeError(name)
+
+    def _call(self, method, *args):
+        import shutil
+        from concurrent.futures.process import BrokenProcessPool
+
+        job = os.path.join(self.folder, str(next(self._jobs)))
+        os.mkdir(job)
+        try:
+            from .processes import store_tree
+
+            result, self._state = self.pool.submit(_cache_call, method, store_tree(args, job)).result()
+        except BrokenProcessPool:
+            raise OSError(f"{self.path}: the cache's writer process ended during {method} (killed?); the file "
+                          "holds the frames of its last save") from None
+        finally:
+            shutil.rmtree(job, ignore_errors=True)
+        return result
+
+    def _stop(self):
+        from .processes import stop_workers
+
+        if self.pool is not None:
+            stop_workers(self.pool, self._remove)
+            self.pool = None
+
+    def write_frame(self, *args, **kwargs):
+        return self._call("write_frame", args, kwargs)
+
+    def write_surface(self, frame, mesh, save=False):
+        mesh.wait() if hasattr(mesh, "wait") else None  # a Warp event does not cross processes
+        return self._call("write_surface", (frame, mesh, save), {})
+
+    def surface_layer(self, frame):
+        """None: the mesher writes its meshes through this cache (:meth:`UsdPointCache.surface_layer`)."""
+        return None
+
+    def flush(self, again=True):
+        return self._call("flush", (again,), {})
+
+    def note_surface(self, info):
+        return self._call("note_surface", (info,), {})
+
+    def finish(self, final_path):
+        """Saves, moves the file to ``final_path`` (:meth:`UsdPointCache.finish`) and stops the writer process."""
+        try:
+            return self._call("finish", (final_path,), {})
+        finally:
+            self._stop()
+
+
+_worker_cache = None  # the writer process's cache (CacheProcess)
+
+
+def _cache_call(method, args):
+    """In the writer process: ``open`` makes the cache (``args``: its class, arguments, keyword arguments); any
+    other ``method`` is called on it with ``args`` (positional, keyword), the arrays read back from their files.
+    Returns (the call's result, the cache's counters)."""
+    global _worker_cache
+    from .processes import load_tree
+
+    args = load_tree(args)
+    if method == "open":
+        kind, positional, keywords = args
+        _worker_cache, result = kind(*positional, **keywords), None
+    else:
+        positional, keywords = args
+        result = getattr(_worker_cache, method)(*positional, **keywords)
+    cache = _worker_cache
+    return result, {"frames": cache.frames, "flushes": cache.flushes, "written_bytes": cache.written_bytes,
+                    "flush_share": cache.flush_share}
 
 
 FRAME_LAYER = re.compile(r"frame\.\d{6}\.usdc")
