@@ -664,7 +664,7 @@ class ProcessMesher:
     while it meshed: the 1M dam break ran 2.8x slower with --surface although it never waited for the
     writer. A spawned process has its own GIL and, for the preview, its own Warp device state (Warp's
     current device and stream are process-wide, not per thread). ``workers`` processes mesh frames at
-    once (default: one per 8 cores), each on its share of the cores.
+    once (default: one per 4 cores beyond two, at most 4), each on its share of the cores.
 
     The arrays go through files in a folder of its own (``folder``, in /dev/shm where there is one;
     :mod:`warpsph.io.processes`). Each frame's files are removed when its mesh is back or its worker failed; :meth:`close` (or the
@@ -680,12 +680,12 @@ class ProcessMesher:
         self.options, self.radius, self.device = options, radius, str(device)
         self.clip = clip  # goes to each worker once (its initializer), a moving body's pose with each frame
         cores = os.cpu_count() or 1
-        # splashsurf scales poorly past ~8 threads (1M particles on 16 cores: 1.78 s a mesh, 2.17 s on 6): two
-        # frames at once on 8 threads each mesh more per second than one on 16; the preview runs on the device
-        if workers is None:
-            workers = 1 if options.method == "preview" else max(1, min(4, cores // 8))
-        self.workers = max(1, int(workers))
+        # splashsurf scales poorly past a few threads (1M particles on 16 cores: 1.78 s a mesh, 2.17 s on 6): several
+        # frames at once on 4 threads each mesh more per second than one on all; the preview runs on the device
         spare = 2 if cores > 4 else 0  # the simulation's host thread and the writer keep a core each
+        if workers is None:
+            workers = 1 if options.method == "preview" else max(1, min(4, (cores - spare) // 4))
+        self.workers = max(1, int(workers))
         self._jobs = count()
         self.folder, self._remove_folder, self.pool = start_workers(
             self, self.workers, max(1, (cores - spare) // self.workers), _set_worker_clip, (clip,), "warpsph-mesh")

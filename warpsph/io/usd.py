@@ -351,9 +351,26 @@ class GrowingLayer:
         self.layer.Reload(True)  # a layer of this name still open in this process: the file anew
 
     def _copy(self):
+        """``path`` copied to the working copy in the kernel (``copy_file_range``: a reflink, no data written, on
+        file systems that share blocks, such as XFS and Btrfs), then synced: the next save's sync, often the
+        last one at the end of a run, then writes only what that save adds."""
         import shutil
 
-        shutil.copyfile(self.path, self.tmp)
+        try:
+            with open(self.path, "rb") as src, open(self.tmp, "wb") as dst:
+                size, done = os.fstat(src.fileno()).st_size, 0
+                while done < size:
+                    n = os.copy_file_range(src.fileno(), dst.fileno(), size - done)
+                    if n == 0:
+                        raise OSError(errno.EIO, f"{self.path}: copy_file_range stopped at {done} of {size} bytes")
+                    done += n
+                os.fsync(dst.fileno())
+        except OSError as exc:
+            if exc.errno not in (errno.EXDEV, errno.ENOSYS, errno.EOPNOTSUPP, errno.EINVAL):
+                raise
+            shutil.copyfile(self.path, self.tmp)  # a file system without copy_file_range
+            with open(self.tmp, "rb") as copy:
+                os.fsync(copy.fileno())
 
     def save(self, again=True):
         """Saves what the layer holds beyond ``path`` into ``path`` (``again`` False: the last save; no working
@@ -577,9 +594,8 @@ class UsdPointCache:
 
     def note_surface(self, info):
         """Records how the surface was meshed (method, every K-th frame, frames skipped) in the
-        layer's metadata ``warpsph:surface``, and saves."""
+        layer's metadata ``warpsph:surface`` (saved by :meth:`finish`, which follows)."""
         _note_surface(self.stage.GetRootLayer(), info)
-        self.flush()
 
     def finish(self, final_path):
         """The cache is complete up to its last frame: saves it and moves it to its final name (a save that fails
