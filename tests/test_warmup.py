@@ -199,6 +199,7 @@ def test_warmup_verb_compiles_the_scene_modules_and_reports(capsys):
 def test_warmup_verb_default_is_every_kernel_module():
     names = warmup.all_modules()
     assert CORE | FEATURES <= set(names) and K + "surface_preview" in names
+    assert names[-1].startswith("warp.") and names[-1].endswith("sparse_marching_cubes")  # Warp's, for the preview
     assert K + "particles" not in names and K + "sph_kernel" not in names  # functions and structs only
 
 

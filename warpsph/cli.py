@@ -814,9 +814,11 @@ def _run_locked(args, scene, frames, outputs, surface):
     device, devices = _pick_devices(args)
     if devices is None:
         from .simulation import Simulation
-        from .warmup import frame_modules
+        from .warmup import frame_modules, surface_modules
 
-        sim = Simulation(scene, device=device, preload=frame_modules(scene))  # with the diagnostics' kernels
+        meshed_here = int(surface["surface"]) and surface["surface_method"] == "preview"  # on the run's device
+        sim = Simulation(scene, device=device,  # with the diagnostics' kernels, and the preview mesher's
+                         preload=frame_modules(scene) + (surface_modules() if meshed_here else []))
     else:
         from .decomposition import DecomposedSimulation
 

@@ -111,8 +111,19 @@ def frame_modules(scene) -> list[str]:
     return _k("diagnostics") + ([] if keeps_vorticity else _k("vorticity"))
 
 
+def surface_modules() -> list[str]:
+    """The Warp modules of the preview mesher (``warpsph run --surface`` on a GPU; :mod:`warpsph.surface`): its
+    kernels and Warp's sparse marching cubes, which a first run compiled at its first mesh (~3 s on an H100)."""
+    import inspect
+
+    from warp.geometry import sparse_marching_cubes_from_cells
+
+    return _k("surface_preview") + [inspect.getmodule(sparse_marching_cubes_from_cells).__name__]
+
+
 def all_modules() -> list[str]:
-    """Every module of ``warpsph.kernels`` that holds kernels (imported here)."""
+    """Every module of ``warpsph.kernels`` that holds kernels (imported here), and Warp's own that the preview
+    mesher launches (:func:`surface_modules`)."""
     import warp as wp
 
     package = importlib.import_module(KERNELS)
@@ -121,7 +132,7 @@ def all_modules() -> list[str]:
         module = importlib.import_module(f"{KERNELS}.{info.name}")
         if any(isinstance(v, wp.Kernel) for v in vars(module).values()):
             names.append(module.__name__)
-    return names
+    return list(dict.fromkeys(names + surface_modules()))
 
 
 @dataclass
