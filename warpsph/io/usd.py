@@ -338,14 +338,16 @@ class GrowingLayer:
     indices is 0.1-1 s), so a single file saved whole after each frame cost the whole run again at each save.
     Here the layer is the working copy NAME.tmp.usdc of ``path``: a save is ``layer.Save()`` in place (new
     values appended, a new table of contents), a sync, and a rename over ``path``; then the file is copied back to
-    NAME.tmp.usdc (a copy in the kernel, no encoding) for the next save to grow. ``path`` holds the last save,
-    whole, at every moment: a kill during a save damages only the working copy (a leftover the next run removes).
+    NAME.tmp.usdc (a copy in the kernel, no encoding) for the next save to grow. Between saves :meth:`append`
+    encodes new values into the working copy as they come. ``path`` holds the last save, whole, at every moment:
+    a kill during a save or an append damages only the working copy (a leftover the next run removes).
     On disk: ``path`` and its copy."""
 
     def __init__(self, path):
         self.path = Path(path)
         self.tmp = temporary_path(self.path)
         self.failed = None  # the exception of a failed save
+        self._appended = False  # the working copy holds values that ``path`` lacks
         self._copy()
         self.layer = Sdf.Layer.FindOrOpen(str(self.tmp))
         self.layer.Reload(True)  # a layer of this name still open in this process: the file anew
@@ -378,17 +380,13 @@ class GrowingLayer:
         file-size limit) the working copy is gone and every later save raises: ``path`` keeps the save before."""
         if self.failed is not None:
             raise OSError(f"{self.path}: not saved since an earlier save failed ({self.failed})")
-        if not self.layer.dirty:
+        if not (self.layer.dirty or self._appended):
             return False
         try:
             with replacing(self.path, self.tmp):
-                try:
-                    written = self.layer.Save()
-                except Exception as exc:  # pxr.Tf.ErrorException: the file system's error among USD's lines
-                    raise _write_failed(exc, self.path, self.tmp) from None
-                if not written:
-                    raise OSError(f"{self.path}: USD could not write {self.tmp.name}")
+                self._save_in_place()
                 fsync(self.tmp)
+            self._appended = False
             if again:
                 self._copy()
         except BaseException as exc:
@@ -397,6 +395,29 @@ class GrowingLayer:
                 self.tmp.unlink()
             raise
         return True
+
+    def append(self):
+        """Encodes what the layer holds beyond the working copy into it (``layer.Save()`` in place), without a
+        sync or a rename: ``path`` is untouched, and the next :meth:`save` has only its sync and rename left (the
+        last frame's values were all the final save encoded at the end of a run)."""
+        if self.failed is not None or not self.layer.dirty:
+            return
+        try:
+            self._save_in_place()
+        except BaseException as exc:
+            self.failed = exc
+            if self.tmp.exists():
+                self.tmp.unlink()
+            raise
+        self._appended = True
+
+    def _save_in_place(self):
+        try:
+            written = self.layer.Save()
+        except Exception as exc:  # pxr.Tf.ErrorException: the file system's error among USD's lines
+            raise _write_failed(exc, self.path, self.tmp) from None
+        if not written:
+            raise OSError(f"{self.path}: USD could not write {self.tmp.name}")
 
     def close(self):
         """Removes the working copy (``path`` holds the last save)."""
@@ -562,6 +583,8 @@ class UsdPointCache:
         self.frames += 1
         if self._due():
             self.flush()
+        else:  # encoded now, beside the simulation, not all at the next save
+            self.file.append()
         return written
 
     def _due(self):
