@@ -397,13 +397,15 @@ class GrowingLayer:
         return True
 
     def append(self):
-        """Encodes what the layer holds beyond the working copy into it (``layer.Save()`` in place), without a
-        sync or a rename: ``path`` is untouched, and the next :meth:`save` has only its sync and rename left (the
-        last frame's values were all the final save encoded at the end of a run)."""
+        """Encodes what the layer holds beyond the working copy into it (``layer.Save()`` in place) and syncs it,
+        without a rename: ``path`` is untouched, and the next :meth:`save` has only the last values to encode and
+        sync (at the end of a run the final save encoded and synced every frame since the save before)."""
         if self.failed is not None or not self.layer.dirty:
             return
         try:
             self._save_in_place()
+            with open(self.tmp, "rb") as copy:  # written to the disk now, beside the run, not at the next save
+                os.fsync(copy.fileno())
         except BaseException as exc:
             self.failed = exc
             if self.tmp.exists():
