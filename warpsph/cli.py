@@ -39,6 +39,8 @@ from pathlib import Path
 
 from . import log
 from .errors import SceneError
+from .io.recorder import (MesherFailed, WriteError, _close, _mesher_failure, _write_error, _write_failure,  # noqa: F401
+                          _writing, surface_options)
 from .log import PLAIN
 
 EXIT_UNSTABLE = 3
@@ -242,75 +244,9 @@ class Outputs:
             path.unlink()
 
 
-class WriteError(Exception):
-    """Writing an output failed (disk full, permissions): the frames written before stay readable."""
-
-
-def _write_failure(exc):
-    return isinstance(exc, OSError) or type(exc).__name__ == "ErrorException"  # pxr.Tf.ErrorException
-
-
-@contextlib.contextmanager
-def _writing(what):
-    try:
-        yield
-    except Exception as exc:
-        if not _write_failure(exc):
-            raise
-        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc).strip().splitlines()[-1]
-        raise WriteError(f"{what}: {reason}") from exc
-
-
-class MesherFailed(Exception):
-    """The surface mesher of ``run --surface`` failed or lost a worker process: the particle frames are kept."""
-
-
-def _mesher_failure(exc):
-    """One line on a failed mesh: a worker that died names no exception of its own."""
-    from concurrent.futures.process import BrokenProcessPool
-
-    cause, seen = exc, set()
-    while cause is not None and id(cause) not in seen:
-        seen.add(id(cause))
-        if isinstance(cause, BrokenProcessPool):
-            return (f"{exc}".split(":")[0] + ": a mesher worker process died (killed by a signal or out of "
-                    "memory)").strip()
-        cause = cause.__cause__
-    return f"{exc}".strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-
-
-def _close(close):
-    """Runs ``close``; the reason it failed writing, or None (the run's own error goes first)."""
-    try:
-        close()
-    except MesherFailed as exc:
-        return str(exc)
-    except Exception as exc:
-        if not _write_failure(exc):
-            raise
-        return str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-    return None
-
-
 class StopRequest(Exception):
     def __init__(self, signum):
         self.signum = signum
-
-
-def _write_error(failed):
-    """The :class:`WriteError` of a failed frame writer (:class:`~warpsph.io.frames.WriterFailed`)."""
-    exc = failed.cause
-    if isinstance(exc, OSError) and exc.strerror:
-        reason = exc.strerror
-    elif _write_failure(exc):
-        reason = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-    elif "surface mesh of frame" in str(exc):  # the mesher's error, raised on the writer's thread
-        reason = _mesher_failure(exc)
-    else:  # not a disk problem: name the exception
-        reason = f"{type(exc).__name__}: {exc}"
-    error = WriteError(f"cannot write frame {failed.frame}: {reason}")
-    error.__cause__ = exc
-    return error
 
 
 def _disk_usage(outputs, clips):
@@ -327,113 +263,15 @@ last_run = {}  # timings and sizes of the last _simulate (warpsph bench job read
 
 
 def _simulate(sim, outputs, frames, args, options, append):
-    """Runs to ``frames``, writing every frame; ``append`` (a frame number) continues the outputs
-    after that frame (a resumed run: later frames are dropped and written again, each once).
+    """Runs to ``frames``, writing every frame through a :class:`~warpsph.io.recorder.Recorder` (``--sync-output``:
+    on this thread; ``--cache-process``); ``append`` (a frame number) continues the outputs after that frame (a
+    resumed run: later frames are dropped and written again, each once). Ctrl-C / SIGTERM finish the frame, save
+    and checkpoint; the exit code and the lines on what was written are this function's."""
+    from .io.recorder import Recorder
 
-    Each frame's arrays are copied off the device and written by a background thread
-    (:class:`~warpsph.io.frames.FrameWriter`; ``--sync-output`` writes on this thread); a
-    checkpoint waits for the writer, so it never claims a frame the cache does not hold."""
-    from .diagnostics import DiagnosticsWriter
-    from .io.checkpoint import save_checkpoint
-    from .io.frames import FrameWriter, WriterFailed, parse_fields
-    from .io.usd import (FLUSH_SHARE, CacheProcess, DamagedCache, UsdClipCache, UsdPointCache, body_meshes,
-                         recover_cache, run_metadata, write_host_frame)
-
-    scene = sim.scene
-    fields = parse_fields(options.get("fields") or None, sim)
-    static = sim.num_boundary if sim.moving_bodies is None else sim.moving_bodies.first_sample
-    boundary = None if append is not None else sim.boundary.x.numpy()[:static]
-    meshes = None if append is not None else body_meshes(sim)
-    metadata = None if append is not None else run_metadata(scene)  # a resumed run keeps its first part's
-    if options.get("clips"):
-        cache = UsdClipCache(outputs.out, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
-                             boundary_radius=scene.particle_radius, append=append, bodies=meshes, metadata=metadata,
-                             domain=scene.domain)
-    else:
-        try:
-            if append is not None:  # the copy holding frames 0..append, moved to NAME.partial (else nothing changes)
-                recover_cache(outputs.out, outputs.partial, append)
-            in_process = getattr(args, "cache_process", None)
-            if in_process is None:  # a GPU run's host thread launches the steps: USD's calls would hold its GIL
-                in_process = any(p.device.is_cuda for p in sim.parts())
-            settings = dict(boundary_points=boundary, boundary_radius=scene.particle_radius, append=append,
-                            bodies=meshes, metadata=metadata, domain=scene.domain,
-                            flush_share=FLUSH_SHARE)  # saved while cheap, at each checkpoint and at the end
-            where = (outputs.partial, scene.output.fps, scene.output.up_axis)
-            cache = CacheProcess(UsdPointCache, *where, **settings) if in_process else UsdPointCache(*where, **settings)
-        except DamagedCache as exc:
-            raise SceneError(outputs.out, "", exc.reason) from None
-    diagnostics = DiagnosticsWriter(outputs.stats, append=append, metadata=metadata)
-    particles = None
-    if options.get("particles_h5"):
-        from .io.particles_h5 import ParticleFrames
-
-        try:
-            particles = ParticleFrames(outputs.particles, append=append)
-        except OSError as exc:  # h5py: a file it cannot open (not written by this warpsph), or no room
-            raise SceneError(outputs.particles, "", f"cannot continue the particle frames ({exc})") from None
-    published = list(sim.fields())
-    if particles is not None:  # the HDF5 frames hold every array
-        copy = ["v", *published]
-    else:
-        copy = (["v"] if "velocities" in fields else []) + [n for n in published if n in fields]
-        if "vorticity_magnitude" in fields and "vorticity" not in copy:
-            copy.append("vorticity")
-    surface = _surface_options(options)
-    if surface is not None:  # the mesh interpolates velocity and vorticity magnitude to its vertices
-        copy += [n for n in ("v", "vorticity") if (n == "v" or n in published) and n not in copy]
-    radius = scene.particle_radius
-    payload = {"bytes": 0, "particle_frames": 0, "surface_seconds": 0.0}
-    mesher = None
-    if surface is not None:  # meshes on a thread of its own, fed by the writer (bounded: --surface-behind)
-        from .surface import BackgroundMesher, DeviceMesher, mesher_for, surface_clip
-
-        clip = surface_clip(scene.domain, body_meshes(sim))  # the meshes stop at the walls and bodies (#42)
-        every = int(options.get("surface_every", 1))
-        parts = sim.parts()
-        if surface.method == "preview" and len(parts) == 1 and parts[0].device.is_cuda:  # on the GPU, between steps
-            mesher = DeviceMesher(surface, radius, clip=clip, every=every)
-        else:
-            mesher = BackgroundMesher(mesher_for(surface, radius, sim.device, clip=clip), every=every,
-                                      behind=str(options.get("surface_behind", "wait")))
-    mesh_on_device = getattr(mesher, "mesh_now", None)
-
-    mesh_count = {"submitted": 0, "written": 0}  # frames handed to the mesher, and their meshes written to the cache
-
-    def write_meshes():
-        for frame, mesh in mesher.ready():
-            cache.write_surface(frame, mesh, save=False)  # saved with the next frame (or checkpoint)
-            mesh_count["written"] += 1
-
-    def write(item):  # on the writer's thread: the USD frame, the meshes done, the HDF5 frame, the CSV row
-        if mesher is not None:
-            write_meshes()
-        payload["bytes"] += write_host_frame(cache, item, radius, fields)
-        if mesher is not None and mesher.wants(item.frame):
-            a = item.arrays
-            job = {k: a[k] for k in ("x", "v", "vorticity") if k in a}
-            if item.poses:  # the moving bodies' poses, for clipping the mesh to them
-                job["poses"] = item.poses
-            layer = cache.surface_layer(item.frame)
-            if layer is not None:  # --clips: the mesher's worker writes the mesh into the frame's layer itself
-                job["layer"] = (layer, item.frame)
-            mesh_count["submitted"] += bool(mesher.submit(item.frame, job))
-        payload["particle_frames"] += item.count
-        if particles is not None:
-            particles.write(item.frame, item.time, item.step, item.arrays)
-        diagnostics.write_row(item.row)
-
-    def finish_meshes():  # after the writer: the meshes still queued, and the note in the metadata
-        try:
-            done = mesher.close()
-        except Exception as exc:  # a worker died (SIGKILL, out of memory) or failed: the particle frames stay
-            raise MesherFailed(_mesher_failure(exc)) from exc
-        for frame, mesh in done:
-            cache.write_surface(frame, mesh, save=True)
-        payload["surface_seconds"] = mesher.seconds
-        cache.note_surface(mesher.note(surface))
-
-    writer = FrameWriter(sim, write, copy=copy, background=not getattr(args, "sync_output", False))
+    recorder = Recorder(sim, outputs, options, append=append, frames=frames,
+                        background=not getattr(args, "sync_output", False),
+                        cache_process=getattr(args, "cache_process", None))
     progress = Progress(frames)
     every = options.get("checkpoint_every", 0)
     preview = options.get("preview", 0)
@@ -442,70 +280,25 @@ def _simulate(sim, outputs, frames, args, options, append):
     def request_stop(signum, _frame):
         stop["signum"] = signum
 
-    def drain():
-        try:
-            writer.flush()
-        except WriterFailed as failed:
-            raise _write_error(failed) from failed.cause
-
-    def wait_meshes():
-        """Writes the meshes of every frame handed to the mesher (called with the writer drained, so on this thread
-        alone): a checkpoint at frame F claims the meshes of frames <= F too. Without it a kill after the checkpoint
-        lost the meshes still in flight, and the resumed run never meshed those frames again."""
-        try:
-            while True:
-                write_meshes()
-                if mesh_count["written"] >= mesh_count["submitted"]:
-                    return
-                time.sleep(0.002)
-        except Exception as exc:  # the mesher failed or lost a worker: one line, as from the writer
-            raise _write_error(WriterFailed(sim.frame, exc)) from exc
-
-    def checkpoint():
-        drain()  # the checkpoint claims only frames the cache holds, saved
-        if mesher is not None:
-            wait_meshes()
-        with _writing(f"cannot save the cache {outputs.out}"):
-            cache.flush()
-        if particles is not None:
-            with _writing(f"cannot save {outputs.particles}"):
-                particles.flush()
-        with _writing(f"cannot write the checkpoint {outputs.checkpoint}"):
-            save_checkpoint(sim, outputs.checkpoint,
-                            extra={**options, "output": os.path.abspath(outputs.out), "frames": frames})
-
     def on_frame(sim, frame):
-        row = diagnostics.measure(sim, frame)  # a few numbers reduced on the device
-        if mesh_on_device is not None:
-            mesh_on_device(sim, frame)
-        try:
-            writer.submit(sim, frame, row)
-        except WriterFailed as failed:
-            raise _write_error(failed) from failed.cause
+        recorder.on_frame(sim, frame)
         progress(sim, frame)
         if "signum" in stop:
-            checkpoint()
+            recorder.checkpoint()
             raise StopRequest(stop["signum"])
         if every and frame and frame % every == 0:
-            checkpoint()
+            recorder.checkpoint()
         if preview and frame % preview == 0:
-            from .plots import plot_slice
-
-            values = (np.linalg.norm(sim.field_values("vorticity"), axis=1) if "vorticity" in sim.fields()
-                      else np.linalg.norm(sim.velocities(), axis=1))
-            plot_slice(sim.positions(), values, outputs.out.with_name(f"{outputs.out.stem}.preview.{frame:05d}.png"),
-                       "z", thickness=2.0 * scene.particle_diameter, title=f"{scene.name}, frame {frame}, t = {sim.time:.3f} s")
+            _plot_preview(sim, outputs, frame)
 
     previous = {s: signal.signal(s, request_stop) for s in (signal.SIGINT, signal.SIGTERM)}
     start = time.perf_counter()
     steps0 = sim.step_count
-    code = None
-    outcome = None
-    stepped = None
+    outcome = stepped = None
     try:
         sim.run(frames=frames, on_frame=on_frame)
         stepped = time.perf_counter() - start  # to the last step; then the writer and mesher finish
-        drain()
+        recorder.drain()
     except (StopRequest, WriteError) as exc:
         outcome = exc
     except Exception as exc:
@@ -518,13 +311,35 @@ def _simulate(sim, outputs, frames, args, options, append):
         for s, handler in previous.items():
             signal.signal(s, handler)
         progress.close()
-        writer.close()  # writes the frames still queued (a stopped or unstable run keeps them)
-        closing = [mesher is not None and _close(finish_meshes), _close(diagnostics.close),
-                   particles is not None and _close(particles.close), _close(lambda: cache.finish(outputs.out))]
+        closing = recorder.close()
     loop_wall = time.perf_counter() - start
+    code = _failure(sim, outputs, options, recorder, outcome, closing)
+    if code is not None:
+        return code
+    _report_done(sim, outputs, options, recorder, frames, sim.step_count - steps0, loop_wall, stepped)
+    return 0
+
+
+def _plot_preview(sim, outputs, frame):
+    """``--preview K``: OUT.preview.FFFFF.png, a slice of the speed (or vorticity) at frame ``frame``."""
+    from .plots import plot_slice
+
+    scene = sim.scene
+    values = (np.linalg.norm(sim.field_values("vorticity"), axis=1) if "vorticity" in sim.fields()
+              else np.linalg.norm(sim.velocities(), axis=1))
+    plot_slice(sim.positions(), values, outputs.out.with_name(f"{outputs.out.stem}.preview.{frame:05d}.png"),
+               "z", thickness=2.0 * scene.particle_diameter, title=f"{scene.name}, frame {frame}, t = {sim.time:.3f} s")
+
+
+def _failure(sim, outputs, options, recorder, outcome, closing):
+    """The exit code of a run that did not finish (stopped, unstable, a write that failed, outputs that could not
+    be closed), after logging what the outputs keep; None when it finished."""
+    from .io.frames import WriterFailed
+
+    writer = recorder.writer
     written = "no frames" if writer.written is None else f"frames 0..{writer.written}"
     hint = "" if not outputs.checkpoint.exists() else f"; last checkpoint: {outputs.checkpoint}"
-    messages = []  # (level, text, extra) of a run that did not finish
+    messages, code = [], None  # (level, text, extra) of a run that did not finish
     if isinstance(outcome, StopRequest):
         name = signal.Signals(outcome.signum).name
         code = 128 + outcome.signum
@@ -549,13 +364,17 @@ def _simulate(sim, outputs, frames, args, options, append):
     if code is None and any(closing):
         code = 2
         messages.append((logging.ERROR, f"cannot finish the outputs: {next(c for c in closing if c)}", None))
-    if code is not None:
-        for level, text, extra in messages:
-            logger.log(level, "%s", text, extra=extra)
-        return code
+    for level, text, extra in messages:
+        logger.log(level, "%s", text, extra=extra)
+    return code
+
+
+def _report_done(sim, outputs, options, recorder, frames, steps, loop_wall, stepped):
+    """The end-of-run lines of a finished run (steps, wall, iterations, outputs, surface) and ``last_run``."""
+    writer, mesher, surface = recorder.writer, recorder.mesher, recorder.surface
     stats = sim.statistics()
-    steps = sim.step_count - steps0
     disk = _disk_usage(outputs, options.get("clips"))
+    payload, fields, metadata = recorder.payload, recorder.fields, recorder.metadata
     per_particle = payload["bytes"] / max(payload["particle_frames"], 1)
     last_run.clear()
     last_run.update(wall=loop_wall, stepping_wall=stepped, steps=steps, frames=writer.frames, payload_bytes=payload["bytes"],
@@ -581,7 +400,6 @@ def _simulate(sim, outputs, frames, args, options, append):
                 + (f", the simulation waited {writer.waited:.1f} s for it" if writer.background else ""))
     if mesher is not None:
         _report_surface(mesher, surface, loop_wall, writer)
-    return 0
 
 
 def _report_surface(mesher, surface, loop_wall, writer):
@@ -611,24 +429,6 @@ def _default_surface_method(args):
     else:
         names = [_pick_device(args.device)]
     return "preview" if all(name.startswith("cuda") for name in names) else "splashsurf"
-
-
-def _surface_options(options):
-    """The :class:`~warpsph.surface.SurfaceOptions` of a run's options, or None without --surface;
-    raises :class:`SceneError` naming the option (a bad value, pysplashsurf missing)."""
-    if not int(options.get("surface", 0) or 0):
-        return None
-    from .surface import SurfaceOptions, require_pysplashsurf
-
-    surface = SurfaceOptions(cube=float(options.get("surface_cube", SurfaceOptions.cube)),
-                             smoothing=float(options.get("surface_smoothing", SurfaceOptions.smoothing)),
-                             method=str(options.get("surface_method", "splashsurf"))).check("--surface-")
-    every = int(options.get("surface_every", 1))
-    if every < 1:
-        raise SceneError("", "--surface-every", f"expected an integer >= 1 (mesh every K-th frame), got {every}")
-    if surface.method == "splashsurf":
-        require_pysplashsurf("--surface")
-    return surface
 
 
 def _check_options(args):
@@ -795,7 +595,7 @@ def run_command(args):
     surface = {"surface": int(args.surface), "surface_cube": args.surface_cube, "surface_smoothing": args.surface_smoothing,
                "surface_every": args.surface_every, "surface_behind": args.surface_behind,
                "surface_method": args.surface_method or (_default_surface_method(args) if args.surface else "splashsurf")}
-    _surface_options(surface)  # a bad value or no pysplashsurf: refused before anything is written
+    surface_options(surface)  # a bad value or no pysplashsurf: refused before anything is written
     scene = load_scene(args.scene, scale=args.scale, run_anyway=True if args.run_anyway else None)
     frames = scene.output.frames if args.frames is None else args.frames
     outputs = Outputs(args.out or f"out/{scene.name}.usdc")
@@ -873,7 +673,7 @@ def _resume_locked(args, sim, options, frames, outputs, device):
         raise SceneError(outputs.out, "", "the cache of this checkpoint's run is missing: it cannot be continued")
     surface = {k: options[k] for k in ("surface", "surface_cube", "surface_smoothing", "surface_every", "surface_behind",
                                        "surface_method") if k in options}
-    _surface_options(surface)
+    surface_options(surface)
     sim.on_instability = options.get("on_instability", "stop")
     logger.info(f"resuming {sim.scene.name} at frame {sim.frame} (t = {sim.time:.3f} s) on {device} -> {outputs.out}",
                 extra=PLAIN)
