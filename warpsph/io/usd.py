@@ -1018,25 +1018,27 @@ class UsdWriter:
     ``fields``: the ``--fields`` names to write (``points``, ``velocities``, ``ids``, ``widths``,
     ``density``, ``vorticity``, ...; None: all). ``clips=True`` writes one layer per frame
     (:class:`UsdClipCache`, for large runs) instead of a single file (:class:`UsdPointCache`, saved
-    whenever a save costs at most ``FLUSH_SHARE`` of the time since the last one, and at :meth:`close`). Frames are written on the calling thread (the CLI writes in the background)."""
+    whenever a save costs at most ``FLUSH_SHARE`` of the time since the last one, and at :meth:`close`).
+    It writes through the same :class:`~warpsph.io.recorder.Recorder` as ``warpsph run``, on the calling
+    thread, without the run's CSV and checkpoints; a failed write raises
+    :class:`~warpsph.io.recorder.WriteError` naming the frame."""
 
     def __init__(self, path, sim, fields=None, clips=False):
-        scene = sim.scene
+        from types import SimpleNamespace
+
+        from warpsph.io.recorder import Recorder
+
         self.path = Path(path)
-        static = sim.num_boundary if sim.moving_bodies is None else sim.moving_bodies.first_sample
-        boundary = sim.boundary.x.numpy()[:static]
-        kind = UsdClipCache if clips else UsdPointCache
-        self.cache = kind(self.path, scene.output.fps, scene.output.up_axis, boundary_points=boundary,
-                          boundary_radius=scene.particle_radius, bodies=body_meshes(sim), metadata=run_metadata(scene),
-                          domain=scene.domain)
-        if not clips:
-            self.cache.flush_share = FLUSH_SHARE  # saved while cheap, and at close
-        self._on_frame = frame_writer(self.cache, list(fields) if fields is not None else None)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        outputs = SimpleNamespace(out=self.path, partial=self.path)  # no NAME.partial: the file is the API's
+        options = {"fields": ",".join(fields) if fields is not None else None, "clips": int(clips)}
+        self._recorder = Recorder(sim, outputs, options, background=False, cache_process=False, stats=False)
+        self.cache = self._recorder.cache
         self.closed = False
 
     def __call__(self, sim, frame):
         """Writes frame ``frame`` of ``sim`` (the ``on_frame`` signature)."""
-        self._on_frame(sim, frame)
+        self._recorder.on_frame(sim, frame)
 
     @property
     def frames(self):
@@ -1046,8 +1048,12 @@ class UsdWriter:
     def close(self):
         """Finishes the cache (a clip cache gets its top-level file); returns its path."""
         if not self.closed:
-            self.cache.finish(self.path)
             self.closed = True
+            failed = [reason for reason in self._recorder.close() if reason]
+            if failed:
+                from warpsph.io.recorder import WriteError
+
+                raise WriteError(f"cannot finish {self.path}: {failed[0]}")
         return self.path
 
     def __enter__(self):
