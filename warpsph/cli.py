@@ -792,6 +792,21 @@ def build_parser():
 
     parser.add_argument("--version", action="version", version=f"warpsph {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
+    run, resume = _run_parsers(sub)
+    kinds = _plot_parser(sub)
+    _surface_parser(sub)
+    _validate_parser(sub)
+    _sweep_parser(sub)
+    _study_parsers(sub, kinds)
+    _schema_parser(sub)
+    _verbosity_flags(parser, default=0)
+    return parser
+
+
+
+
+def _run_parsers(sub):
+    """``warpsph run`` and ``warpsph resume`` (their shared options last)."""
     run = sub.add_parser("run", help="simulate a scene and write a USD point cache")
     run.add_argument("scene", help="scene file (JSON), e.g. scenes/dam_break.json")
     run.add_argument("--out", help="output .usdc/.usda file (default out/<scene name>.usdc)")
@@ -816,6 +831,30 @@ def build_parser():
     run.add_argument("--run-anyway", action="store_true",
                      help="a SPlisHSPlasH scene: run without the physics warpsph refuses (the list is printed and recorded "
                           "in the cache's metadata warpsph:import_dropped and in OUT.stats.meta.json)")
+    _surface_run_options(run)
+    run.set_defaults(func=run_command)
+    resume = sub.add_parser("resume", help="continue a run from its checkpoint")
+    resume.add_argument("checkpoint", help="OUT.checkpoint.h5 written by --checkpoint-every or at Ctrl-C")
+    resume.set_defaults(func=resume_command)
+    for p in (run, resume):
+        p.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
+        p.add_argument("--devices", help="D[,D...] or N: one simulation over several devices, a slab of the domain "
+                                          "each (e.g. cuda:0,cuda:1, or 2 for the first two GPUs; emitters, sinks, "
+                                          "dynamic bodies and IISPH not yet)")
+        p.add_argument("--subdomains", type=int, help="slabs (default one per --devices entry; several per device "
+                                                      "when more)")
+        p.add_argument("--frames", type=int, help="last frame to simulate (default: the scene's output.frames)")
+        p.add_argument("--sync-output", action="store_true",
+                       help="write each frame on the simulation's thread (default: a background writer thread, "
+                            "so the simulation goes on while a frame is written)")
+        p.add_argument("--cache-process", action=argparse.BooleanOptionalAction, default=None,
+                       help="write the single-file cache in a process of its own, so that USD's encoding and saves "
+                            "never hold the simulation's thread (default: on a GPU run)")
+    return run, resume
+
+
+def _surface_run_options(run):
+    """``warpsph run``'s --surface options."""
     run.add_argument("--surface", action="store_true",
                      help="also write the fluid's surface mesh /World/FluidSurface every frame (see "
                           "--surface-method)")
@@ -833,10 +872,10 @@ def build_parser():
                      help="when the mesher is behind (one frame waits while one is meshed): wait (default: every asked "
                           "frame gets its mesh, the simulation waits) or skip the frame (the simulation never waits "
                           "for meshing; skipped frames are counted at the end and in the cache's metadata)")
-    run.set_defaults(func=run_command)
-    resume = sub.add_parser("resume", help="continue a run from its checkpoint")
-    resume.add_argument("checkpoint", help="OUT.checkpoint.h5 written by --checkpoint-every or at Ctrl-C")
-    resume.set_defaults(func=resume_command)
+
+
+def _plot_parser(sub):
+    """``warpsph plot energy|slice`` (``plot results`` is a study: :func:`_study_parsers`); returns its kinds."""
     plot = sub.add_parser("plot", help="PNG plots of finished runs (needs matplotlib)")
     kinds = plot.add_subparsers(dest="kind", required=True)
     energy = kinds.add_parser("energy", help="energy over time for several runs (like Fig 7 of the VR paper)")
@@ -852,6 +891,11 @@ def build_parser():
     slab.add_argument("--out", default="slice.png")
     slab.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     slab.set_defaults(func=plot_slice_command)
+    return kinds
+
+
+def _surface_parser(sub):
+    """``warpsph surface``: mesh a finished run."""
     mesh = sub.add_parser("surface", help="mesh the fluid surface of a finished run into a new USD file "
                                           "(it sublayers the cache), without simulating again")
     mesh.add_argument("cache", help="OUT.usdc (single file or the top-level file of --clips) or OUT.particles.h5")
@@ -866,6 +910,10 @@ def build_parser():
     mesh.add_argument("--radius", type=float, help="particle radius in metres (default: the cache's widths / 2)")
     mesh.add_argument("--overwrite", action="store_true", help="replace an existing --out that warpsph wrote")
     mesh.set_defaults(func=surface_command)
+
+
+def _validate_parser(sub):
+    """``warpsph validate``: the validation cases."""
     from .validation.taylor_green import METHODS
 
     check = sub.add_parser("validate", help="validation cases with the default solver: error, particles, steps and "
@@ -884,6 +932,10 @@ def build_parser():
     check.add_argument("--json", metavar="OUT.json", help="write the rows and metadata here (atomically, after every row)")
     check.add_argument("--overwrite", action="store_true", help="replace an existing --json")
     check.set_defaults(func=validate_command)
+
+
+def _sweep_parser(sub):
+    """``warpsph sweep``: many runs over processes, GPUs or a Ray cluster."""
     sweep = sub.add_parser("sweep", help="many runs (a validation case or a scene file, a sweep file's axes) over "
                                          "processes, GPUs or a Ray cluster; resumable (one file per cell, then "
                                          "table.json and table.md)")
@@ -897,6 +949,10 @@ def build_parser():
     sweep.add_argument("--plot", action="store_true", help="also DIR/table.pareto.png (with a time and an error "
                                                            "measure) and DIR/table.heat_map.png (needs matplotlib)")
     sweep.set_defaults(func=sweep_command)
+
+
+def _study_parsers(sub, kinds):
+    """The studies whose modules bring their own arguments: bench steps|job, pareto, stress, plot results, warmup."""
     from .validation import bench, bench_job, pareto, results, stress
 
     def study(subparsers, name, module, text, device=True):
@@ -919,28 +975,16 @@ def build_parser():
 
     study(sub, "warmup", warmup, "compile the kernels (all, or those of --scene files) into Warp's kernel cache "
                                  "in one parallel pass, ahead of a first run")
+
+
+def _schema_parser(sub):
+    """``warpsph schema``: the scene file's JSON Schema or its markdown reference."""
     schema = sub.add_parser("schema", help="the scene file's JSON Schema (for editors), or with --markdown the "
                                            "scene reference: every key, type, unit, default and range")
     schema.add_argument("--markdown", action="store_true", help="the scene reference as markdown instead")
     schema.add_argument("--out", help="write it to this file instead of stdout")
     schema.add_argument("--overwrite", action="store_true", help="replace an existing --out")
     schema.set_defaults(func=schema_command)
-    for p in (run, resume):
-        p.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
-        p.add_argument("--devices", help="D[,D...] or N: one simulation over several devices, a slab of the domain "
-                                          "each (e.g. cuda:0,cuda:1, or 2 for the first two GPUs; emitters, sinks, "
-                                          "dynamic bodies and IISPH not yet)")
-        p.add_argument("--subdomains", type=int, help="slabs (default one per --devices entry; several per device "
-                                                      "when more)")
-        p.add_argument("--frames", type=int, help="last frame to simulate (default: the scene's output.frames)")
-        p.add_argument("--sync-output", action="store_true",
-                       help="write each frame on the simulation's thread (default: a background writer thread, "
-                            "so the simulation goes on while a frame is written)")
-        p.add_argument("--cache-process", action=argparse.BooleanOptionalAction, default=None,
-                       help="write the single-file cache in a process of its own, so that USD's encoding and saves "
-                            "never hold the simulation's thread (default: on a GPU run)")
-    _verbosity_flags(parser, default=0)
-    return parser
 
 
 def _verbosity_flags(parser, default):
