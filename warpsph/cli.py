@@ -926,7 +926,9 @@ def _validate_parser(sub):
                             "sphere's diameter (sinking-sphere)")
     check.add_argument("--methods", nargs="+", default=["dfsph"], choices=list(METHODS),
                        help="dfsph (the solver alone, default), vr, rankine, micropolar")
-    check.add_argument("--solver", choices=["dfsph", "iisph"],
+    from .solvers import solver_names
+
+    check.add_argument("--solver", choices=solver_names(),
                        help="pressure solver (scene key solver.method; default: the scenes' default, dfsph)")
     check.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
     check.add_argument("--json", metavar="OUT.json", help="write the rows and metadata here (atomically, after every row)")

@@ -432,8 +432,10 @@ class DecomposedSimulation:
 
     @staticmethod
     def _refuse_unsupported(scene):
+        from warpsph.solvers import solver_class
+
         unsupported = [("emitters", scene.emitters), ("sinks", scene.sinks), ("domain.open", scene.domain.is_open),
-                       ("solver.method", scene.solver.method != "dfsph"),
+                       ("solver.method", not solver_class(scene.solver.method).decomposable),
                        ("obstacles.dynamics", any(o.dynamics is not None for o in scene.obstacles))]
         for key, present in unsupported:
             if present:

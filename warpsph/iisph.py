@@ -25,19 +25,41 @@ from warpsph.kernels.iisph import (
 from warpsph.kernels.particles import SymmetricMatrix
 from warpsph.kernels.pressure import REDUCE_THREADS, apply_pressure_acceleration, reduce_error, update_solver_status
 from warpsph.solver import DENSITY, PEAK_ERROR_RATIO
+from warpsph.solvers import PressureSolver, register_solver
 
 WARM_START = 0.5  # SPlisHSPlasH: the first iterate is half of last step's pressure
 
 
-class IISPHSolver:
+@register_solver("iisph")
+class IISPHSolver(PressureSolver):
+    summary = ("Ihmsen et al. 2014, as SPlisHSPlasH: one density solve, p >= 0 everywhere; it reads "
+               "density_max_error, min/max_iterations and warm_start, and ignores the divergence keys and shifting")
     needs_factor = False  # the density pass writes no DFSPH factor
     # d_ii (3), the pressure displacement c (3), a_ii, the source, q = p / rho^2 and the error: all live within
     # the solve, in the scratch pool the models use before it
     scratch_columns = 10
+    splishsplash_method = 3
+    decomposable = False
 
     @staticmethod
-    def columns(scene):
+    def pool_columns(scene):
+        """Scratch columns the memory check adds for it (shared with the models')."""
         return IISPHSolver.scratch_columns
+
+    @staticmethod
+    def kernel_modules(scene):
+        return ["warpsph.kernels.iisph"]
+
+    @staticmethod
+    def solve_passes(divergence_iterations, density_iterations):
+        """The coefficients 1, 2 an iteration, the pressure acceleration 1."""
+        return 2 + 2 * density_iterations
+
+    @staticmethod
+    def bytes_per_particle(scene):
+        from warpsph.resources import IISPH_FLUID_STATE, IISPH_SOLVER
+
+        return IISPH_FLUID_STATE + IISPH_SOLVER
 
     def __init__(self, sim):
         self.sim = sim

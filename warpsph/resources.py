@@ -26,24 +26,15 @@ SHARED_VORTICITY = 12  # the vorticity field of v~, once for all models that rea
 
 def estimate_bytes(scene, num_fluid, num_boundary):
     """Device bytes a simulation of ``scene`` allocates (an estimate, slightly high)."""
-    from warpsph.iisph import IISPHSolver
     from warpsph.models import plugin_of
-    from warpsph.models.viscosity import Viscosity
-
     from warpsph.neighbours import grid_geometry
+    from warpsph.solvers import solver_class
 
     plugins = [plugin_of(m) for m in scene.models]
-    scratch = [p.scratch_columns for p in plugins] + [0]
-    if scene.solver.method == "iisph":
-        per_fluid = IISPH_FLUID_STATE + IISPH_SOLVER + SORT + NEIGHBOUR_ROWS + NEIGHBOUR_LISTS
-        scratch.append(IISPHSolver.scratch_columns)
-    else:
-        per_fluid = FLUID_STATE + SOLVER + SORT + NEIGHBOUR_ROWS + NEIGHBOUR_LISTS
+    solver = solver_class(scene.solver.method)
+    scratch = [p.scratch_columns for p in plugins] + [0, solver.pool_columns(scene)]
+    per_fluid = solver.bytes_per_particle(scene) + SORT + NEIGHBOUR_ROWS + NEIGHBOUR_LISTS  # the solver's fluid state
     per_fluid += sum(p.bytes_per_particle for p in plugins)  # each model's own arrays
-    if scene.solver.method != "iisph":
-        per_fluid += CORRECTED
-        if Viscosity.takes_corrected_operator(scene):  # the corrected viscosity's strain rate
-            per_fluid += Viscosity.corrected_bytes_per_particle
     per_fluid += SHARED_VORTICITY if any(p.needs_vorticity for p in plugins) else 0
     per_fluid += 4 * max(scratch)  # the scratch pool (DFSPH: if wider than its own, counted in SOLVER)
     _, dims = grid_geometry(scene.domain, 4.0 * scene.particle_radius, num_fluid + num_boundary)

@@ -270,10 +270,11 @@ class TimeStepping:
 class Solver:
     """Pressure solver controls; errors in percent, as in SPlisHSPlasH."""
 
-    method: Literal["dfsph", "iisph"] = key(
-        "dfsph", doc="pressure solver: dfsph (Bender & Koschier 2017: a divergence and a density solve) or iisph "
-                     "(Ihmsen et al. 2014, as SPlisHSPlasH: one density solve, p >= 0 everywhere; it reads "
-                     "density_max_error, min/max_iterations and warm_start, and ignores the divergence keys and shifting)")
+    method: str = key(
+        "dfsph", doc="pressure solver, a registered one (warpsph.solvers): dfsph (Bender & Koschier 2017: a "
+                     "divergence and a density solve) or iisph (Ihmsen et al. 2014, as SPlisHSPlasH: one density "
+                     "solve, p >= 0 everywhere; it reads density_max_error, min/max_iterations and warm_start, and "
+                     "ignores the divergence keys and shifting)")
     density_max_error: float = key(0.01, doc="average density error the density solve stops at", unit="% of rho0", gt=0)
     divergence_max_error: float = key(0.1, doc="average divergence error the divergence solve stops at",
                                       unit="% of rho0 per second", gt=0)
@@ -302,6 +303,13 @@ class Solver:
     }
 
     def validate(self, file, key):
+        from .solvers import solver_names
+
+        known = solver_names()
+        if self.method not in known:
+            close = difflib.get_close_matches(self.method, known, n=1)
+            hint = f"; did you mean '{close[0]}'?" if close else f"; known: {', '.join(known)}"
+            raise SceneError(file, f"{key}.method", f"unknown pressure solver {json.dumps(self.method)}{hint}")
         if self.min_iterations > self.max_iterations:
             raise SceneError(file, f"{key}.min_iterations", "must not exceed max_iterations")
 
@@ -669,6 +677,11 @@ def scene_json_schema() -> dict:
         sub["required"] = ["type"] + sub.get("required", [])
         entries.append(sub)
     out["properties"]["models"]["items"] = {"oneOf": entries}
+    from .solvers import solver_names
+
+    solver = out.get("$defs", {}).get("Solver", {}).get("properties", {}).get("method")
+    if solver is not None:
+        solver["enum"] = solver_names()  # the registered pressure solvers
     out["properties"] = {SCHEMA_KEY: {"type": "string", "description": "the path or URL of this JSON Schema, for "
                                                                        "editors (warpsph ignores it)"},
                          **out["properties"]}

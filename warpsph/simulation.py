@@ -38,11 +38,7 @@ from warpsph.scene import MAX_VISCOSITY_SUBSTEPS, Scene, walled_faces
 from warpsph.state import FluidParticles, State  # noqa: F401 (FluidParticles: public here too)
 from warpsph.scene_setup import count_particles, remove_fluid_inside_bodies, sample_scene  # noqa: F401 (public here too)
 
-from warpsph.iisph import IISPHSolver
-from warpsph.solver import DFSPHSolver
-
-# scene key solver.method -> the pressure solver
-SOLVERS = {"dfsph": DFSPHSolver, "iisph": IISPHSolver}
+from warpsph.solvers import solver_class as registered_solver
 
 
 def viscous_substeps(scene: Scene, viscous_dt: float) -> int:
@@ -159,7 +155,7 @@ class Simulation:
         self.state = State(self.device, capacity, len(fluid_x))
         self._scratch = None
         model_classes = [plugin_of(p) for p in scene.models]
-        solver_class = SOLVERS[scene.solver.method]
+        solver_class = registered_solver(scene.solver.method)
         self._scratch_columns = max([solver_class.columns(scene)] + [m.scratch_columns for m in model_classes])
         check_fits(scene, self.capacity, self.num_boundary, self.device)  # refuse before allocating
         with wp.ScopedDevice(self.device):

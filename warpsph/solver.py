@@ -40,6 +40,7 @@ from warpsph.kernels.pressure import (
     warm_start_pressure,
 )
 from warpsph.kernels.shifting import apply_shift, compute_shift
+from warpsph.solvers import PressureSolver, register_solver
 
 DIVERGENCE, DENSITY, DRIFT = 0, 1, 2
 # In a periodic box the density solve is split (DFSPHSolver.correct_density). Its rate half's tolerance is per unit
@@ -73,14 +74,45 @@ def fully_periodic(scene):
     return len(scene.domain.periodic) == 3
 
 
-class DFSPHSolver:
+@register_solver("dfsph")
+class DFSPHSolver(PressureSolver):
+    summary = ("Bender & Koschier 2017: a divergence and a density solve, the corrected operators in the bulk, "
+               "shifting")
     needs_factor = True  # the density pass writes the DFSPH factor
     scratch_columns = 2  # stiffness and error live within a solve: they share the models' scratch pool
+    splishsplash_method = 4
+    decomposable = True
 
     @staticmethod
     def columns(scene):
         """Scratch columns this scene's solver needs: shifting holds a vector after the solves."""
         return 3 if scene.solver.shifting > 0.0 else DFSPHSolver.scratch_columns
+
+    @staticmethod
+    def pool_columns(scene):
+        """Scratch columns the memory check adds for it: none, its stiffness and error are in its own bytes."""
+        return 0
+
+    @staticmethod
+    def kernel_modules(scene):
+        solver = scene.solver
+        names = ["free_surface", "density_solver"]
+        names += ["divergence_solver"] if solver.divergence_solver else []
+        names += ["shifting"] if solver.shifting > 0.0 else []
+        return [f"warpsph.kernels.{n}" for n in names]
+
+    @staticmethod
+    def solve_passes(divergence_iterations, density_iterations):
+        """Each solve: the warm start 1 and the source 1, then 2 an iteration."""
+        return 4 + 2 * divergence_iterations + 2 * density_iterations
+
+    @staticmethod
+    def bytes_per_particle(scene):
+        from warpsph.models.viscosity import Viscosity
+        from warpsph.resources import CORRECTED, FLUID_STATE, SOLVER
+
+        corrected_viscosity = Viscosity.takes_corrected_operator(scene)  # the corrected viscosity's strain rate
+        return FLUID_STATE + SOLVER + CORRECTED + (Viscosity.corrected_bytes_per_particle if corrected_viscosity else 0)
 
     def __init__(self, sim):
         self.sim = sim

@@ -70,17 +70,13 @@ def scene_modules(scene, bodies=None, fluid=None, decomposed=False, frames=False
     is closed and fluid was sampled (the fluid inside it is removed): without ``bodies``, whenever the scene has
     obstacles (an open static mesh launches none); inflow with emitters, sinks or an open domain."""
     from warpsph.models import REGISTRY, plugin_of
+    from warpsph.solvers import solver_class
 
     domain, solver = scene.domain, scene.solver
     names = _k("neighbours", "density", "pressure", "integration", "stability")
     if (domain.walls and len(domain.periodic) < 3) or scene.obstacles:
         names += _k("boundary")
-    if solver.method == "iisph":
-        names += _k("iisph")
-    else:
-        names += _k("free_surface", "density_solver")
-        names += _k("divergence_solver") if solver.divergence_solver else []
-        names += _k("shifting") if solver.shifting > 0.0 else []
+    names += solver_class(solver.method).kernel_modules(scene)
     viscous = scene.fluid.viscous
     models = ([REGISTRY["viscosity"]] if viscous else []) + [plugin_of(p) for p in scene.models]
     for cls in models:

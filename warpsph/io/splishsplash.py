@@ -57,8 +57,15 @@ REAL_MAX = 1e30  # SPlisHSPlasH's "never" (numeric_limits<Real>::max) for emitEn
 
 # pressure solvers (Configuration.simulationMethod) and their blocks
 METHODS = {0: "WCSPH", 1: "PCISPH", 2: "PBF", 3: "IISPH", 4: "DFSPH", 5: "Projective Fluids", 6: "ICSPH"}
-# pressure solvers warpsph runs: SPlisHSPlasH's number -> solver.method
-SOLVER_METHODS = {3: "iisph", 4: "dfsph"}
+
+
+def solver_methods():
+    """The pressure solvers warpsph runs, by SPlisHSPlasH's number: {simulationMethod: solver.method}."""
+    from warpsph.solvers import solver_classes
+
+    return {cls.splishsplash_method: name for name, cls in solver_classes().items()
+            if cls.splishsplash_method is not None}
+
 # DFSPH parameter -> (warpsph solver key, SPlisHSPlasH default)
 DFSPH_KEYS = {"minIterations": ("min_iterations", 2), "maxIterations": ("max_iterations", 100),
               "maxError": ("density_max_error", 0.01), "maxIterationsV": ("divergence_max_iterations", 100),
@@ -395,11 +402,13 @@ class _Reader:
     def configuration(self, config):
         scene = self.c.scene
         method = config.get("simulationMethod", 4)
-        supported = method in SOLVER_METHODS
+        runs = solver_methods()
+        supported = method in runs
         if not supported:
             name = METHODS.get(method, f"method {method}")
+            known = " and ".join(f"{METHODS.get(k, k)} ({k})" for k in sorted(runs, reverse=True))
             self.refuse("Configuration.simulationMethod",
-                        f"{method} ({name}): warpsph runs DFSPH (4) and IISPH (3); run anyway, DFSPH with "
+                        f"{method} ({name}): warpsph runs {known}; run anyway, DFSPH with "
                         f"SPlisHSPlasH's DFSPH defaults")
         name = METHODS.get(method) if supported else None
         block = config.get(name) if supported else None
@@ -408,9 +417,9 @@ class _Reader:
         keys = DFSPH_KEYS if method == 4 else {k: v for k, v in DFSPH_KEYS.items() if not k.endswith("V")
                                                and k != "enableDivergenceSolver"}
         solver = {}
-        if method == 3:
-            solver["method"] = "iisph"
-            self.mapped("Configuration.simulationMethod", "solver.method", "iisph")
+        if supported and runs[method] != "dfsph":
+            solver["method"] = runs[method]
+            self.mapped("Configuration.simulationMethod", "solver.method", runs[method])
         for theirs, (ours, default) in keys.items():
             if theirs in block:
                 value, flat, dflt = block[theirs], False, False

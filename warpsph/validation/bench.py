@@ -42,7 +42,9 @@ def add_arguments(parser):
     parser.add_argument("--warmup", type=int, default=100, help="steps before the timed ones (default 100)")
     parser.add_argument("--steps", type=int, default=50, help="timed steps, per timer (default 50)")
     parser.add_argument("--density-error", type=float, help="override solver.density_max_error [%%]")
-    parser.add_argument("--method", choices=["dfsph", "iisph"], help="override solver.method (the pressure solver)")
+    from warpsph.solvers import solver_names
+
+    parser.add_argument("--method", choices=solver_names(), help="override solver.method (the pressure solver)")
     parser.add_argument("--model", choices=MODELS,
                         help="turbulence model to run with its default parameters instead of the scene's models "
                              "(none: plain DFSPH/IISPH; all: the three at once); default: the scene's own")
@@ -111,10 +113,12 @@ def neighbour_passes(result, models):
     """k: neighbour passes a step (density+factor 1; DFSPH, each solve: warm start 1 + source 1 + 2 per
     iteration; IISPH: coefficients 1 + 2 per iteration + the pressure acceleration 1; viscosity 1; the models'
     own passes)."""
+    from warpsph.solvers import solver_class
+
     extra = sum({"none": 0, "vorticity_refinement": 3, "rankine": 1, "micropolar": 1}[m] for m in models)
-    if result.get("solver_method") == "iisph":
-        return 1 + 1 + 2 * result["mean_density_iterations"] + 1 + 1 + extra
-    return 1 + 4 + 2 * result["mean_divergence_iterations"] + 2 * result["mean_density_iterations"] + 1 + extra
+    solves = solver_class(result.get("solver_method") or "dfsph").solve_passes(result["mean_divergence_iterations"],
+                                                                                result["mean_density_iterations"])
+    return 1 + solves + 1 + extra
 
 
 def markdown_table(results):
