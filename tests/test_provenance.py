@@ -25,7 +25,7 @@ def test_git_commit_without_the_variable(monkeypatch):
 
 def test_tools_record_the_commit_through_commit_info():
     """No tool asks git itself: each records warpsph's commit_info (so WARPSPH_COMMIT reaches every report)."""
-    sources = [ROOT / "tools" / f"{name}.py" for name in ("profile_kernels", "probe_floor")]
+    sources = [ROOT / "tools" / "bench_internals.py"]  # kernels and floor (were profile_kernels.py, probe_floor.py)
     sources += [ROOT / "warpsph" / "validation" / f"{name}.py" for name in ("bench_job", "bench", "pareto")]
     for source in sources:
         name, text = source.stem, source.read_text()

@@ -1,7 +1,7 @@
 """Per-frame diagnostics: energies, enstrophy, density error, solver iterations.
 
 Computed at output frames only, never inside a step: reduced on the device, a few numbers read. Written as CSV beside
-the USD cache by the CLI, and plotted by ``tools/plot_energy.py`` (like Fig 7 of the VR paper). The run's metadata
+the USD cache by the CLI, and plotted by ``warpsph plot energy`` (like Fig 7 of the VR paper). The run's metadata
 (``warpsph:import_dropped``: what a SPlisHSPlasH scene run anyway leaves out) goes into a JSON sidecar, OUT.stats.meta.json,
 so the CSV stays plain for every reader.
 """

@@ -10,7 +10,7 @@ Arrays go to and fro through files in a folder of the owner's own (in /dev/shm w
 written or read in one system call, outside the GIL (:func:`store`, :func:`load`; :func:`store_tree` and
 :func:`load_tree` for the arrays inside tuples, lists, dicts and dataclasses). By pickle the run's process
 pickled a 1M-particle frame's 36 MB and unpickled its ~100 MB mesh, read off the pipe in 64 KB pieces, holding
-the GIL: 190-310 ms of the simulation's thread a frame on a 2-core VM (tools/bench_surface_host.py).
+the GIL: 190-310 ms of the simulation's thread a frame on a 2-core VM (``python tools/bench_internals.py surface-host``).
 """
 
 from __future__ import annotations

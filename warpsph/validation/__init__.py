@@ -7,7 +7,7 @@
 - :mod:`.cases`: the runner behind ``warpsph validate CASE --resolutions N ...``, one row per method and
   resolution with the error, particles, steps and wall time.
 
-The studies, each with ``add_arguments``, ``command`` and ``main`` (``warpsph COMMAND`` and the tools/ scripts):
+The studies, each with ``add_arguments``, ``command`` and ``main`` (``warpsph COMMAND``):
 
 - :mod:`.pareto`: cost against accuracy and the Pareto front (``warpsph pareto``);
 - :mod:`.stress`: the numerical-stability matrix (``warpsph stress``);
@@ -15,7 +15,7 @@ The studies, each with ``add_arguments``, ``command`` and ``main`` (``warpsph CO
 - :mod:`.bench_job`: the whole job with its output, and the time to the first step (``warpsph bench job``);
 - :mod:`.results`: the figures of result JSON files (``warpsph plot results``).
 
-The scripts tools/validate_*.py call the cases' ``main``.
+Each case module runs alone too, e.g. ``python -m warpsph.validation.dam_front --help``.
 """
 
 from .cases import CASES, validate

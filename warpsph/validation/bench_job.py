@@ -19,10 +19,10 @@ tree is a copy whose .git is absent or stale). Goal of #24: loop wall <= 1.2 x s
 alone, time to first step <= 2 s with a warm kernel cache, at 1M particles on an H100. The start-up of a
 first run on a fresh copy of the tree also compiles the Python bytecode of warpsph and of wheels installed
 with --no-compile (``bytecode_cached`` in the JSON says whether it was there): measure it on a second run,
-or after ``python -m compileall -q warpsph kernels SITE-PACKAGES``. The clock of the time to the first step
-starts at the first line of ``python tools/bench_job.py`` (``import warpsph`` then falls in the first stage,
-"python start and imports before warp"); through ``warpsph bench job`` it starts when the command line builds its
-parser (``import warpsph`` and the CLI's imports before that are not counted).
+or after ``python -m compileall -q warpsph kernels SITE-PACKAGES``. Through ``warpsph bench job`` the clock
+of the time to the first step starts when the command line builds its parser (``import warpsph`` and the CLI's
+imports before that are not counted); ``main(t0=...)`` with a clock taken before ``import warpsph`` counts them
+(the first stage, "python start and imports before warp").
 """
 
 from __future__ import annotations

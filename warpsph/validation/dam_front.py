@@ -1,7 +1,7 @@
 """Dam-break front against Martin & Moyce (1952), column height / width = 2 (n^2 = 2).
 
     warpsph validate dam-front --resolutions 8 10 --device cpu --json dam_front.json
-    python tools/validate_dam_front.py --resolution 10 --device cpu --out tools/results/dam_front_cpu.json
+    python -m warpsph.validation.dam_front --resolution 10 --device cpu --out tools/results/dam_front_cpu.json
 
 A column of width a and height 2a (a = 2.25 in = 0.05715 m) collapses along a long, quasi-2D tank
 (``--depth`` particles deep, 4 by default). The front Z (the 99.5th percentile of x among the particles within a of the floor,

@@ -1,7 +1,7 @@
 """Hydrostatic tank (after Adami et al. 2012): density error and pressure against rho g h.
 
     warpsph validate hydrostatic --resolutions 10 20 --device cpu --json hydrostatic.json
-    python tools/validate_hydrostatic.py --radius 0.02 --device cpu --out tools/results/hydrostatic_cpu.json
+    python -m warpsph.validation.hydrostatic --radius 0.02 --device cpu --out tools/results/hydrostatic_cpu.json
 
 A 0.4 m cube of water rests in a tank; gravity is ramped in over the first 0.2 s (smoothly, to avoid
 sloshing), then the tank settles for ``--T`` seconds. Reported: mean and max density error of the

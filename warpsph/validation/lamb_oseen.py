@@ -2,7 +2,7 @@
 analytic viscous decay, per method.
 
     warpsph validate lamb-oseen --resolutions 16 24 32 --device cpu --json lamb_oseen.json
-    python tools/validate_lamb_oseen.py --resolution 24 --device cpu --out tools/results/lamb_oseen_cpu_res24.json
+    python -m warpsph.validation.lamb_oseen --resolution 24 --device cpu --out tools/results/lamb_oseen_cpu_res24.json
 
 Set-up: a box L x L (L = 1 m) x ``depth`` particle spacings, walls on the four side faces and periodic in z
 (quasi-2D: the vortex axis is z), filled with fluid on the lattice of spacing d = L / resolution, no gravity. The initial velocity is

@@ -1,7 +1,7 @@
 """Taylor-Green vortex in a periodic box: kinetic energy against its analytic decay, per method.
 
     warpsph validate taylor-green --resolutions 16 24 32 --device cpu --json taylor_green.json
-    python tools/validate_taylor_green.py --resolution 20 --device cpu --out tools/results/taylor_green_cpu.json
+    python -m warpsph.validation.taylor_green --resolution 20 --device cpu --out tools/results/taylor_green_cpu.json
 
 The 2D field u = -U cos(2 pi x) sin(2 pi y), v = U sin(2 pi x) cos(2 pi y) (L = 1, U = 1), extruded in z,
 in a box periodic along x, y and z (no walls, no gravity). Its kinetic energy decays as

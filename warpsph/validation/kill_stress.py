@@ -1,6 +1,7 @@
-"""SIGKILLs of `warpsph run` and its resumes at random moments of their whole life (#38), outside CI.
+"""SIGKILLs of `warpsph run` and its resumes at random moments of their whole life (#38), outside CI: whether a
+killed run always leaves a cache that opens and a checkpoint that resumes to the uninterrupted run's result.
 
-    python tools/kill_stress.py [--seed 11] [--trials 30] [--folder DIR]
+    python -m warpsph.validation.kill_stress [--seed 11] [--trials 30] [--folder DIR]
 
 Each trial runs the 45-particle tank of tests/test_faults.py (40 frames, --checkpoint-every 3) on the CPU and
 SIGKILLs it 0.5-2.6 s after it starts (start-up included), then resumes it and kills the resume the same way,

@@ -1,6 +1,9 @@
-"""splashsurf against the preview (Warp's sparse marching cubes) on the same particles (#17).
+"""splashsurf against the preview (Warp's sparse marching cubes) on the same particles (#17): what each surface
+method costs and what mesh it makes.
 
-    python tools/compare_surface_methods.py --device cpu --out tools/results/surface_methods_cpu.json
+    python -m warpsph.validation.surface_methods --device cpu --out tools/results/surface_methods_cpu.json
+
+Needs pysplashsurf (``pip install 'warpsph[surface]'``) and usd-core.
 
 Particle sets: a frame of the dam break (``--scale``, ``--frame``: simulated here on the CPU, the
 splash after the column hits the wall) and a lattice block of ``--block`` particles (the dam's
@@ -23,8 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def roughness(points, faces):
@@ -79,6 +81,7 @@ def main(argv=None):
     import warp as wp
 
     from warpsph.surface import SurfaceOptions, reconstruct, reconstruct_preview
+    from warpsph.validation.cases import commit_info
 
     wp.init()
     sets = {}
@@ -96,8 +99,7 @@ def main(argv=None):
     report = {"device": str(wp.get_device(args.device)), "warp": wp.__version__,
               "pysplashsurf": pysplashsurf.__version__ if hasattr(pysplashsurf, "__version__") else "0.14.1.0",
               "cpu": platform.processor() or platform.machine(),
-              "commit": subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip(),
-              "sets": {}}
+              **commit_info(), "sets": {}}
     for name, (points, r) in sets.items():
         entry = {"particles": len(points), "radius": r, "methods": {}}
         for label, run in methods.items():
@@ -116,4 +118,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,7 +1,8 @@
-"""The table of docs/splishsplash.md: every scene pysplishsplash ships, run through warpsph's importer.
+"""The table of docs/splishsplash.md: every scene pysplishsplash ships, run through warpsph's importer (which
+scene files load, run or are refused, and why).
 
     pip download pysplishsplash==2.19.0 --no-deps -d /tmp/pss && unzip -q /tmp/pss/*.whl -d /tmp/pss/x
-    python tools/splishsplash_table.py /tmp/pss/x/pysplishsplash-2.19.0.data/data/bin/data/Scenes > table.md
+    python -m warpsph.validation.splishsplash_table /tmp/pss/x/pysplishsplash-2.19.0.data/data/bin/data/Scenes > table.md
 
 Per scene: runs (loads, and its particles and bodies sample, at scale 1; with --steps N also N time
 steps on the CPU at --scale) or refused (the reason), warpsph's fluid particle count beside
@@ -17,10 +18,8 @@ import sys
 import warnings
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from warpsph import SceneError, load_scene  # noqa: E402
-from warpsph.io.splishsplash import conversion_of, translate  # noqa: E402
+from warpsph import SceneError, load_scene
+from warpsph.io.splishsplash import conversion_of, translate
 
 
 def short(item):
@@ -92,4 +91,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,8 +1,8 @@
 """Benchmark of ``warpsph run --surface`` (#17): ms/step with and without surface meshes, and
 seconds per meshed frame.
 
-    python tools/bench_surface.py --device cpu --scale 0.25 --frames 12 --reps 3 --out tools/results/bench_surface_cpu.json
-    python tools/bench_surface.py --device cuda --scale 1 --frames 10 --out tools/results/bench_surface_h100.json
+    python -m warpsph.validation.bench_surface --device cpu --scale 0.25 --frames 12 --reps 3 --out tools/results/bench_surface_cpu.json
+    python -m warpsph.validation.bench_surface --device cuda --scale 1 --frames 10 --out tools/results/bench_surface_h100.json
 
 Runs the dam break (scenes/dam_break.json, ``--scale``: particle-count factor) through the CLI,
 alternating ``plain`` (points only), ``surface`` (``--surface``: splashsurf on the background
@@ -18,13 +18,11 @@ import argparse
 import json
 import platform
 import statistics
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
+ROOT = Path(__file__).resolve().parents[2]
 
 MODES = {"plain": [], "surface": ["--surface"], "surface-sync": ["--surface", "--sync-output"],
          "surface-every-4": ["--surface", "--surface-every", "4"], "preview": ["--surface", "--surface-method", "preview"]}
@@ -77,19 +75,17 @@ def main(argv=None):
     if "plain" in rows:
         for mode in rows:
             rows[mode]["vs_plain_min"] = rows[mode]["ms_per_step_min"] / rows["plain"]["ms_per_step_min"]
-    try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    except OSError:
-        commit = ""
+    from warpsph.validation.cases import commit_info
+
     report = {"scene": Path(args.scene).name, "scale": args.scale, "fluid_particles": fluid, "frames": args.frames,
               "reps": args.reps, "cube": args.cube, "device": str(wp.get_device(args.device if args.device != "cuda"
                                                                                   else "cuda:0").name),
               "warp": wp.config.version, "pysplashsurf": __import__("importlib.metadata").metadata.version("pysplashsurf"),
-              "cpu": platform.processor() or platform.machine(), "commit": commit, "modes": rows}
+              "cpu": platform.processor() or platform.machine(), **commit_info(), "modes": rows}
     print(json.dumps(report, indent=1))
     if args.out:
         Path(args.out).write_text(json.dumps(report, indent=1) + "\n")
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -1,6 +1,6 @@
 """How far the fluid's surface mesh pokes through the domain's walls (#42), in particle radii r.
 
-    python tools/surface_walls.py OUT.surface.usdc --scene scenes/dam_break.json [--json RESULT.json]
+    python -m warpsph.validation.surface_walls OUT.surface.usdc --scene scenes/dam_break.json [--json RESULT.json]
 
 Reads every time sample of ``/World/FluidSurface`` in a surface cache (``warpsph run --surface`` or
 ``warpsph surface``) and, for the walled faces of the scene's domain (``domain.min``/``max`` along the
@@ -20,9 +20,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
 
 def outside(points, lo, hi):

@@ -1,7 +1,8 @@
-"""A shaded picture of one frame's surface mesh (/World/FluidSurface) with matplotlib (#17).
+"""A shaded picture of one frame's surface mesh (/World/FluidSurface) with matplotlib (#17): a look at what
+``warpsph run --surface`` or ``warpsph surface`` meshed, without a renderer (needs matplotlib and usd-core).
 
     warpsph run scenes/dam_break.json --scale 0.5 --frames 12 --device cpu --out out/db.usdc --surface --surface-cube 0.5
-    python tools/render_surface.py out/db.usdc --frame 12 --out docs/img/dam_break_surface.png
+    python -m warpsph.validation.render_surface out/db.usdc --frame 12 --out docs/img/dam_break_surface.png
 
 Flat-shaded triangles (Lambert with one light and some ambient, depth-sorted by matplotlib), coloured
 by the vertices' speed (the mesh's interpolated ``velocities``), the domain box as thin lines. No
@@ -89,4 +90,4 @@ def main(argv=None):
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())
