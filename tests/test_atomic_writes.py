@@ -65,6 +65,7 @@ CLIP_FRAMES = """
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("killed", [True, False])
 def test_a_clip_frame_layer_cut_mid_write_leaves_only_whole_layers(tmp_path, killed):
     """A --clips run killed (or out of space) while it writes frame 3's layer: frames 0..2 open, and no
@@ -100,6 +101,7 @@ STITCH_AGAIN = """
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("killed", [True, False])
 def test_the_stitched_clips_files_cut_mid_write_keep_the_previous_stitch(tmp_path, killed):
     """A --clips run (or its resume) stitches OUT, OUT.topology and OUT.manifest when it ends or stops. Before, they
@@ -133,6 +135,7 @@ MESH_INTO_LAYER = """
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("killed", [True, False])
 def test_a_mesh_cut_mid_write_into_a_frame_layer_keeps_the_frame(tmp_path, killed):
     """The mesher's worker adds frame 1's mesh to the frame's layer, written (and maybe checkpointed) before: the
@@ -153,6 +156,7 @@ def run_tank(tmp_path, frames=6):
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("killed", [True, False])
 def test_the_surface_verb_cut_mid_save_keeps_the_earlier_output_and_its_frames(tmp_path, killed):
     """`warpsph surface --overwrite` cut in the middle of a save: the earlier OUT.surface.usdc is as it was, and
@@ -207,6 +211,7 @@ def test_particles_h5_cut_mid_write_keeps_the_frames_before(tmp_path, killed):
             assert (f["frames"][name]["x"][...] == int(name)).all()
 
 
+@pytest.mark.slow
 def test_particles_h5_of_a_killed_run_resumes_to_the_uninterrupted_frames(tmp_path):
     """run --particles-h5 SIGKILLed after a checkpoint, then resumed: every frame once, the last one equal to an
     uninterrupted run's."""

@@ -88,6 +88,7 @@ def _water_level(sim, radius):
     return np.sort(x[far, 1])[-30:].mean() + radius
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("density, measured", [(200.0, 0.195), (500.0, 0.480), (900.0, 0.884)])
 def test_floating_box_settles_at_the_archimedes_draft(density, measured):
     """Draft / height = rho_body / rho_water (Archimedes); the added-mass relaxation must not shift it."""
@@ -122,6 +123,7 @@ def test_body_in_air_falls_at_g(density):
     assert 1.0 <= (y0 - body.position[1]) / (0.5 * 9.81 * sim.time**2) < 1.03
 
 
+@pytest.mark.slow
 def test_heavy_box_sinks_to_the_floor():
     sim = make_sim(_floating_box(2000.0), base_dir=SCENES_DIR)
     body = sim.moving_bodies.dynamic[0]
@@ -177,6 +179,7 @@ def test_fluid_blocks_are_not_filled_inside_closed_bodies():
     assert not (np.abs(x - 0.2) < 0.1).all(axis=1).any()
 
 
+@pytest.mark.slow
 def test_boundary_viscosity_lets_a_spinning_rod_drag_the_fluid():
     """With fluid-boundary viscosity the rod's surface velocity omega x r is felt tangentially: the
     water around it picks up more angular momentum about the axis than with pressure alone."""
@@ -225,6 +228,7 @@ def _box(name, y, density=None):
     return box
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("lower_density", [800.0, None])  # dynamic, static
 def test_a_dropped_box_comes_to_rest_on_another(lower_density):
     """A 0.2 m box dropped in air onto a dynamic box on the floor (or onto a static one) stops on it: no body passes
@@ -243,6 +247,7 @@ def test_a_dropped_box_comes_to_rest_on_another(lower_density):
     assert abs(gaps[-1]) < 0.01 and abs(high.velocity[1]) < 0.05  # resting on it (measured gap 0.000)
 
 
+@pytest.mark.slow
 def test_a_body_and_the_fluid_keep_their_momentum():
     """A box of density 500 thrown at 0.5 m/s along a channel periodic in x (walled in y and z, no gravity) stops in
     the fluid; its momentum goes into the fluid. While the corrected viscosity's pairs were unequal, the total grew
@@ -264,6 +269,7 @@ def test_a_body_and_the_fluid_keep_their_momentum():
     assert abs(momentum() / p0 - 1.0) < 0.018
 
 
+@pytest.mark.slow
 def test_a_box_dropped_on_its_edge_tips_over_and_lies_flat():
     """A box placed at 30 degrees about z and dropped onto a static box lands on one edge; the contact's impulse at
     the touching samples turns it until it lies flat on the lower box (before, contacts acted at the centre of mass:
@@ -291,6 +297,7 @@ def _box_in_air(y, dynamics, x=0.3):
     return sim, sim.moving_bodies.dynamic[0]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("friction", [0.3, None])  # Coulomb contact, the per-step damping
 def test_a_box_dropped_on_the_floor_bounces_to_e_squared_of_its_drop_height(friction):
     """Restitution e: the floor sends the box back up at e times its landing speed, to e^2 of the height it fell
@@ -308,6 +315,7 @@ def test_a_box_dropped_on_the_floor_bounces_to_e_squared_of_its_drop_height(fric
     assert np.linalg.norm(body.angular_velocity) < 1e-6  # a flat landing does not turn it
 
 
+@pytest.mark.slow
 def test_a_box_sliding_on_the_floor_stops_after_u2_over_2_mu_g():
     """Coulomb friction mu: a box sliding at u on the floor decelerates at mu g and stops after u^2 / (2 mu g)
     (before ``dynamics.friction`` its velocity was halved every step: it stopped within a few steps, whatever mu)."""

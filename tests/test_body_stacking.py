@@ -7,6 +7,8 @@ import pytest
 
 from conftest import SCENES_DIR, make_sim, tank_scene
 
+pytestmark = pytest.mark.slow  # boxes settle on each other over seconds of simulated time
+
 R = 0.02
 SIDE = 0.2
 

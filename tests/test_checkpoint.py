@@ -63,6 +63,7 @@ def test_checkpoint_holds_the_state_and_checks_the_scene(tmp_path):
         load_checkpoint(tmp_path / "junk.h5")
 
 
+@pytest.mark.slow
 def test_resume_with_a_resting_body_is_bit_identical_on_cpu(tmp_path):
     """A dynamic box falls onto the floor beside the water and rests there; the checkpoint is written while it is in
     contact. The bodies step in float64 and their contacts start from last step's impulses: with the state saved as

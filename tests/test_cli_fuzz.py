@@ -145,6 +145,7 @@ def command_lines(draw):
     return argv + ["--quiet"]
 
 
+@pytest.mark.slow
 @FUZZ
 @given(argv=command_lines(), finished=st.booleans())
 def test_random_command_lines_run_or_say_why(tmp_path_factory, argv, finished):
@@ -329,7 +330,9 @@ def verb_lines(draw, verb):
     return argv + ["--quiet"]
 
 
-@pytest.mark.parametrize("verb, examples", [("surface", 20), ("validate", 20), ("sweep", 20), ("schema", 15),
+@pytest.mark.parametrize("verb, examples", [pytest.param("surface", 20, marks=pytest.mark.slow),
+                                            pytest.param("validate", 20, marks=pytest.mark.slow),
+                                            pytest.param("sweep", 20, marks=pytest.mark.slow), ("schema", 15),
                                             ("warmup", 10), ("bench steps", 10), ("bench job", 10), ("pareto", 10),
                                             ("stress", 10)])
 def test_random_command_lines_of_every_verb_end_in_a_result_or_one_clear_error(tmp_path_factory, finished_run, capsys,

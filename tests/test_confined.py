@@ -19,6 +19,7 @@ def _density_range(sim):
     return np.abs(sim.host(sim.fluid.density) / sim.rest_density - 1.0).max()
 
 
+@pytest.mark.slow
 def test_packing_evens_out_a_jittered_lattice():
     """The packing jitters the lattice by up to 0.1 spacing and relaxes it at rest with the scene's own
     solver: the summation density's largest deviation after 40 steps is under a quarter of that after one
@@ -34,6 +35,7 @@ def test_packing_evens_out_a_jittered_lattice():
     assert ke0 > 0 and np.isfinite(ke0)
 
 
+@pytest.mark.slow
 def test_default_solver_keeps_the_vortex(packed):
     """No free surface is found, the energy decays every frame and stays within 30 % of the analytic decay
     (measured -3 / -3 / -16 / -22 / -25 % at 0.06-0.3 s; the clamped solver of earlier versions kept 2-3 %

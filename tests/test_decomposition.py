@@ -39,6 +39,7 @@ def shuffled(scene, device):
     return Simulation(scene, device=device, particles=(sim.positions()[order], sim.velocities()[order], sim.ids()[order]))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("subdomains", [2, 3])
 def test_subdomains_reproduce_one_domain(subdomains, device):
     scene = dam_break_with_vr()
@@ -68,6 +69,7 @@ def test_subdomains_reproduce_one_domain(subdomains, device):
     assert many.statistics()["density_iterations"] == pytest.approx(one.statistics()["density_iterations"], rel=0.02)
 
 
+@pytest.mark.slow
 def test_particles_cross_a_periodic_axis_and_the_cuts(device, monkeypatch):
     """Water flowing along a periodic x through three slabs: every particle passes a cut within the run (with
     device lists short enough to overflow and be made again)."""
@@ -123,6 +125,7 @@ def test_what_subdomains_cannot_run_yet_is_refused_by_key(key, change):
         DecomposedSimulation(scene, ["cpu"], subdomains=2)
 
 
+@pytest.mark.slow
 def test_a_run_over_subdomains_writes_what_one_domain_writes_and_resumes_either_way(tmp_path):
     """warpsph run --subdomains: the same USD cache and statistics as one domain (to rounding); its checkpoint
     resumes on one domain and on three subdomains alike."""
@@ -185,6 +188,7 @@ def test_subdomains_run_a_scene_over_the_limit_of_one_simulation(monkeypatch):
     assert np.array_equal(sim.ids(), np.arange(1800)) and sim.check_health() is None
 
 
+@pytest.mark.slow
 def test_a_confined_periodic_flow_over_subdomains_matches_one_domain(device):
     """A Taylor-Green vortex in a box periodic on every axis: no free surface, so the bulk pressure is signed and
     the mean source is removed over all subdomains; the subdomains start from one domain's state."""
@@ -241,6 +245,7 @@ def check_model_over_subdomains(model, device):
 SETTINGS = {"rankine": {"beta": 0.6}, "micropolar": {"transfer_coefficient": 0.1}}  # stronger than the defaults
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(scene_models()))
 def test_every_model_over_subdomains_matches_one_domain(name, device):
     """Every model a scene can name (the registry's, so a new plug-in is checked without naming it here)."""

@@ -87,6 +87,7 @@ def settled_tank():
     return settle_tank("cpu", 1.5)
 
 
+@pytest.mark.slow
 def test_hydrostatic_tank_settles(settled_tank):
     sim = settled_tank
     x = sim.fluid.x.numpy()
@@ -110,6 +111,7 @@ def test_hydrostatic_tank_settles(settled_tank):
     assert abs(np.mean(samples) / expected - 1.0) < 0.05
 
 
+@pytest.mark.slow
 def test_resting_tank_stays_at_rest_at_small_steps(device):
     """The tank at 14 across with dt <= 0.16 ms (the viscous step of 50 across): the density solve's warm start in
     the bulk, applied as the first iteration after the measure, agitated it (0.28 m/s, mean density -0.32 % at 0.6 s);
@@ -129,6 +131,7 @@ def settled_ids(sim, mask, _cache={}):
     return _cache["ids"]
 
 
+@pytest.mark.slow
 def test_warm_start_saves_density_iterations(settled_tank):
     warm = settled_tank.statistics()["density_iterations"]
     cold = settle_tank("cpu", 0.3, warm_start=False)
@@ -314,6 +317,7 @@ def _energy(sim):
     return sim.particle_mass * (0.5 * (v**2).sum() + 9.81 * x[:, 1].sum())
 
 
+@pytest.mark.slow
 def test_dam_break_one_second(device):
     data = tank_scene(radius=0.01, domain=(0.8, 0.5, 0.2), block=(0.2, 0.4, 0.2))
     sim = make_sim(data, device=device)

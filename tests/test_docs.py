@@ -25,8 +25,9 @@ def _installed(module):
 
 
 MISSING = [m for m in ("mkdocs", "material", "mkdocstrings", "mkdocstrings_handlers.python") if not _installed(m)]
-pytestmark = pytest.mark.skipif(bool(MISSING), reason=f"the docs build needs {', '.join(MISSING)}: "
-                                                      f"pip install -e '.[docs]' (the test extra has them)")
+pytestmark = [pytest.mark.skipif(bool(MISSING), reason=f"the docs build needs {', '.join(MISSING)}: "
+                                                       f"pip install -e '.[docs]' (the test extra has them)"),
+              pytest.mark.slow]  # each test builds the site (seconds)
 
 
 def build(root, site):

@@ -72,6 +72,7 @@ def test_public_api(tmp_path):
         warpsph.Scene.from_dict({"particle_radius": 0.05, "domian": {}})
 
 
+@pytest.mark.slow
 def test_dam_break_usd_and_read_back(tmp_path):
     run_example("dam_break_usd.py", *TINY, "--frames", "3", "--out", "d.usdc", cwd=tmp_path)
     counts = usd_fluid_counts(tmp_path / "d.usdc")
@@ -82,6 +83,7 @@ def test_dam_break_usd_and_read_back(tmp_path):
     assert all(math.isfinite(float(r["mean_speed"])) for r in rows)
 
 
+@pytest.mark.slow
 def test_compare_models_energy(tmp_path):
     run_example("compare_models_energy.py", *TINY, "--frames", "3", "--out", "e.csv", cwd=tmp_path)
     rows = list(csv.DictReader((tmp_path / "e.csv").open()))
@@ -90,6 +92,7 @@ def test_compare_models_energy(tmp_path):
     assert np.isfinite(energies).all() and (energies[-1] > 0).all()  # the column falls: energy grows
 
 
+@pytest.mark.slow
 def test_custom_emitter(tmp_path):
     out = run_example("custom_emitter.py", "--scale", "0.02", "--device", "cpu", "--frames", "4", "--out", "j.usdc",
                       cwd=tmp_path)
@@ -97,6 +100,7 @@ def test_custom_emitter(tmp_path):
     assert counts[-1] > counts[1] > 0, out  # the emitter adds layers
 
 
+@pytest.mark.slow
 def test_viscosity_sweep(tmp_path):
     run_example("viscosity_sweep.py", *TINY, "--frames", "2", "--viscosities", "0", "0.1", "--out", "s.json",
                 cwd=tmp_path)

@@ -22,6 +22,8 @@ from warpsph.cli import main
 from conftest import tank_scene
 from test_reliability import stats_frames
 
+pytestmark = pytest.mark.slow  # each test kills or interrupts real runs in processes of their own and resumes them
+
 SEED = 38
 FRAMES = 40
 EVERY = 3  # --checkpoint-every

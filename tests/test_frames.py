@@ -181,6 +181,7 @@ SLOW_WRITER = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_sigint_during_a_write_leaves_a_readable_cache_and_a_matching_checkpoint(tmp_path):
     import h5py
 

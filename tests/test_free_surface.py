@@ -1,6 +1,7 @@
 """The default pressure solver's free-surface detection and its convergence with resolution."""
 
 import numpy as np
+import pytest
 
 from warpsph.kernels.free_surface import BAND, SURFACE
 from warpsph.validation.cases import taylor_green_row
@@ -66,6 +67,7 @@ def test_periodic_box_corrects_its_density_drift_through_the_positions_only(devi
     assert sim.pressure_solver.drift_iteration_totals()[1] == 5
 
 
+@pytest.mark.slow
 def test_a_pool_whose_surface_is_no_longer_detected_stays_at_rest(device, monkeypatch):
     """A pool at rest pulls its surface particles to about rho0, where the density test stops finding them (the
     small falling-blocks scene lost all of them after ~3 s). Its one-sided grad C along gravity still finds them
@@ -87,6 +89,7 @@ def test_a_pool_whose_surface_is_no_longer_detected_stays_at_rest(device, monkey
     assert sim.kinetic_energy() < 2.0 * settled
 
 
+@pytest.mark.slow
 def test_taylor_green_error_falls_with_resolution():
     """The default scene settings (no solver keys): the Taylor-Green L1 error of |u| at 24 across is below
     0.75 x the error at 16 across. The clamped solver of earlier versions lost the vortex at both (16

@@ -7,6 +7,8 @@ import pytest
 
 from conftest import make_sim, tank_scene
 
+pytestmark = pytest.mark.slow  # every test runs a tank, a wave or a vortex for seconds of simulated time
+
 
 def test_vortex_below_a_free_surface_converges_on_the_cpu():
     """The Lamb-Oseen vortex in a box filled to 0.88 L under gravity (``warpsph validate vortex-surface``). Before

@@ -3,6 +3,7 @@ the shift's particle-scale part and the corrected viscous operator (warpsph/solv
 kernels/viscosity.py), against the Lamb-Oseen vortex and analytic fields."""
 
 import numpy as np
+import pytest
 import warp as wp
 
 from conftest import make_sim, tank_scene
@@ -14,6 +15,7 @@ def _full_tank(device, radius=0.025, viscosity=0.01):
                                fluid={"viscosity": viscosity}), device=device)
 
 
+@pytest.mark.slow
 def test_lamb_oseen_error_falls_with_resolution_on_the_cpu():
     """The L1 error of u_theta at T falls from 16 across to 24 and 32 with the default solver, the core's peak
     vorticity is within 5 % of the analytic one at 32 across. Measured: 4.39 / 1.34 / 0.98 % with the bulk's

@@ -86,6 +86,7 @@ def test_one_jacobi_step_matches_splishsplash_formulation():
     np.testing.assert_allclose(p, expected, rtol=1e-4, atol=1e-4 * expected.max())
 
 
+@pytest.mark.slow
 def test_hydrostatic_tank_with_iisph():
     """The validation tank (10 across, 1.5 s): mean density error <= 0.1 %, p at mid-depth within 5 % of rho g h."""
     from warpsph.validation.hydrostatic import hydrostatic
@@ -96,6 +97,7 @@ def test_hydrostatic_tank_with_iisph():
     assert r["max_speed"] < 0.1
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("models", [[], [{"type": "vorticity_refinement"}], [{"type": "rankine"}],
                                     [{"type": "micropolar"}]], ids=["none", "vr", "rankine", "micropolar"])
 def test_dam_break_with_each_model(models):

@@ -37,6 +37,7 @@ def test_emitter_adds_a_layer_each_time_the_last_moved_a_spacing():
     assert x[:, 0].max() > 0.3 and np.isfinite(x).all()  # the jet advanced into the channel
 
 
+@pytest.mark.slow
 def test_sink_removes_what_enters_it_and_ids_are_never_reused():
     sim = make_sim(channel(frames=20))
     seen = set()

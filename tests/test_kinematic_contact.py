@@ -89,6 +89,7 @@ def test_a_kinematic_paddle_pushes_a_box_along_the_floor_at_its_speed(friction):
     assert abs(body.position[1] - SIDE / 2) < 1e-6 and body.rotation[1, 1] > 1.0 - 1e-9
 
 
+@pytest.mark.slow
 def test_a_kinematic_turntable_carries_a_box_around_with_it():
     """A 0.6 x 0.04 x 0.6 m turntable spinning at 1 rad/s about y from t = 0 (its centre at x = z = 0.5 m), a 0.16 m
     box on it 0.15 m off the axis, friction 0.5: the box slips until friction has brought it to omega r (0.03 s),

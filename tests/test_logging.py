@@ -126,6 +126,7 @@ def on_a_terminal(argv, cwd):
     return code, b"".join(chunks).decode(errors="replace").replace("\r\n", "\n")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("rich", ["with-rich", "without-rich"])
 def test_progress_on_a_terminal(tmp_path, rich):
     """A terminal gets a rich bar when rich is installed, else the plain lines."""
@@ -155,6 +156,7 @@ assert sim.inflow._warned
 """
 
 
+@pytest.mark.slow
 def test_a_library_run_logs_but_shows_nothing_by_default(tmp_path, caplog):
     sim = make_sim(CHANNEL)
     sim.run(frames=5)
@@ -182,6 +184,7 @@ print("level", wp.config.log_level, file=sys.stderr)
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("setup, banner, level", [("plain", False, 30), ("debug-logging", True, 20),
                                                    ("warp-first", True, 10)])
 def test_the_library_prints_no_warp_banner_unless_asked(tmp_path, device, setup, banner, level):

@@ -192,6 +192,7 @@ def test_refinement_adds_no_net_momentum(spec):
     assert np.isfinite(before).all()
 
 
+@pytest.mark.slow
 def test_refinement_keeps_a_decaying_vortex_alive():
     """A Taylor-Green cell 10 particles across, with a free surface above it and in a full tank, against the analytic
     viscous decay exp(-4 nu k^2 T). Measured (E / analytic): free surface DFSPH 0.75, VR 0.91, Rankine 0.76; full
@@ -217,6 +218,7 @@ def test_refinement_keeps_a_decaying_vortex_alive():
     assert energies["vr", 0.3] > 1.1 * energies["dfsph", 0.3]  # VR restores what the free-surface cell loses
 
 
+@pytest.mark.slow
 def test_rankine_beta_acts_across_its_range():
     """beta scales the capped core (r_c = beta min(sqrt(4 1.25643 nu dt), 0.7 r), eq 11), so the kept energy
     of a decaying vortex grows strictly with beta over [0, 1] even where the cap is active. With the cap
@@ -272,6 +274,7 @@ def test_rankine_feedback_restores_the_vorticity_change(waves):
     assert -1.0 < gain < -0.02 * waves
 
 
+@pytest.mark.slow
 def test_viscosity_substeps_stretch_the_step_past_the_explicit_limit():
     """``solver.viscosity_substeps`` n: the step may reach n explicit viscous limits and the viscosity runs
     ceil(dt / limit) sub-steps of dt / k. A sealed 12-across tank (limit 2.78 ms, dt_max 3.33 ms) takes 2 sub-steps

@@ -10,6 +10,8 @@ import pytest
 
 from warpsph.validation.pareto import CORE_RADIUS, ERROR_KEY, TIME_KEY, main, pareto_flags, study
 
+pytestmark = pytest.mark.slow  # the module's fixtures run the cost/accuracy studies (seconds each)
+
 RESOLUTIONS = (12, 16)  # Taylor-Green
 LO_RESOLUTIONS = (16, 24)  # Lamb-Oseen, from the packed start
 DEPTH = 6

@@ -16,6 +16,7 @@ def png_size(path):
     return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
 
 
+@pytest.mark.slow
 def test_plot_energy_slice_and_preview(tmp_path):
     runs = []
     for name, models in (("dfsph", []), ("vr", [{"type": "vorticity_refinement"}])):

@@ -139,6 +139,7 @@ def test_density_runaway_and_solver_streak_are_caught(monkeypatch):
         sim.run(frames=2)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_a_signal_finishes_the_frame_saves_and_resume_completes(tmp_path, signum, code):
     data = tank_scene(radius=0.03, domain=(0.6, 0.4, 0.2), block=(0.2, 0.3, 0.2), output={"fps": 50, "frames": 400})
@@ -293,6 +294,7 @@ def test_model_parameters_outside_their_range_are_refused(tmp_path, capsys, mode
     assert not list(tmp_path.glob("o*"))
 
 
+@pytest.mark.slow
 def test_sigkill_leaves_a_readable_cache_and_a_recent_checkpoint(tmp_path):
     import h5py
 
@@ -319,6 +321,7 @@ def test_sigkill_leaves_a_readable_cache_and_a_recent_checkpoint(tmp_path):
     assert stats_frames(stats) == list(range(last + 1))
 
 
+@pytest.mark.slow
 def test_no_cuda_driver_warning_on_a_machine_without_a_gpu(tmp_path):
     scene = write_scene(tmp_path, tank_scene(radius=0.05))
     result = subprocess.run([sys.executable, "-m", "warpsph.cli", "run", str(scene), "--device", "auto", "--dry-run"],
@@ -349,6 +352,7 @@ TINY = {"name": "tiny", "particle_radius": 0.05, "domain": {"min": [0, 0, 0], "m
         "fluid_blocks": [{"start": [0, 0, 0], "end": [0.2, 0.2, 0.2]}], "output": {"frames": 2}}
 
 
+@pytest.mark.slow
 def test_a_sweep_into_its_own_folder_keeps_the_users_files(tmp_path, monkeypatch, capsys):
     """`warpsph sweep sweep.json --out .` wrote its normalised spec over sweep.json: the next identical command
     failed ("unknown key"). The spec is now sweep.normalised.json; a table.md the sweep did not write is refused."""
@@ -430,6 +434,7 @@ def test_bad_sweep_files_are_refused_before_any_cell(tmp_path, capsys, content, 
     assert words in err and "Traceback" not in err and not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_a_killed_sweep_cell_is_recorded_and_the_sweep_goes_on(tmp_path, monkeypatch):
     """SIGKILL of one cell's process used to break the whole pool (BrokenProcessPool: no table, the other cells never
     ran). Now the cell is failed with its signal, the rest finish, and a rerun retries only that cell."""
@@ -471,6 +476,7 @@ def test_a_second_run_on_the_same_output_is_refused_while_the_first_writes(tmp_p
     assert "stale lock" in capsys.readouterr().err and out.exists() and not lock.exists()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_a_signal_to_the_process_group_stops_a_surface_run_cleanly(tmp_path, signum, code):
     """Ctrl-C in a terminal reaches the whole process group: the mesher's workers took it too, and the run ended in
@@ -545,6 +551,7 @@ def _start_surface_run(tmp_path, *extra):
     return proc, out, workers[0]
 
 
+@pytest.mark.slow
 def test_a_run_killed_alone_leaves_no_mesher_worker(tmp_path):
     """The out-of-memory killer SIGKILLs the run's process alone, not its group. Its mesher worker, which ignores
     SIGINT and SIGTERM, and multiprocessing's resource tracker then ran for ever under pid 1. The worker now exits
@@ -566,6 +573,7 @@ def test_a_run_killed_alone_leaves_no_mesher_worker(tmp_path):
                 os.kill(pid, signal.SIGKILL)
 
 
+@pytest.mark.slow
 def test_a_killed_mesher_worker_ends_the_run_with_one_line_and_a_finished_cache(tmp_path):
     """A mesher worker SIGKILLed (out of memory) during run --surface: before, a BrokenProcessPool traceback, exit 1,
     the cache left as long.partial.usdc. Now exit 2, one line naming the dead worker, the cache finished."""
@@ -586,6 +594,7 @@ def test_a_killed_mesher_worker_ends_the_run_with_one_line_and_a_finished_cache(
     assert not [pid for pid in _children(os.getpid()) if _alive(pid) and "spawn_main" in _cmdline(pid)]
 
 
+@pytest.mark.slow
 def test_ctrl_c_of_validate_is_one_line_and_writes_no_json(tmp_path):
     """SIGINT to the process group of ``validate`` during its study: exit 130, ``warpsph: interrupted``, no traceback,
     no --json file."""
@@ -687,6 +696,7 @@ def test_plot_slice_of_a_cache_without_velocities(tmp_path, capsys):
     assert (tmp_path / "s.png").stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_a_signal_stops_a_run_over_several_subdomains_and_resume_completes(tmp_path):
     """``--devices`` (two slabs on the CPU here): SIGINT finishes the frame, writes the checkpoint, exits 130 with the
     resume hint, and the resume over the same subdomains completes the cache."""

@@ -67,6 +67,7 @@ def test_the_obstacle_reaches_past_the_faces_but_samples_stop_at_the_wall_layer(
     assert samples[:, 2].max() > hi[2]  # the obstacle's face still reaches the wall layer: no gap beside it
 
 
+@pytest.mark.slow
 def test_no_fluid_is_pressed_through_the_wall_beside_the_obstacle(obstacle_scene):
     """The wall layer itself holds the fluid: the clamp that keeps particles within the walled faces
     (keep_in_domain) is lifted, which would hide a leak. At 0.3 s the front has run along the obstacle's face into

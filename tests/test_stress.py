@@ -7,6 +7,8 @@ import pytest
 
 from warpsph.cli import main
 
+pytestmark = pytest.mark.slow  # a stress matrix of three runs
+
 
 def test_stress_matrix_records_every_cell_and_the_blow_up(tmp_path):
     out = tmp_path / "stress"

@@ -41,6 +41,7 @@ def test_bench_steps_writes_ms_per_step_and_the_table(steps):
     assert table.count("\n| ") == 3 and "ms/step" in table  # header + a row per size
 
 
+@pytest.mark.slow
 def test_bench_steps_model_none_drops_the_scenes_own_models(tmp_path):
     """The papers' scenes run VR: --model none benchmarks plain DFSPH, no option keeps the scene's models."""
     scene = ROOT / "scenes" / "dam_break_pillars.json"
@@ -70,6 +71,7 @@ def test_bench_job_times_the_start_up_the_solver_and_the_job(tmp_path):
     assert (keep / "job_sync.usdc").is_file()
 
 
+@pytest.mark.slow
 def test_stress_matrix_of_two_cells(tmp_path):
     out = tmp_path / "stress"
     assert main(["stress", "--axes", "alpha", "--alpha", "1", "--scale", "0.02", "--seconds", "0.05",
@@ -85,6 +87,7 @@ def test_stress_matrix_of_two_cells(tmp_path):
         assert out.with_suffix(".png").read_bytes()[:8] == PNG
 
 
+@pytest.mark.slow
 def test_pareto_at_its_smallest_and_plot_only(tmp_path):
     out = tmp_path / "pareto.json"
     assert main(["pareto", "--device", "cpu", "--methods", "dfsph", "--resolutions", "8", "--tolerances", "0.05",
@@ -100,6 +103,7 @@ def test_pareto_at_its_smallest_and_plot_only(tmp_path):
         assert out.with_suffix(".png").read_bytes()[:8] == PNG
 
 
+@pytest.mark.slow
 def test_plot_results_regenerates_the_pngs(steps, tmp_path, capsys):
     pytest.importorskip("matplotlib", reason="the PNGs need matplotlib (the test extra installs it)")
     files = [steps, RESULTS / "stress_cpu_falling_blocks.json", RESULTS / "pareto_h100_res400.json",

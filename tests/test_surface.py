@@ -156,6 +156,7 @@ sys.exit(main(sys.argv[1:]))
 """
 
 
+@pytest.mark.slow
 def test_sigint_leaves_a_readable_cache_with_the_meshes_of_the_frames_done(tmp_path):
     need_pysplashsurf()
     out, code, err = interrupt_a_long_run(tmp_path, SLOW_MESHER, "--surface", pause=0.1)  # mid-mesh
@@ -274,6 +275,7 @@ def test_the_preview_of_no_particles_is_empty():
     assert mesh.points.shape == (0, 3) and mesh.faces.shape == (0, 3)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("clips", [False, True])
 def test_a_run_with_the_preview_surface_needs_no_pysplashsurf(tmp_path, clips, monkeypatch):
     monkeypatch.setitem(sys.modules, "pysplashsurf", None)
@@ -312,6 +314,7 @@ def test_surface_every_k_meshes_every_kth_frame_and_the_mesh_holds_between(tmp_p
 SLOW = 0.6
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("behind", ["skip", "wait"])
 def test_a_mesher_behind_the_simulation_skips_frames_or_waits(tmp_path, monkeypatch, capsys, behind):
     """A mesher slower than the simulation: skip meshes what it can and never holds the run up
@@ -403,6 +406,7 @@ def test_a_mesh_that_fails_in_the_worker_raises_here_and_leaves_no_files():
     assert not os.path.exists(mesher.folder)
 
 
+@pytest.mark.slow
 def test_the_worker_writes_a_clips_frame_s_mesh_into_its_layer_as_the_run_s_process_would(tmp_path):
     """With --clips the worker writes the mesh into the frame's layer itself (the run's process neither reads
     the mesh nor writes it): the layer is the one the run's process would write, and the cache takes the

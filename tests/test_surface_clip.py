@@ -184,6 +184,7 @@ def test_the_surface_verb_clips_a_finished_cache_s_meshes_to_its_recorded_walls_
     assert outside(surface_points(tmp_path / "old.surface.usdc", 1), domain.min, domain.max) > 0.5
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("clips", [False, True])
 def test_a_run_records_its_domain_and_its_meshes_stop_at_the_walls(tmp_path, clips):
     """``warpsph run --surface`` (the preview, meshed in the worker process) and then ``warpsph surface`` on the

@@ -40,6 +40,7 @@ def local(tmp_path_factory):
     return out, table, lines
 
 
+@pytest.mark.slow
 def test_local_sweep_table(local):
     out, table, lines = local
     assert table["complete"] and table["counts"] == {"done": 4, "unstable": 0, "failed": 0, "missing": 0}
@@ -55,6 +56,7 @@ def test_local_sweep_table(local):
     assert any("4/4 done" in line and "ETA" in line for line in lines), lines
 
 
+@pytest.mark.slow
 def test_rerun_skips_finished_cells(local, tmp_path):
     out, table, _ = local
     before = _mtimes(out)
@@ -76,6 +78,7 @@ def test_rerun_skips_finished_cells(local, tmp_path):
     assert {name for name in after if after[name] != before.get(name)} == {cells[0].name, cells[1].name}
 
 
+@pytest.mark.slow
 def test_ray_gives_the_same_table(local, tmp_path):
     ray = pytest.importorskip("ray", reason="the Ray executor needs ray (warpsph[ray])")
     try:
@@ -192,6 +195,7 @@ def test_a_yaml_sweep_file_is_the_same_sweep(tmp_path):
         load_sweep(as_yaml)
 
 
+@pytest.mark.slow
 def test_killed_driver_rerun_finishes_the_missing_cells(tmp_path):
     sweep = tmp_path / "sweep.json"
     sweep.write_text(json.dumps(SWEEP))
@@ -236,6 +240,7 @@ def _alive_in_group(pgid):
     return alive
 
 
+@pytest.mark.slow
 def test_ctrl_c_of_the_sweep_keeps_the_finished_cells_and_a_rerun_runs_the_rest(tmp_path):
     """SIGINT to the sweep's process group (Ctrl-C in a terminal: the driver and the cell in flight) after the first
     cell: exit 130 and one line, no traceback, the finished cells kept, no table, no cell process left; the rerun
@@ -265,6 +270,7 @@ def test_ctrl_c_of_the_sweep_keeps_the_finished_cells_and_a_rerun_runs_the_rest(
     _rerun_runs_the_rest(sweep, out, first, workers=1)
 
 
+@pytest.mark.slow
 def test_blow_up_is_a_result(tmp_path):
     # dam-front 4 across with a fixed 50 ms step and two solver iterations leaves the domain at step 2
     sweep = {"base": "dam-front", "axes": {"resolution": [4]}, "warm_up": False,
@@ -340,6 +346,7 @@ def scene_sweep(tmp_path_factory):
     return path, run_sweep(path, folder / "out", workers=2, log=lambda line: None), folder / "out"
 
 
+@pytest.mark.slow
 def test_scene_sweep_measures_and_the_viscosity_direction(scene_sweep):
     """Measured (cpu): KE end/start 0.575 / 0.319 (plain), 0.541 / 0.277 (VR) at nu 0.01 / 0.1 after 0.2 s."""
     path, table, out = scene_sweep
@@ -361,6 +368,7 @@ def test_scene_sweep_measures_and_the_viscosity_direction(scene_sweep):
     assert "| models | fluid.viscosity | particles | ke_ratio |" in md and "vorticity_refinement(alpha=1)" in md
 
 
+@pytest.mark.slow
 def test_scene_sweep_cells_keep_the_energies_and_enstrophy_per_frame(scene_sweep):
     """The per-frame series the paper tables read (#21): rotational energy (0 without a model, > 0 with VR's
     spin) and enstrophy beside the kinetic energy, one value a frame."""
@@ -378,6 +386,7 @@ def test_scene_sweep_cells_keep_the_energies_and_enstrophy_per_frame(scene_sweep
             assert row["rotational_energy"] == [0.0] * n
 
 
+@pytest.mark.slow
 def test_scene_sweep_region_gives_the_enstrophy_inside_a_box(tmp_path):
     """"region": the cells also measure the enstrophy of the particles inside a box: all of it for a box around the
     domain, a part for the right half, none for a box off the fluid."""
@@ -394,6 +403,7 @@ def test_scene_sweep_region_gives_the_enstrophy_inside_a_box(tmp_path):
     assert max(run({"min": [0.35, 0.25, 0], "max": [0.4, 0.3, 0.12]}, "none")["region_enstrophy"]) == 0
 
 
+@pytest.mark.slow
 def test_scene_sweep_counts_the_particles_an_emitter_added(tmp_path):
     """An inflow scene starts with one layer (25 particles); particles_end counts what the emitter added."""
     scene = {"name": "channel", "particle_radius": 0.02, "domain": {"min": [0, 0, 0], "max": [1.0, 0.4, 0.2]},
@@ -406,6 +416,7 @@ def test_scene_sweep_counts_the_particles_an_emitter_added(tmp_path):
     assert row["status"] == "done" and row["particles"] == 25 and row["particles_end"] >= 25 * 3
 
 
+@pytest.mark.slow
 def test_scene_sweep_records_a_blow_up_with_its_step(tmp_path):
     path = _scene_sweep(tmp_path, axes={"time.fixed_dt": [0.05]}, fixed={"solver.max_iterations": 2})
     table = run_sweep(path, tmp_path / "out", log=lambda line: None)
@@ -470,6 +481,7 @@ def test_scene_and_base_keys_say_what_they_need(tmp_path):
 TIMINGS = {"wall_s", "setup_s", "measure_s", "ms_per_step", "wall_per_sim_s", "load_average", "warmup_s", "pareto"}
 
 
+@pytest.mark.slow
 def test_pareto_through_the_sweep_gives_the_points_of_the_process(tmp_path):
     from warpsph.validation.pareto import METHODS, lamb_oseen_point, study
 
@@ -507,6 +519,7 @@ def _plain_cell_in_the_process(scene_path, scale, seconds):
             "max_density_error_pct": 100 * max(f["density_error_max"] for f in frames)}
 
 
+@pytest.mark.slow
 def test_stress_through_the_sweep_gives_the_cells_of_the_process(tmp_path):
     from warpsph.validation.stress import REPO, stress
 
@@ -533,6 +546,7 @@ def test_the_gpu_pareto_sweep_file_is_valid():
 
 # --- plots from a table ------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_plots_from_the_tables(local, scene_sweep, tmp_path, capsys):
     pytest.importorskip("matplotlib", reason="the PNGs need matplotlib (the test extra installs it)")
     out, _, _ = local  # time and error measures: a Pareto plot and a heat map
@@ -548,6 +562,7 @@ def test_plots_from_the_tables(local, scene_sweep, tmp_path, capsys):
     assert not (tmp_path / "figs" / "table.pareto.png").exists()
 
 
+@pytest.mark.slow
 def test_tables_name_the_commit_that_ran_the_cells(tmp_path, monkeypatch):
     """A cell records the code that ran it (WARPSPH_COMMIT on a host whose copy has no .git); the sweep's table
     and the paper tables made later, in a checkout at another commit, name that commit, not their own. A cell

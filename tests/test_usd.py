@@ -212,6 +212,7 @@ def _all_samples(path):
             for prim in stage.Traverse() for attr in prim.GetAttributes() if attr.GetTimeSamples()}
 
 
+@pytest.mark.slow
 def test_the_cache_written_by_a_process_of_its_own_is_the_thread_s_bit_for_bit(tmp_path):
     """``--cache-process`` (the default of a GPU run): the writer process writes the same cache, particles and the
     surface meshes alike, as the writer thread of the run's own process; it leaves no file of its own behind."""

@@ -11,6 +11,7 @@ from warpsph.cli import main
 ROW_KEYS = {"case", "method", "resolution", "particles", "error_pct", "error_units", "wall_s", "steps", "setup_s"}
 
 
+@pytest.mark.slow
 def test_taylor_green_rows_and_metadata(tmp_path, capsys):
     out = tmp_path / "tg.json"
     assert main(["validate", "taylor-green", "--resolutions", "8", "--device", "cpu", "--json", str(out)]) == 0

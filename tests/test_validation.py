@@ -1,8 +1,11 @@
 """Validation against experiment, small enough for CI: the Martin & Moyce (1952) dam-break front."""
 
 import numpy as np
+import pytest
 
 from warpsph.validation.dam_front import MARTIN_MOYCE, compare, dam_front
+
+pytestmark = pytest.mark.slow  # the dam front and the Lamb-Oseen vortex run to the end of the experiment
 
 
 def test_dam_front_follows_martin_and_moyce():

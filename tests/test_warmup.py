@@ -142,6 +142,7 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_a_fresh_process_loads_the_scene_modules_before_the_first_step_and_none_after():
     """A fresh process (Warp's kernel cache as the other tests leave it): a dam break's modules are loaded when the
     Simulation is set up (pressure and the solves too, which a lazy load reaches only in the first step),
@@ -156,6 +157,7 @@ def test_a_fresh_process_loads_the_scene_modules_before_the_first_step_and_none_
     assert not set(r["after_steps"]) & FEATURES  # no micropolar, bodies, inflow, IISPH ... module
 
 
+@pytest.mark.slow
 def test_preload_reports_what_it_compiled(tmp_path, monkeypatch):
     """A module never compiled before (a kernel of its own, unique to this run) is compiled, then loaded."""
     name = f"warmup_probe_{uuid.uuid4().hex[:8]}"

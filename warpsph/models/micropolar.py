@@ -5,7 +5,7 @@ import warp as wp
 from warpsph.kernels.micropolar import micropolar_step
 from warpsph.scene import MAX_MODEL_VISCOSITY, key, schema
 
-from . import Model, register
+from .base import Model, register
 
 
 @schema

@@ -7,7 +7,7 @@ import warp as wp
 from warpsph.kernels.rankine import apply_rankine_feedback, compute_vorticity_change
 from warpsph.scene import MAX_MODEL_VISCOSITY, key, schema
 
-from . import NO_HISTORY, Model, register
+from .base import NO_HISTORY, Model, register
 
 
 @schema

@@ -11,7 +11,7 @@ from warpsph.kernels.viscosity import (
     compute_strain_rate,
 )
 
-from . import Model, register
+from .base import Model, register
 
 
 @register("viscosity")

@@ -12,7 +12,7 @@ from warpsph.kernels.vorticity_refinement import (
 )
 from warpsph.scene import MAX_MODEL_VISCOSITY, key, schema
 
-from . import NO_HISTORY, Model, register
+from .base import NO_HISTORY, Model, register
 
 
 @schema
