@@ -344,7 +344,7 @@ class GrowingLayer:
     On disk: ``path`` and its copy."""
 
     def __init__(self, path):
-        self.path = Path(path)
+        self.path = Path(path).absolute()  # a layer's identifier is resolved again at each reload: not against a cwd
         self.tmp = temporary_path(self.path)
         self.failed = None  # the exception of a failed save
         self._appended = False  # the working copy holds values that ``path`` lacks
