@@ -39,8 +39,7 @@ from pathlib import Path
 
 from . import log
 from .errors import SceneError
-from .io.recorder import (MesherFailed, WriteError, _close, _mesher_failure, _write_error, _write_failure,  # noqa: F401
-                          _writing, surface_options)
+from .io.recorder import WriteError, _write_error, _write_failure, surface_options
 from .log import PLAIN
 
 EXIT_UNSTABLE = 3
