@@ -1,8 +1,5 @@
-"""Shared test helpers: the device list (cpu always, cuda when present), tiny scenes and the developer scripts
-of tools/ as modules."""
+"""Shared test helpers: the device list (cpu always, cuda when present) and tiny scenes."""
 
-import functools
-import importlib.util
 import os
 
 import warp as wp
@@ -43,16 +40,6 @@ def make_sim(data, device="cpu", base_dir=None, **kwargs):
 
 
 SCENES_DIR = os.path.join(os.path.dirname(__file__), "..", "scenes")
-
-
-@functools.cache
-def tool(name):
-    """tools/NAME.py as a module (developer scripts are not part of the package), loaded once."""
-    path = os.path.join(os.path.dirname(__file__), "..", "tools", f"{name}.py")
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def fail_frame_writes(monkeypatch, clips, frame, error):

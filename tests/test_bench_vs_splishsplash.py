@@ -1,15 +1,15 @@
-"""tools/bench_vs_splishsplash.py's comparison (the #24 result): the window is warpsph's last frame that
+"""warpsph/validation/bench_vs_splishsplash.py's comparison (the #24 result): the window is warpsph's last frame that
 SPlisHSPlasH also reached, both timed over exactly that simulated time."""
 
 import json
 
 import pytest
 
-from conftest import tool
+from warpsph.validation import bench_vs_splishsplash
 
 
 def test_compare_takes_the_last_common_frame_and_both_loop_walls(tmp_path):
-    bench = tool("bench_vs_splishsplash")
+    bench = bench_vs_splishsplash
     progress = tmp_path / "pss.jsonl"
     rows = [{"particles": 1000, "radius": 0.005, "process_s_to_first_step": 3.0}]
     rows += [{"t": 0.01 * k, "wall_s": 2.0 * k, "density_iterations": 3, "divergence_iterations": 1} for k in range(1, 10)]
@@ -32,7 +32,7 @@ def test_compare_takes_the_last_common_frame_and_both_loop_walls(tmp_path):
 
 
 def test_compare_refuses_a_splishsplash_run_short_of_warpsphs_first_frame(tmp_path):
-    bench = tool("bench_vs_splishsplash")
+    bench = bench_vs_splishsplash
     progress = tmp_path / "pss.jsonl"
     progress.write_text(json.dumps({"particles": 1, "radius": 0.005, "process_s_to_first_step": 1.0}) + "\n"
                         + json.dumps({"t": 0.01, "wall_s": 0.0, "density_iterations": 2, "divergence_iterations": 1}))

@@ -1,13 +1,13 @@
-"""tools/paper_tables.py (#21): the figure tables from a sweep's per-frame series, on made-up series (no run)."""
+"""warpsph/validation/paper_tables.py (#21): the figure tables from a sweep's per-frame series, on made-up series (no run)."""
 
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from conftest import tool
+from warpsph.validation import paper_tables
 
-pt = tool("paper_tables")
+pt = paper_tables
 
 
 def _row(label, ke, models=(), t_end=10.0, fps=25, rot=None):

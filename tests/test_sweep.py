@@ -16,7 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from conftest import as_in_a_terminal, signal_group, tool
+from warpsph.validation import paper_tables
+from conftest import as_in_a_terminal, signal_group
 from warpsph.cli import main
 from warpsph.errors import SceneError
 from warpsph.sweep import assemble, cells, comparable, load_sweep, records, run_sweep, scene_of
@@ -574,7 +575,7 @@ def test_tables_name_the_commit_that_ran_the_cells(tmp_path, monkeypatch):
     (_, record), = records(path, tmp_path / "out")
     assert record["commit"] == "ran1234"
     assert assemble(load_sweep(path), tmp_path / "out")["commit"] == "ran1234"
-    meta, _ = tool("paper_tables").load(path, tmp_path / "out")
+    meta, _ = paper_tables.load(path, tmp_path / "out")
     assert (meta["commit"], meta["commit_from"]) == ("ran1234", "cells")
 
     cell_file = next((tmp_path / "out" / "cells").glob("*.json"))
@@ -583,5 +584,5 @@ def test_tables_name_the_commit_that_ran_the_cells(tmp_path, monkeypatch):
     cell_file.write_text(json.dumps(old))
     table = assemble(load_sweep(path), tmp_path / "out")
     assert (table["commit"], table["commit_from"]) == ("later99", "table")
-    meta, _ = tool("paper_tables").load(path, tmp_path / "out")
-    assert "this checkout's" in tool("paper_tables").header({**meta, "device": "cpu", "warp": "1.19.0"})
+    meta, _ = paper_tables.load(path, tmp_path / "out")
+    assert "this checkout's" in paper_tables.header({**meta, "device": "cpu", "warp": "1.19.0"})

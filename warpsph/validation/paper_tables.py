@@ -1,11 +1,11 @@
 """The papers' energy figures as tables (#21), from a finished scene-file sweep's cell files; and the VR paper's
 Table 1 (cost per scene) from `warpsph bench steps` files.
 
-    python tools/paper_tables.py vr-fig7 sweeps/vr_fig7_cpu.json OUT_DIR --json tools/results/vr_fig7_cpu.json
-    python tools/paper_tables.py blocks sweeps/rankine_fig11_cpu.json OUT_DIR --json tools/results/rankine_fig11_cpu.json
-    python tools/paper_tables.py table1 BENCH_DIR --json tools/results/vr_table1_h100.json
-    python tools/paper_tables.py calm sweeps/rankine_fig3_cpu.json OUT_DIR --json tools/results/rankine_fig3_cpu.json
-    python tools/paper_tables.py vr-fig4 sweeps/vr_fig4_cpu.json OUT_DIR --times 1,2 --json tools/results/vr_fig4_cpu.json
+    python -m warpsph.validation.paper_tables vr-fig7 sweeps/vr_fig7_cpu.json OUT_DIR --json tools/results/vr_fig7_cpu.json
+    python -m warpsph.validation.paper_tables blocks sweeps/rankine_fig11_cpu.json OUT_DIR --json tools/results/rankine_fig11_cpu.json
+    python -m warpsph.validation.paper_tables table1 BENCH_DIR --json tools/results/vr_table1_h100.json
+    python -m warpsph.validation.paper_tables calm sweeps/rankine_fig3_cpu.json OUT_DIR --json tools/results/rankine_fig3_cpu.json
+    python -m warpsph.validation.paper_tables vr-fig4 sweeps/vr_fig4_cpu.json OUT_DIR --times 1,2 --json tools/results/vr_fig4_cpu.json
 
 Reads each cell's per-frame series (``kinetic_energy``, ``rotational_energy``, ``frame_times``; see
 warpsph/sweep.py) and writes a small JSON (no per-particle data; the energy series thinned to 0.2 s) and the
@@ -53,13 +53,9 @@ slice), then all the fluid.
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
-
-ROOT = Path(__file__).resolve().parent.parent
-sys.path.insert(0, str(ROOT))
 
 TIMES = (2.0, 4.0, 6.0, 8.0, 10.0)
 CALM_LEVELS = (0.1, 0.01)   # calm: E below 10 % and 1 % of the energy at the stop
@@ -633,14 +629,14 @@ def main(argv=None):
         regions = slab_regions(slabs, scene_of(first))
         meta["regions"] = [r[0] for r in regions]
         table, runs = vr_fig4(results, regions, times), fig4_runs(results, times)
-        command = (f"python tools/paper_tables.py vr-fig4 {a.sweep} OUT --times {','.join(f'{t:g}' for t in times)}"
+        command = (f"python -m warpsph.validation.paper_tables vr-fig4 {a.sweep} OUT --times {','.join(f'{t:g}' for t in times)}"
                    + "".join(f" --slab {x}" for x in (a.slab or [])) + f" --json {a.json}")
     elif a.kind == "table1":
         meta, table = table1(a.sweep)
         command = (f"for sn in {' '.join(f'{t[0]}:{t[3]}' for t in TABLE1)}; do s=${{sn%:*}}; "
                    f"for m in none micropolar vorticity_refinement; do warpsph bench steps --device cuda --scene "
                    f"scenes/$s.json --particles ${{sn#*:}} --model $m --out {a.sweep}/table1_${{s}}_$m.json; done; "
-                   f"done && python tools/paper_tables.py table1 {a.sweep} --json {a.json}")
+                   f"done && python -m warpsph.validation.paper_tables table1 {a.sweep} --json {a.json}")
     else:
         meta, rows = load(a.sweep, a.out)
         done = [r for r in rows if r["status"] != "missing"]
@@ -653,7 +649,7 @@ def main(argv=None):
             meta["stop_from"] = "--stop" if a.stop is not None else "the scene's last keyframe"
         table = {"vr-fig7": vr_fig7, "vr-fig10": vr_fig10, "blocks": blocks, "river": river,
                  "calm": calm}[a.kind](meta, rows)
-        command = (f"warpsph sweep {a.sweep} --out OUT --workers 2 && python tools/paper_tables.py {a.kind} "
+        command = (f"warpsph sweep {a.sweep} --out OUT --workers 2 && python -m warpsph.validation.paper_tables {a.kind} "
                    f"{a.sweep} OUT --json {a.json}" + (f" --stop {a.stop:g}" if a.stop is not None else ""))
     title = a.title or {"vr-fig7": "VR paper Fig 7: kinetic energy against DFSPH",
                         "vr-fig10": "VR paper Fig 10: hemisphere, kinetic energy against DFSPH",

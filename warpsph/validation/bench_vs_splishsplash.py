@@ -7,11 +7,11 @@ stopped by its time limit still says how far it got. ``compare`` reads that file
 log of the same scene file (its per-frame wall lines) and writes the ratio of loop wall per simulated
 second over the longest window both finished, at a frame boundary.
 
-    python tools/bench_vs_splishsplash.py scene --data DIR --radius 0.005 --out DIR/Scenes/DamBreakModel_r5.json
-    python tools/bench_vs_splishsplash.py splishsplash --scene DIR/Scenes/DamBreakModel_r5.json --stop 0.4 \
+    python -m warpsph.validation.bench_vs_splishsplash scene --data DIR --radius 0.005 --out DIR/Scenes/DamBreakModel_r5.json
+    python -m warpsph.validation.bench_vs_splishsplash splishsplash --scene DIR/Scenes/DamBreakModel_r5.json --stop 0.4 \
         --progress pss.jsonl
     warpsph run DIR/Scenes/DamBreakModel_r5.json --device cuda --frames 25 -v > warpsph.log
-    python tools/bench_vs_splishsplash.py compare --progress pss.jsonl --warpsph-log warpsph.log --out R.json
+    python -m warpsph.validation.bench_vs_splishsplash compare --progress pss.jsonl --warpsph-log warpsph.log --out R.json
 
 On a bare GPU host pysplishsplash's extension also needs the system's libGL, libGLX, libGLdispatch, libX11,
 libxcb, libXext, libXau, libXdmcp, libbsd and libmd: carry them, put them on LD_LIBRARY_PATH, and preload
