@@ -50,7 +50,7 @@ def test_validation_figures_regenerate_from_the_committed_json(tmp_path):
     from warpsph.plots import draw_figures
     from warpsph.validation import dam_front, hydrostatic, lamb_oseen, taylor_green
 
-    results = Path(__file__).resolve().parent.parent / "tools" / "results"
+    results = Path(__file__).resolve().parent / "data"
     for name, module, count in (("taylor_green_cpu_res16", taylor_green, 1), ("lamb_oseen_cpu_res24", lamb_oseen, 2),
                                 ("hydrostatic_cpu_r0.02", hydrostatic, 1), ("dam_front_martin_moyce_cpu_res10", dam_front, 1)):
         report = json.loads((results / f"{name}.json").read_text())

@@ -291,8 +291,8 @@ def test_bodies_hold_the_fluid_where_splishsplashs_do(scenes):
     further), its boundary particles (method 0) 2.20 r: warpsph samples an imported body 0.20 r outside its
     surface (on it for method 0) so its layer, which holds the fluid 2.20 r from itself, stands where SPlisHSPlasH's
     boundary does. warpsph's own 1.2 r inset held it 1.0 r from the surface: in DamBreakWithObjects (r = 0.05 m,
-    tools/results/splishsplash_bodies_*.json) the torus and sphere rode 0.11 and 0.08 m deeper than in
-    SPlisHSPlasH at 0.5 s (13.8 and 7.7 % of their travel; 1.0 and 1.7 % with this mapping)."""
+    tools/results/splishsplash_bodies_*.json on the `results` branch) the torus and sphere rode 0.11 and 0.08 m
+    deeper than in SPlisHSPlasH at 0.5 s (13.8 and 7.7 % of their travel; 1.0 and 1.7 % with this mapping)."""
     from warpsph.io.splishsplash import volume_map_standoff, wall_layer_standoff
 
     r, half = 0.03, 0.075

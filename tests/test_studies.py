@@ -13,7 +13,7 @@ from warpsph.cli import main
 from warpsph.validation.pareto import ERROR_KEY, TIME_KEY
 
 ROOT = Path(__file__).resolve().parent.parent
-RESULTS = ROOT / "tools" / "results"
+DATA = ROOT / "tests" / "data"  # result files as the studies write them
 PNG = b"\x89PNG\r\n\x1a\n"
 HAS_MATPLOTLIB = importlib.util.find_spec("matplotlib") is not None
 
@@ -106,8 +106,8 @@ def test_pareto_at_its_smallest_and_plot_only(tmp_path):
 @pytest.mark.slow
 def test_plot_results_regenerates_the_pngs(steps, tmp_path, capsys):
     pytest.importorskip("matplotlib", reason="the PNGs need matplotlib (the test extra installs it)")
-    files = [steps, RESULTS / "stress_cpu_falling_blocks.json", RESULTS / "pareto_h100_res400.json",
-             RESULTS / "taylor_green_cpu_res16.json", RESULTS / "bench_job_h100.json"]
+    files = [steps, DATA / "stress_cpu_falling_blocks.json", DATA / "pareto_h100_res400.json",
+             DATA / "taylor_green_cpu_res16.json", DATA / "bench_job_h100.json"]
     figs = tmp_path / "figs"
     assert main(["plot", "results", *map(str, files), "--out-dir", str(figs)]) == 0
     for name in ("steps", "stress_cpu_falling_blocks", "pareto_h100_res400", "taylor_green_cpu_res16"):

@@ -9,7 +9,7 @@ import numpy as np
 from warpsph.errors import SceneError
 
 # bytes per fluid particle, from the arrays Simulation allocates (measured 301 B/particle in all
-# on the 1M dam break, tools/results/bench_dam_break_1M_model_none_h100.json)
+# on the 1M dam break, tools/results/bench_dam_break_1M_model_none_h100.json on the `results` branch)
 FLUID_STATE = 12 + 12 + 8 + 4 + 4 + 12  # x, v, ids, density, factor, acceleration
 SOLVER = 4 * 4  # stiffness, error, two warm-start pressures
 CORRECTED = 24 + 4 + 12  # DFSPH's corrected kernel gradient L_i (six floats), the corrected factor and grad C

@@ -41,7 +41,7 @@ nu_t = 0.05. Writes JSON, a PNG of the final u_theta profiles (beside it) and ``
 (peak vorticity over time).
 
 What it showed with the earlier clamped solver in a box walled in z (3,456 particles, cpu,
-tools/results/lamb_oseen_cpu_res24.json): plain DFSPH, Rankine and
+tests/data/lamb_oseen_cpu_res24.json): plain DFSPH, Rankine and
 micropolar follow the analytic decay with an effective viscosity 1.2-1.25 nu. Most of the excess comes
 between t = 0.1 and 0.3 s: DFSPH clamps pressure at >= 0, so the box (at rest density, no background
 pressure) cannot hold the low pressure of the core; the core thins (mean density 0.89 rho0 at r < 2

@@ -1,7 +1,7 @@
 """Regenerates the figures of result files from their JSON (the PNGs are not kept in the repository).
 
     warpsph plot results tools/results/*.json            # each OUT.json -> OUT*.png beside it
-    warpsph plot results --out-dir /tmp/figs tools/results/stress_h100_dam_break.json
+    warpsph plot results --out-dir /tmp/figs tests/data/stress_cpu_falling_blocks.json
 
 Knows the validation reports (Taylor-Green, Lamb-Oseen, hydrostatic, Martin & Moyce dam front: their
 ``figures(report)``), the Pareto studies, the stress matrices, the multi-size benchmarks and the tables of
