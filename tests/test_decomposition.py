@@ -98,7 +98,8 @@ def test_rows_copied_across_without_peer_access_match_direct_reads(device, monke
     """GPUs that cannot read each other's memory gather rows on the owner's device and copy them across: the
     same particles as reading directly (here forced on one device). Bit for bit on the CPU; on a GPU the cell lists
     are filled through atomic counters, so two runs sum their neighbours in other orders: the positions differed by
-    ~5e-8 m after 10 steps on an H100 (at fe6f174 as now), against the spacing's 2e-2 m that a wrong row costs."""
+    ~5e-8 m after 10 steps on an H100 (at fe6f174), 4.9e-6 m on two H200s (15addfd), against the spacing's 2e-2 m
+    that a wrong row costs."""
     from warpsph.decomposition import DecomposedSimulation as Decomposed
 
     scene = dam_break_with_vr()
@@ -112,7 +113,7 @@ def test_rows_copied_across_without_peer_access_match_direct_reads(device, monke
     if device == "cpu":
         assert np.array_equal(by_id(copied), by_id(direct))
     else:
-        assert np.abs(by_id(copied) - by_id(direct)).max() < 1e-6
+        assert np.abs(by_id(copied) - by_id(direct)).max() < 1e-4
 
 
 @pytest.mark.parametrize("key, change", [

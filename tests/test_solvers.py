@@ -63,9 +63,11 @@ def test_a_solver_defined_in_a_test_file_is_a_scene_s_solver(density_only, devic
             sim.step()
         sims[name] = sim
     assert isinstance(sims["ours"].pressure_solver, DensityOnly)
-    # the same as DFSPH with its divergence solve switched off, bit for bit; not as DFSPH with it
-    np.testing.assert_array_equal(sims["ours"].positions(), sims["off"].positions())
-    assert not np.array_equal(sims["ours"].positions(), sims["theirs"].positions())
+    # the same as DFSPH with its divergence solve switched off (bit for bit on the CPU; on a GPU the cell lists fill
+    # through atomic counters, so sums run in other orders), not as DFSPH with it (1.4e-2 m apart on the CPU)
+    off = np.abs(sims["ours"].positions() - sims["off"].positions()).max()
+    assert off == 0.0 if device == "cpu" else off < 1e-5
+    assert np.abs(sims["ours"].positions() - sims["theirs"].positions()).max() > 2e-3
     assert sims["ours"].statistics()["divergence_iterations"] == 0
 
 

@@ -115,7 +115,7 @@ class Simulation:
         self.halo = halo
         self.device = wp.get_device(device)
         self.timer = StageTimer(profile)
-        self.launches = Counter()  # kernel name -> launches (capture counts once)
+        self.launches = Counter()  # kernel name -> launches (a graph's replay counts its captured launches)
         r = scene.particle_radius
         self.support_radius = 4.0 * r
         self.fluid_volume = (2.0 * r) ** 3  # a lattice of spacing 2r sums to rho0 (see docs)
@@ -218,6 +218,7 @@ class Simulation:
             self.use_graph = False  # exchanges wait on the other subdomains
         self._graph = None
         self._graph_generation = None
+        self._graph_launches = Counter()
 
     def _preload(self, preload, fluid):
         """The set-up's one parallel compile (#43), after the host sampling (its errors come first, and the
@@ -435,10 +436,14 @@ class Simulation:
             if self.step_count == 0:  # load the modules outside the capture
                 self._solve_step()
                 return
+            before = Counter(self.launches)
             with wp.ScopedCapture(device=self.device) as capture:
                 self._solve_step()
             self._graph = capture.graph
             self._graph_generation = key
+            self._graph_launches = self.launches - before  # what one replay launches
+        else:
+            self.launches.update(self._graph_launches)
         wp.capture_launch(self._graph)
 
     def _solve_step(self):
