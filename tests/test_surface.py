@@ -311,6 +311,19 @@ def test_surface_every_k_meshes_every_kth_frame_and_the_mesh_holds_between(tmp_p
     assert note["every"] == 2 and note["meshed"] == 3 and note["skipped"] == 0 and "holds the mesh" in note["note"]
 
 
+def test_surface_workers_sets_how_many_frames_splashsurf_meshes_at_once(tmp_path):
+    need_pysplashsurf()
+    scene = small_scene(tmp_path, frames=3)
+    for workers in (2, 3):
+        out = tmp_path / f"run{workers}.usdc"
+        assert main(["run", str(scene), "--device", "cpu", "--out", str(out), "--surface", "--surface-workers",
+                     str(workers), "--quiet"]) == 0
+        stage, prim = surface_frames(out)
+        note = stage.GetRootLayer().customLayerData["warpsph:surface"]
+        assert note["workers"] == workers and note["meshed"] == 4
+        assert prim.GetAttribute("points").GetTimeSamples() == [0.0, 1.0, 2.0, 3.0]
+
+
 SLOW = 0.6
 
 
@@ -322,7 +335,7 @@ def test_a_mesher_behind_the_simulation_skips_frames_or_waits(tmp_path, monkeypa
     need_pysplashsurf()
     from warpsph import cli, surface
 
-    def slow_mesher(options, radius, device="cpu", clip=None):  # in this process, so that the sleep holds
+    def slow_mesher(options, radius, device="cpu", workers=None, clip=None):  # in this process, so that the sleep holds
         def mesh(arrays):
             time.sleep(SLOW)
             return surface.mesh_frame(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options, device,
@@ -485,7 +498,8 @@ def test_surface_command_with_the_preview_method(tmp_path, monkeypatch):
     assert boundary_edges(np.array(prim.GetAttribute("faceVertexIndices").Get(2)).reshape(-1, 3)) == 0
 
 
-@pytest.mark.parametrize("option, value", [("--surface-every", "0"), ("--surface-every", "-2")])
+@pytest.mark.parametrize("option, value", [("--surface-every", "0"), ("--surface-every", "-2"),
+                                           ("--surface-workers", "-1")])
 def test_bad_surface_every_is_refused_before_anything_is_written(tmp_path, capsys, option, value):
     scene = small_scene(tmp_path)
     before = _files(tmp_path)

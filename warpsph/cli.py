@@ -593,6 +593,7 @@ def run_command(args):
     _check_options(args)
     surface = {"surface": int(args.surface), "surface_cube": args.surface_cube, "surface_smoothing": args.surface_smoothing,
                "surface_every": args.surface_every, "surface_behind": args.surface_behind,
+               "surface_workers": args.surface_workers,
                "surface_method": args.surface_method or (_default_surface_method(args) if args.surface else "splashsurf")}
     surface_options(surface)  # a bad value or no pysplashsurf: refused before anything is written
     scene = load_scene(args.scene, scale=args.scale, run_anyway=True if args.run_anyway else None)
@@ -671,7 +672,7 @@ def _resume_locked(args, sim, options, frames, outputs, device):
     if not (outputs.clips.is_dir() if clips else outputs.out.exists() or outputs.partial.exists()):
         raise SceneError(outputs.out, "", "the cache of this checkpoint's run is missing: it cannot be continued")
     surface = {k: options[k] for k in ("surface", "surface_cube", "surface_smoothing", "surface_every", "surface_behind",
-                                       "surface_method") if k in options}
+                                       "surface_workers", "surface_method") if k in options}
     surface_options(surface)
     sim.on_instability = options.get("on_instability", "stop")
     logger.info(f"resuming {sim.scene.name} at frame {sim.frame} (t = {sim.time:.3f} s) on {device} -> {outputs.out}",
@@ -867,6 +868,9 @@ def _surface_run_options(run):
                           "host's cores, needs pip install 'warpsph[surface]')")
     run.add_argument("--surface-every", type=int, default=1, metavar="K",
                      help="mesh every K-th frame only (default 1); a frame between holds the last mesh")
+    run.add_argument("--surface-workers", type=int, default=0, metavar="N",
+                     help="splashsurf: frames meshed at once, each in a process of its own on its share of the cores "
+                          "(default 0: one per 4 cores beyond two, at most 4)")
     run.add_argument("--surface-behind", choices=["wait", "skip"], default="wait",
                      help="when the mesher is behind (one frame waits while one is meshed): wait (default: every asked "
                           "frame gets its mesh, the simulation waits) or skip the frame (the simulation never waits "

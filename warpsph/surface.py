@@ -521,7 +521,8 @@ class BackgroundMesher:
             text += (f"; {len(self.skipped)} frames were skipped because the mesher was behind the simulation "
                      f"(--surface-behind skip): re-mesh them with warpsph surface")
         clip = self.clip
-        return {"method": options.method, "every": self.every, "behind": self.behind, "meshed": self.meshed,
+        return {"method": options.method, "every": self.every, "behind": self.behind, "workers": self.workers,
+                "meshed": self.meshed,
                 "skipped": len(self.skipped), "skipped_frames": list(self.skipped), "cube": float(options.cube),
                 "smoothing": float(options.smoothing), "iso": float(options.threshold),
                 "clipped": clip.describe() if clip is not None else "nothing", "note": text}

@@ -160,7 +160,9 @@ class Recorder:
             if self.surface.method == "preview" and len(parts) == 1 and parts[0].device.is_cuda:  # between steps
                 self.mesher = DeviceMesher(self.surface, scene.particle_radius, clip=clip, every=every)
             else:
-                self.mesher = BackgroundMesher(mesher_for(self.surface, scene.particle_radius, sim.device, clip=clip),
+                workers = int(options.get("surface_workers", 0) or 0) or None  # None: the mesher's default
+                self.mesher = BackgroundMesher(mesher_for(self.surface, scene.particle_radius, sim.device,
+                                                          workers=workers, clip=clip),
                                                every=every, behind=str(options.get("surface_behind", "wait")))
         self._mesh_on_device = getattr(self.mesher, "mesh_now", None)
         self._mesh_count = {"submitted": 0, "written": 0}  # frames handed to the mesher, and their meshes written
@@ -287,6 +289,9 @@ def surface_options(options):
     every = int(options.get("surface_every", 1))
     if every < 1:
         raise SceneError("", "--surface-every", f"expected an integer >= 1 (mesh every K-th frame), got {every}")
+    workers = int(options.get("surface_workers", 0) or 0)
+    if workers < 0:
+        raise SceneError("", "--surface-workers", f"expected an integer >= 0 (0: the default), got {workers}")
     if surface.method == "splashsurf":
         require_pysplashsurf("--surface")
     return surface
