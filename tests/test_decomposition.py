@@ -239,7 +239,10 @@ def check_model_over_subdomains(model, device):
     # step 10 on. A model that forgets an exchange is 2.7e-5 m off after the first step, 6e-3 m after 30.
     drift = np.abs(by_id(many) - by_id(one)).max()
     assert drift < max(3 * np.abs(by_id(other_order) - by_id(one)).max(), 4e-5)
-    assert many.kinetic_energy() == pytest.approx(one.kinetic_energy(), rel=1e-3) and one.kinetic_energy() > 0
+    # the kinetic energy likewise: micropolar's differed by 1.6e-3 of it on an H100 (006c7f7), rounding's order
+    energy = one.kinetic_energy()
+    assert energy > 0 and abs(many.kinetic_energy() - energy) < max(3 * abs(other_order.kinetic_energy() - energy),
+                                                                     1e-3 * energy)
     assert sum(s.arrived for s in many.subdomains) > 0
 
 
