@@ -37,54 +37,32 @@ import sys
 import time
 from pathlib import Path
 
-from . import log
+from . import __version__, log, warmup
+from .device import CUDA_DRIVER_WARNING, init_warp as _init_warp, pick_device as _pick_device  # noqa: F401
 from .errors import SceneError
-from .io.recorder import WriteError, _write_error, _write_failure, surface_options
+from .io.recorder import Recorder, WriteError, _write_error, _write_failure, surface_options
 from .log import PLAIN
+from .decomposition import DecomposedSimulation, device_names
+from .diagnostics import is_metadata, is_stats_csv
+from .io.frames import WriterFailed, parse_fields
+from .models import plugin_of
+from .plots import plot_energy, plot_slice, slice_from_cache, sweep_figures
+from .resources import estimate_bytes, free_bytes
+from .scene import load_scene, reference_markdown, scene_json_schema
+from .simulation import InstabilityError, Simulation, sample_scene
+from .solvers import solver_names
+from .surface import SurfaceOptions, plan_remesh, remesh
+from .sweep import add_executor_arguments, executor_arguments, run_sweep
+from .validation import bench, bench_job, pareto, results, stress
+from .validation.cases import check_arguments, table, validate
+from .validation.taylor_green import METHODS
+from .warmup import frame_modules, surface_modules
 
 EXIT_UNSTABLE = 3
 logger = logging.getLogger("warpsph.cli")  # also when run as python -m warpsph.cli
 
 
-CUDA_DRIVER_WARNING = "Could not find or load the NVIDIA CUDA driver"
 USD_SUFFIXES = (".usdc", ".usda", ".usd")
-
-
-def _init_warp():
-    """wp.init() without the warning Warp's native library prints on a machine without a CUDA
-    driver (for --device cuda the CLI says so itself); its other messages pass through."""
-    import tempfile
-
-    import warp as wp
-
-    wp.config.log_level = wp.LOG_WARNING
-    sys.stderr.flush()
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as captured:
-        os.dup2(captured.fileno(), 2)
-        try:
-            wp.init()
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-        captured.seek(0)
-        text = captured.read().decode(errors="replace")
-    sys.stderr.write("".join(line for line in text.splitlines(True) if CUDA_DRIVER_WARNING not in line))
-    return wp
-
-
-def _pick_device(name):
-    wp = _init_warp()
-    if name == "auto":
-        return "cuda:0" if wp.is_cuda_available() else "cpu"
-    if name.startswith("cuda") and not wp.is_cuda_available():
-        raise SceneError("", "--device", f"'{name}' was asked for but this machine has no CUDA device; use --device cpu")
-    try:
-        wp.get_device(name)
-    except (ValueError, RuntimeError, TypeError):
-        known = ", ".join(["auto", "cpu"] + [f"cuda:{n}" for n in range(wp.get_cuda_device_count())])
-        raise SceneError("", "--device", f"unknown device '{name}'; this machine has {known}") from None
-    return name
 
 
 def _pick_devices(args):
@@ -94,8 +72,6 @@ def _pick_devices(args):
         return _pick_device(args.device), None
     if args.subdomains is not None and args.subdomains < 1:
         raise SceneError("", "--subdomains", f"expected an integer >= 1, got {args.subdomains}")
-    from .decomposition import device_names
-
     names = device_names(args.devices or args.device)
     if not names:
         raise SceneError("", "--devices", "expected device names separated by commas (e.g. cuda:0,cuda:1) or a "
@@ -207,7 +183,6 @@ class Outputs:
 
     def owned(self, path):
         """Whether warpsph wrote ``path`` (so that --overwrite may replace it)."""
-        from .diagnostics import is_metadata, is_stats_csv
         from .io.particles_h5 import is_particles_h5
 
         if path.is_symlink():
@@ -266,8 +241,6 @@ def _simulate(sim, outputs, frames, args, options, append):
     on this thread; ``--cache-process``); ``append`` (a frame number) continues the outputs after that frame (a
     resumed run: later frames are dropped and written again, each once). Ctrl-C / SIGTERM finish the frame, save
     and checkpoint; the exit code and the lines on what was written are this function's."""
-    from .io.recorder import Recorder
-
     recorder = Recorder(sim, outputs, options, append=append, frames=frames,
                         background=not getattr(args, "sync_output", False),
                         cache_process=getattr(args, "cache_process", None))
@@ -301,8 +274,6 @@ def _simulate(sim, outputs, frames, args, options, append):
     except (StopRequest, WriteError) as exc:
         outcome = exc
     except Exception as exc:
-        from .simulation import InstabilityError
-
         if not isinstance(exc, InstabilityError):
             raise
         outcome = exc
@@ -321,8 +292,6 @@ def _simulate(sim, outputs, frames, args, options, append):
 
 def _plot_preview(sim, outputs, frame):
     """``--preview K``: OUT.preview.FFFFF.png, a slice of the speed (or vorticity) at frame ``frame``."""
-    from .plots import plot_slice
-
     scene = sim.scene
     values = (np.linalg.norm(sim.field_values("vorticity"), axis=1) if "vorticity" in sim.fields()
               else np.linalg.norm(sim.velocities(), axis=1))
@@ -333,8 +302,6 @@ def _plot_preview(sim, outputs, frame):
 def _failure(sim, outputs, options, recorder, outcome, closing):
     """The exit code of a run that did not finish (stopped, unstable, a write that failed, outputs that could not
     be closed), after logging what the outputs keep; None when it finished."""
-    from .io.frames import WriterFailed
-
     writer = recorder.writer
     written = "no frames" if writer.written is None else f"frames 0..{writer.written}"
     hint = "" if not outputs.checkpoint.exists() else f"; last checkpoint: {outputs.checkpoint}"
@@ -422,8 +389,6 @@ def _default_surface_method(args):
     """``--surface-method`` left out: preview (marching cubes on the GPU, between the steps) where the run is on
     CUDA, splashsurf (the host's cores) on the CPU."""
     if args.devices:
-        from .decomposition import device_names
-
         names = device_names(args.devices)
     else:
         names = [_pick_device(args.device)]
@@ -540,8 +505,6 @@ def disk_bytes(scene, num_fluid, frames, particles_h5=False, fields=None, clips=
     """Disk the outputs of a run take (an estimate): per frame and fluid particle the USD cache's
     arrays (``fields``, a --fields string; None: all), ids and widths once in a single-file cache
     without emitters or sinks (every frame otherwise), and with --particles-h5 every array again."""
-    from .models import plugin_of
-
     model_fields = {name: size for m in scene.models for name, size in plugin_of(m).output_fields.items()}
     sizes = {**FIELD_BYTES, **model_fields}
     available = ["points", "velocities", "ids", "widths", "density"] + (["vorticity", "vorticity_magnitude"] if scene.models else [])
@@ -562,9 +525,6 @@ def _size(n):
 
 def _dry_run(scene, frames, outputs, args):
     import warp as wp
-
-    from .resources import estimate_bytes, free_bytes
-    from .simulation import sample_scene
 
     device = wp.get_device(_pick_device(args.device))
     fluid, _, static, _, bodies = sample_scene(scene)
@@ -588,8 +548,6 @@ def _dry_run(scene, frames, outputs, args):
 
 
 def run_command(args):
-    from .scene import load_scene
-
     _check_options(args)
     surface = {"surface": int(args.surface), "surface_cube": args.surface_cube, "surface_smoothing": args.surface_smoothing,
                "surface_every": args.surface_every, "surface_behind": args.surface_behind,
@@ -613,20 +571,13 @@ def _run_locked(args, scene, frames, outputs, surface):
         raise refusal
     device, devices = _pick_devices(args)
     if devices is None:
-        from .simulation import Simulation
-        from .warmup import frame_modules, surface_modules
-
         meshed_here = int(surface["surface"]) and surface["surface_method"] == "preview"  # on the run's device
         sim = Simulation(scene, device=device,  # with the diagnostics' kernels, and the preview mesher's
                          preload=frame_modules(scene) + (surface_modules() if meshed_here else []))
     else:
-        from .decomposition import DecomposedSimulation
-
         sim = DecomposedSimulation(scene, devices, subdomains=args.subdomains)
         device = ",".join(devices) + f" ({sim.count} subdomains along {'xyz'[sim.axis]})"
     sim.on_instability = args.on_instability
-    from .io.frames import parse_fields
-
     fields = parse_fields(args.fields, sim)  # refused before the outputs are touched
     for path in outputs.existing():
         outputs.remove(path)
@@ -648,8 +599,6 @@ def resume_command(args):
     checkpoint = Path(args.checkpoint)
     sim = load_checkpoint(checkpoint, device=device)
     if devices is not None:  # the checkpoint's state, split into subdomains
-        from .decomposition import DecomposedSimulation
-
         state = ({k: a.numpy() for k, a in sim.state_arrays().items()}, sim.state_flags())
         sim = DecomposedSimulation(sim.scene, devices, subdomains=args.subdomains, state=state)
         device = ",".join(devices) + f" ({sim.count} subdomains along {'xyz'[sim.axis]})"
@@ -685,8 +634,6 @@ def _resume_locked(args, sim, options, frames, outputs, device):
 
 
 def surface_command(args):
-    from .surface import SurfaceOptions, plan_remesh, remesh
-
     options = SurfaceOptions(cube=args.cube, smoothing=args.smoothing, iso=args.iso, method=args.method)
     source, frames, out, radius = plan_remesh(args.cache, args.frames, args.out, args.radius, args.overwrite, options)
     device = _pick_device(args.device) if options.method == "preview" else "cpu"
@@ -709,8 +656,6 @@ def surface_command(args):
 
 
 def plot_energy_command(args):
-    from .plots import plot_energy
-
     out = check_new_file(args.out, "--out", args.overwrite)
     out.absolute().parent.mkdir(parents=True, exist_ok=True)
     print(f"wrote {plot_energy(args.runs, str(out), args.labels)}")
@@ -718,8 +663,6 @@ def plot_energy_command(args):
 
 
 def plot_slice_command(args):
-    from .plots import slice_from_cache
-
     out = check_new_file(args.out, "--out", args.overwrite)
     out.absolute().parent.mkdir(parents=True, exist_ok=True)
     path, shown = slice_from_cache(args.run, args.frame, args.axis, str(out))
@@ -728,8 +671,6 @@ def plot_slice_command(args):
 
 
 def validate_command(args):
-    from .validation.cases import check_arguments, table, validate
-
     case, resolutions, out = check_arguments(args.case, args.resolutions, args.json)
     if out is not None:
         check_new_file(out, "--json", args.overwrite)
@@ -748,8 +689,6 @@ def validate_command(args):
 def schema_command(args):
     import json
 
-    from .scene import reference_markdown, scene_json_schema
-
     text = reference_markdown() if args.markdown else json.dumps(scene_json_schema(), indent=2) + "\n"
     if args.out:
         out = check_new_file(args.out, "--out", args.overwrite)
@@ -764,13 +703,9 @@ def schema_command(args):
 
 
 def sweep_command(args):
-    from .sweep import executor_arguments, run_sweep
-
     table = run_sweep(args.sweep, args.out, **executor_arguments(args))
     print((Path(args.out) / "table.md").read_text(), end="")
     if args.plot:
-        from .plots import sweep_figures
-
         print("wrote " + ", ".join(map(str, sweep_figures(table, Path(args.out) / "table"))))
     return 0 if table["complete"] else 1
 
@@ -788,8 +723,6 @@ def study_command(module, device=True):
 def build_parser():
     parser = argparse.ArgumentParser(prog="warpsph", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
-    from . import __version__
-
     parser.add_argument("--version", action="version", version=f"warpsph {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     run, resume = _run_parsers(sub)
@@ -917,8 +850,6 @@ def _surface_parser(sub):
 
 def _validate_parser(sub):
     """``warpsph validate``: the validation cases."""
-    from .validation.taylor_green import METHODS
-
     check = sub.add_parser("validate", help="validation cases with the default solver: error, particles, steps and "
                                             "wall time per method and resolution (JSON and a table)")
     check.add_argument("case", metavar="CASE", help="taylor-green, lamb-oseen, vortex-surface, standing-wave, hydrostatic, dam-front, tank-at-rest or "
@@ -929,8 +860,6 @@ def _validate_parser(sub):
                             "sphere's diameter (sinking-sphere)")
     check.add_argument("--methods", nargs="+", default=["dfsph"], choices=list(METHODS),
                        help="dfsph (the solver alone, default), vr, rankine, micropolar")
-    from .solvers import solver_names
-
     check.add_argument("--solver", choices=solver_names(),
                        help="pressure solver (scene key solver.method; default: the scenes' default, dfsph)")
     check.add_argument("--device", default="auto", help="cpu, cuda, cuda:N or auto (CUDA when present)")
@@ -948,8 +877,6 @@ def _sweep_parser(sub):
                                                            "file), axes, measures (see warpsph/sweep.py)")
     sweep.add_argument("--out", required=True, metavar="DIR", help="output folder (cells/, table.json, table.md); "
                                                                    "running again skips the finished cells")
-    from .sweep import add_executor_arguments
-
     add_executor_arguments(sweep, default_devices="the sweep file's device, else cpu")
     sweep.add_argument("--plot", action="store_true", help="also DIR/table.pareto.png (with a time and an error "
                                                            "measure) and DIR/table.heat_map.png (needs matplotlib)")
@@ -958,8 +885,6 @@ def _sweep_parser(sub):
 
 def _study_parsers(sub, kinds):
     """The studies whose modules bring their own arguments: bench steps|job, pareto, stress, plot results, warmup."""
-    from .validation import bench, bench_job, pareto, results, stress
-
     def study(subparsers, name, module, text, device=True):
         p = subparsers.add_parser(name, help=text, description=module.__doc__,
                                   formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -976,8 +901,6 @@ def _study_parsers(sub, kinds):
     study(sub, "stress", stress, "stability matrix: the scene as plain DFSPH with one parameter changed per cell")
     study(kinds, "results", results, "the figures of result JSON files (validation, Pareto, stress, benchmark sizes)",
           device=False)
-    from . import warmup
-
     study(sub, "warmup", warmup, "compile the kernels (all, or those of --scene files) into Warp's kernel cache "
                                  "in one parallel pass, ahead of a first run")
 

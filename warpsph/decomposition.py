@@ -50,6 +50,8 @@ from warpsph.kernels.decomposition import (
 from warpsph import scene_setup
 from warpsph.scene_setup import remove_fluid_inside_bodies, sample_scene
 from warpsph.simulation import Simulation
+from warpsph.packing import packed_positions
+from warpsph.solvers import solver_class
 
 # room per subdomain over its initial share, for particles that arrive and for ghost rows
 CAPACITY_FACTOR = 1.6
@@ -407,10 +409,8 @@ class DecomposedSimulation:
         x, v, _, _, bodies = sample_scene(scene, limit_fluid=False)  # the subdomains' rows are limited instead
         x, v = remove_fluid_inside_bodies(scene, bodies, x, v, device, lambda k, d, a: wp.launch(k, d, a, device=device))
         if scene.initial_packing is not None:
-            from warpsph.packing import packed_positions
-
             x = np.array(x)
-            packed = packed_positions(scene, device)
+            packed = packed_positions(scene, device, Simulation)
             x[: len(packed)] = packed
         return x, v
 
@@ -432,8 +432,6 @@ class DecomposedSimulation:
 
     @staticmethod
     def _refuse_unsupported(scene):
-        from warpsph.solvers import solver_class
-
         unsupported = [("emitters", scene.emitters), ("sinks", scene.sinks), ("domain.open", scene.domain.is_open),
                        ("solver.method", not solver_class(scene.solver.method).decomposable),
                        ("obstacles.dynamics", any(o.dynamics is not None for o in scene.obstacles))]

@@ -16,6 +16,7 @@ import numpy as np
 import warp as wp
 
 from warpsph.models.vorticity import curl_of
+from warpsph.kernels import diagnostics as dk
 
 COLUMNS = ["frame", "time", "steps", "particles", "dt", "kinetic_energy", "potential_energy", "rotational_energy", "enstrophy",
            "density_error_mean", "density_error_max", "divergence_iterations", "density_iterations", "removed"]
@@ -40,16 +41,12 @@ class Diagnostics:
     def reduce(self, sim):
         """The device reductions of :mod:`warpsph.kernels.diagnostics` as a float64 numpy array, summed over
         the simulation's parts (the maximum of the density error the largest of theirs)."""
-        from warpsph.kernels import diagnostics as dk
-
         sums = [self._reduce_part(part) for part in sim.parts()]
         out = np.sum(sums, axis=0)
         out[dk.ERROR_MAX] = max(s[dk.ERROR_MAX] for s in sums)
         return out
 
     def _reduce_part(self, sim):
-        from warpsph.kernels import diagnostics as dk
-
         n = sim.num_fluid
         if n == 0:
             return np.zeros(dk.SLOTS, np.float64)
@@ -78,8 +75,6 @@ class Diagnostics:
             return a["out"].numpy()
 
     def measure(self, sim, frame):
-        from warpsph.kernels import diagnostics as dk
-
         m = sim.particle_mass
         sums = self.reduce(sim)
         rotational = 0.0

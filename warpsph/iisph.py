@@ -26,6 +26,7 @@ from warpsph.kernels.particles import SymmetricMatrix
 from warpsph.kernels.pressure import REDUCE_THREADS, apply_pressure_acceleration, reduce_error, update_solver_status
 from warpsph.solver import DENSITY, PEAK_ERROR_RATIO
 from warpsph.solvers import PressureSolver, register_solver
+from warpsph.resources import IISPH_FLUID_STATE, IISPH_SOLVER
 
 WARM_START = 0.5  # SPlisHSPlasH: the first iterate is half of last step's pressure
 
@@ -57,8 +58,6 @@ class IISPHSolver(PressureSolver):
 
     @staticmethod
     def bytes_per_particle(scene):
-        from warpsph.resources import IISPH_FLUID_STATE, IISPH_SOLVER
-
         return IISPH_FLUID_STATE + IISPH_SOLVER
 
     def __init__(self, sim):

@@ -17,6 +17,7 @@ import importlib.abc
 import logging
 import sys
 import warnings
+from .errors import SceneError
 
 LOGGER = "warpsph"
 QUIET, NORMAL, VERBOSE = -1, 0, 1
@@ -73,8 +74,6 @@ def file_handler(path):
     """A :class:`LogFileHandler` appending to ``path`` (missing folders made); a :class:`SceneError` naming
     ``--log`` and the file when it cannot be written."""
     from pathlib import Path
-
-    from .errors import SceneError
 
     path = Path(path)
     if not str(path) or path.is_dir():

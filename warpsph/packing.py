@@ -7,14 +7,13 @@ import dataclasses
 import numpy as np
 
 
-def packed_positions(scene, device):
+def packed_positions(scene, device, simulation):
     """The fluid blocks' particles after the scene's packing: the lattice jittered (wrapped along periodic
-    axes, kept inside the domain along the others), then relaxed at rest by the scene's own solver."""
-    from .simulation import Simulation
-
+    axes, kept inside the domain along the others), then relaxed at rest by the scene's own solver in a
+    ``simulation`` (the :class:`~warpsph.simulation.Simulation` class, which calls this: passed, not imported)."""
     packing = scene.initial_packing
     at_rest = dataclasses.replace(scene, initial_packing=None, models=(), gravity=(0.0, 0.0, 0.0), emitters=(), sinks=())
-    sim = Simulation(at_rest, device=device)
+    sim = simulation(at_rest, device=device)
     sim.moving_bodies = None  # the bodies stay at their initial pose
     spacing = scene.particle_diameter
     x = sim.host(sim.fluid.x).astype(np.float64)

@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from warpsph.errors import SceneError
+from warpsph.diagnostics import read_csv
+from warpsph.tables import pareto_flags, value_text
 
 
 def _pyplot():
@@ -48,8 +50,6 @@ def stats_path(run) -> Path:
 
 
 def plot_energy(runs, out, labels=None):
-    from warpsph.diagnostics import read_csv
-
     plt = _pyplot()
     paths = [stats_path(r) for r in runs]
     labels = labels or [p.name.replace(".stats.csv", "") for p in paths]
@@ -203,9 +203,6 @@ def sweep_pareto(table, out, x=None, y=None):
     error_pct), a line per method (per value of the varied keys but the size) through its sizes (resolution, scale or
     particle_radius, annotated); circled: the Pareto-optimal cells (no other has both a lower time and error). A
     varied ``case`` gets a panel per case."""
-    from warpsph.sweep import value_text
-    from warpsph.validation.pareto import pareto_flags
-
     plt = _pyplot()
     x = x or _first(table["measures"], SWEEP_TIMES)
     y = y or _first(table["measures"], SWEEP_ERRORS)
@@ -254,8 +251,6 @@ def sweep_heat_map(table, out, measure=None):
     key and a square per value, standing for every cell with that value (the worst outcome, and how many blew up).
     The text gives ``measure`` (default the table's first numeric measure that differs between cells)."""
     from matplotlib.patches import Patch, Rectangle
-
-    from warpsph.sweep import value_text
 
     plt = _pyplot()
     rows, axes = table["rows"], table["axes"]

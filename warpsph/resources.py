@@ -7,6 +7,9 @@ import os
 import numpy as np
 
 from warpsph.errors import SceneError
+from warpsph.models import plugin_of
+from warpsph.neighbours import grid_geometry
+from warpsph.solvers import solver_class
 
 # bytes per fluid particle, from the arrays Simulation allocates (measured 301 B/particle in all
 # on the 1M dam break, tools/results/bench_dam_break_1M_model_none_h100.json on the `results` branch)
@@ -26,10 +29,6 @@ SHARED_VORTICITY = 12  # the vorticity field of v~, once for all models that rea
 
 def estimate_bytes(scene, num_fluid, num_boundary):
     """Device bytes a simulation of ``scene`` allocates (an estimate, slightly high)."""
-    from warpsph.models import plugin_of
-    from warpsph.neighbours import grid_geometry
-    from warpsph.solvers import solver_class
-
     plugins = [plugin_of(m) for m in scene.models]
     solver = solver_class(scene.solver.method)
     scratch = [p.scratch_columns for p in plugins] + [0, solver.pool_columns(scene)]

@@ -14,6 +14,12 @@ import numpy as np
 
 from .errors import SceneError
 
+# The domain box's boundary layer lies this many particle radii outside its faces. A single
+# Akinci layer sampled at spacing 2r has V_b ~ 1.43 (2r)^3, so a lattice fluid half a spacing
+# from it would start at 1.5 rho0; 2.2 r from the layer it has rest density (within 0.2 %),
+# so a fluid block that touches a face starts at rest.
+WALL_OFFSET = 1.2
+
 
 def fill_block(start, end, spacing):
     """Lattice points of spacing ``spacing`` inside the box [start, end], the first one

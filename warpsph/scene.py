@@ -22,6 +22,7 @@ from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
 from pydantic.dataclasses import dataclass as pydantic_dataclass
 
 from .errors import SceneError
+from .solvers import solver_names
 
 Vec3 = Tuple[float, float, float]
 
@@ -303,8 +304,6 @@ class Solver:
     }
 
     def validate(self, file, key):
-        from .solvers import solver_names
-
         known = solver_names()
         if self.method not in known:
             close = difflib.get_close_matches(self.method, known, n=1)
@@ -677,8 +676,6 @@ def scene_json_schema() -> dict:
         sub["required"] = ["type"] + sub.get("required", [])
         entries.append(sub)
     out["properties"]["models"]["items"] = {"oneOf": entries}
-    from .solvers import solver_names
-
     solver = out.get("$defs", {}).get("Solver", {}).get("properties", {}).get("method")
     if solver is not None:
         solver["enum"] = solver_names()  # the registered pressure solvers

@@ -13,14 +13,9 @@ from warpsph import sampling
 from warpsph.bodies import BODY_INSET, load_body
 from warpsph.errors import SceneError
 from warpsph.kernels.bodies import mark_fluid_clear_of_mesh
+from warpsph.sampling import WALL_OFFSET
 from warpsph.scene import Scene, walled_faces
-
-# The domain box's boundary layer lies this many particle radii outside its faces. A single
-# Akinci layer sampled at spacing 2r has V_b ~ 1.43 (2r)^3, so a lattice fluid half a spacing
-# from it would start at 1.5 rho0; 2.2 r from the layer it has rest density (within 0.2 %),
-# so a fluid block that touches a face starts at rest.
-WALL_OFFSET = 1.2
-
+from warpsph.io.splishsplash import conversion_of
 
 # Neighbour lists index with int32: about 40 neighbours a particle keeps 50M particles below 2^31.
 MAX_PARTICLES = 50_000_000
@@ -125,8 +120,6 @@ def inside_wall_layer(scene: Scene, points):
 def _imported_body_insets(scene: Scene):
     """Each obstacle's sample inset [r]: BODY_INSET, or where an imported SPlisHSPlasH scene's boundary holds the
     fluid (``Conversion.body_insets``, one per obstacle of the conversion)."""
-    from warpsph.io.splishsplash import conversion_of
-
     conversion = conversion_of(scene)
     insets = list(conversion.body_insets) if conversion is not None else []
     if len(insets) != len(scene.obstacles):

@@ -39,6 +39,7 @@ from warpsph.state import FluidParticles, State  # noqa: F401 (FluidParticles: p
 from warpsph.scene_setup import count_particles, remove_fluid_inside_bodies, sample_scene  # noqa: F401 (public here too)
 
 from warpsph.solvers import solver_class as registered_solver
+from warpsph.packing import packed_positions
 
 
 def viscous_substeps(scene: Scene, viscous_dt: float) -> int:
@@ -203,9 +204,7 @@ class Simulation:
             self.health_counts = z("health", 4, dtype=wp.int32)
             self.health_first = z("health", 4, dtype=wp.int32)
             if scene.initial_packing is not None and particles is None:  # the blocks' particles relaxed before t = 0
-                from warpsph.packing import packed_positions
-
-                packed = packed_positions(scene, self.device)
+                packed = packed_positions(scene, self.device, Simulation)
                 wp.copy(self.fluid.x, wp.array(packed, dtype=wp.vec3, device=self.device), count=len(packed))
             if self.inflow is not None:  # the layers due at t = 0
                 self.inflow.emit(self, 0.0)

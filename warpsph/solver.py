@@ -41,6 +41,8 @@ from warpsph.kernels.pressure import (
 )
 from warpsph.kernels.shifting import apply_shift, compute_shift
 from warpsph.solvers import PressureSolver, register_solver
+from warpsph.models.viscosity import Viscosity
+from warpsph.resources import CORRECTED, FLUID_STATE, SOLVER
 
 DIVERGENCE, DENSITY, DRIFT = 0, 1, 2
 # In a periodic box the density solve is split (DFSPHSolver.correct_density). Its rate half's tolerance is per unit
@@ -108,9 +110,6 @@ class DFSPHSolver(PressureSolver):
 
     @staticmethod
     def bytes_per_particle(scene):
-        from warpsph.models.viscosity import Viscosity
-        from warpsph.resources import CORRECTED, FLUID_STATE, SOLVER
-
         corrected_viscosity = Viscosity.takes_corrected_operator(scene)  # the corrected viscosity's strain rate
         return FLUID_STATE + SOLVER + CORRECTED + (Viscosity.corrected_bytes_per_particle if corrected_viscosity else 0)
 

@@ -34,6 +34,8 @@ import numpy as np
 
 from .errors import SceneError
 from .io.processes import load, load_tree, start_workers, stop_workers, store, store_tree
+from .io.files import fsync
+from .scene import walled_faces
 
 __all__ = ["SurfaceOptions", "SurfaceMesh", "reconstruct", "reconstruct_preview", "mesh_frame", "mesh_volume",
            "SurfaceClip", "ClipBody", "surface_clip", "clip_mesh", "open_frames", "UsdFrames", "H5Frames", "plan_remesh",
@@ -152,8 +154,6 @@ def surface_clip(domain=None, bodies=()):
     and the closed meshes among ``bodies`` ((name, vertices, faces, moving) as
     :func:`warpsph.io.usd.body_meshes` gives them; an open mesh has no inside and is left out). None when
     there is nothing to clip to."""
-    from .scene import walled_faces
-
     lo, hi = walled_faces(domain) if domain is not None else ((-np.inf,) * 3, (np.inf,) * 3)
     closed = []
     for name, vertices, faces, moving in bodies or ():
@@ -1022,7 +1022,6 @@ def remesh(source, frames, out, radius, options=SurfaceOptions(), log=None, devi
 
     from pxr import Usd, UsdGeom
 
-    from .io import fsync
     from .io.usd import (FLUSH_SHARE, GrowingLayer, _mark, _set_stage_metadata, remove_leftovers, save_layer,
                          write_surface)
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 import warp as wp
+from .device import init_warp
 
 wp.set_module_options({"enable_backward": False})
 
@@ -39,9 +40,7 @@ def push_out_of_bodies(points, bodies, poses=None):
     moved = np.zeros(len(points), bool)
     global _started
     if not _started:  # a splashsurf worker's Warp starts here: without the warning of a machine with no CUDA driver
-        from .cli import _init_warp
-
-        _init_warp()
+        init_warp()
         _started = True
     device = wp.get_device("cpu")
     for body in bodies:

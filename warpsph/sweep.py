@@ -83,6 +83,16 @@ import traceback
 from pathlib import Path
 
 from .errors import SceneError
+from .tables import value_text
+from .device import init_warp, pick_device
+from .diagnostics import Diagnostics
+from .io.splishsplash import convert, is_splishsplash
+from .scene import (Scene, key_path, load_scene, parse_dataclass, parse_json, read_text, rescale, scene_from_dict,
+    with_overrides)
+from .simulation import InstabilityError, Simulation
+from .validation.cases import (CASES, ERRORS, MIN_RESOLUTION, ROWS, _finite, commit_info, device_info, timed_run,
+    warm_up, write_json)
+from .validation.taylor_green import METHODS
 
 SWEEP_KEYS = ("name", "base", "scene", "scale", "frames", "time", "axes", "cells", "fixed", "measures", "warm_up",
               "device", "region")
@@ -122,8 +132,6 @@ TIMING_MEASURES = ("wall_s", "setup_s", "elapsed_s", "measure_s", "ms_per_step",
 
 def _tiny_scene(overrides):
     """A minimal scene dict with ``overrides`` ({"solver.x": v, "time.y": w}) set, for checking them."""
-    from .scene import with_overrides
-
     data = {"name": "sweep-check", "particle_radius": 0.1, "domain": {"min": [0, 0, 0], "max": [1, 1, 1]},
             "fluid_blocks": [{"start": [0, 0, 0], "end": [0.5, 0.5, 0.5]}]}
     return with_overrides(data, overrides)
@@ -140,8 +148,6 @@ def _read(source):
     path = Path(source)
     if not path.is_file():
         raise SceneError(file, "", "no such sweep file")
-    from .scene import parse_json, read_text
-
     try:
         size = path.stat().st_size
     except OSError as exc:
@@ -214,9 +220,6 @@ class _Case(_Base):
         return key
 
     def value(self, where, key, value):
-        from .validation.cases import MIN_RESOLUTION
-        from .validation.taylor_green import METHODS
-
         if key == "method":
             if not isinstance(value, str) or value not in METHODS:
                 raise self.error(where, f"unknown method {value!r}; expected one of {', '.join(METHODS)}")
@@ -224,8 +227,6 @@ class _Case(_Base):
             if isinstance(value, bool) or not isinstance(value, int) or value < MIN_RESOLUTION:
                 raise self.error(where, f"expected an integer >= {MIN_RESOLUTION}, got {value!r}")
         else:
-            from .scene import scene_from_dict
-
             try:
                 scene_from_dict(_tiny_scene({key: value}))
             except SceneError as exc:
@@ -234,8 +235,6 @@ class _Case(_Base):
                 raise self.error(where, str(exc)) from None
 
     def cell(self, where, params):
-        from .scene import scene_from_dict
-
         if "resolution" not in params:
             raise self.error(where, "needs a resolution (an axis, in fixed or in every cell)")
         overrides = {k: v for k, v in params.items() if "." in k}
@@ -296,8 +295,6 @@ class _SceneFile(_Base):
 
     def __init__(self, file, data):
         super().__init__(file)
-        from .scene import Scene
-
         self.fields = [f.name for f in dataclasses.fields(Scene) if f.name != "source"]
         scene = data["scene"]
         if not isinstance(scene, str) or not scene:
@@ -315,21 +312,15 @@ class _SceneFile(_Base):
         if "frames" in data and "time" in data:
             raise self.error("time", "give frames or time (simulated seconds), not both")
         self.scale, self.frames, self.seconds = data.get("scale", 1.0), data.get("frames"), data.get("time")
-        from .scene import load_scene
-
         try:
             load_scene(self.path, self.scale)
         except SceneError as exc:
             raise self.error("scene", f"{self.path}: {exc.key}: {exc.reason}") from None
         self.data = json.loads(self.path.read_text(encoding="utf-8-sig"))
-        from .io.splishsplash import convert, is_splishsplash
-
         if is_splishsplash(self.data):
             self.data = convert(self.data, self.path)
 
     def key(self, where, name):
-        from .scene import key_path
-
         key = ALIASES.get(name, name)
         if key in ("method", "models", "scale"):
             return key
@@ -346,8 +337,6 @@ class _SceneFile(_Base):
         return key
 
     def value(self, where, key, value):
-        from .validation.taylor_green import METHODS
-
         if key == "method" and (not isinstance(value, str) or value not in METHODS):
             raise self.error(where, f"unknown method {value!r}; expected one of {', '.join(METHODS)}")
         if key == "scale" and not _number(value):
@@ -389,8 +378,6 @@ class _SceneFile(_Base):
 
 
 def _base(file, data):
-    from .validation.cases import CASES
-
     if "scene" in data:
         if "base" in data:
             raise SceneError(file, "scene", "give base (a validation case or a function) or scene (a scene file), "
@@ -588,9 +575,6 @@ def cell_id(digest, params, names):
 def scene_overrides(params):
     """A scene cell's keys as scene key paths in the order they apply: the models (``method`` or ``models``)
     before their items; ``scale`` is not a scene key."""
-    from .scene import key_path
-    from .validation.taylor_green import METHODS
-
     overrides = {k: v for k, v in params.items() if k not in ("method", "scale")}
     if "method" in params:
         overrides["models"] = METHODS[params["method"]]
@@ -599,16 +583,12 @@ def scene_overrides(params):
 
 def scene_data(cell):
     """A scene-file cell's scene dict: the base scene with the cell's keys set."""
-    from .scene import with_overrides
-
     return with_overrides(cell["scene"], scene_overrides(cell["params"]))
 
 
 def scene_of(cell):
     """The :class:`warpsph.scene.Scene` of a scene-file cell: its base scene with the cell's keys set, at its
     scale (a key's value is as written in the scene file: the scale then applies, as for ``load_scene``)."""
-    from .scene import Scene, parse_dataclass, rescale
-
     params = cell["params"]
     scene = parse_dataclass(Scene, scene_data(cell), cell["scene_file"])
     return rescale(dataclasses.replace(scene, source=cell["scene_file"]), params.get("scale", cell["scale"]))
@@ -618,10 +598,6 @@ def scene_row(cell, device):
     """Runs a scene-file cell; returns (status, row): "done", or "unstable" with the health check's diagnostic
     and the measures up to the blow-up."""
     import numpy as np
-
-    from .diagnostics import Diagnostics
-    from .simulation import InstabilityError, Simulation
-    from .validation.cases import timed_run
 
     start = time.perf_counter()
     sim = Simulation(scene_of(cell), device=device)
@@ -681,13 +657,7 @@ def run_cell(cell, device="cpu"):
     record = {"id": cell["id"], "case": cell["case"], "params": cell["params"], "device": device,
               "host": os.uname().nodename, "pid": os.getpid(), "started": started}
     try:
-        from .cli import _init_warp  # wp.init() without the no-CUDA-driver warning on a CPU machine
-
-        wp = _init_warp()
-        from .simulation import InstabilityError
-        from .validation.cases import ERRORS, ROWS, _finite, commit_info, device_info, warm_up
-        from .validation.taylor_green import METHODS
-
+        wp = init_warp()
         params, kind = cell["params"], cell.get("kind", "case")
         record.update(device_info(device))  # "device": the device's name, "device_alias": cpu, cuda:0, ...
         record.update(commit_info())  # the code that ran this cell (a table may be made later, elsewhere)
@@ -764,8 +734,6 @@ def records(sweep, out):
 def cells_commit(records):
     """{"commit": ..., "uncommitted": [...]} of the code that ran the cells (their records; several commits
     joined by ", "), or of this checkout when a record predates the key (then "commit_from": "table")."""
-    from .validation.cases import commit_info
-
     records = [r for r in records if r]
     if not records or any("commit" not in r for r in records):
         return {**commit_info(), "commit_from": "table"}
@@ -776,8 +744,6 @@ def cells_commit(records):
 
 def assemble(spec, out):
     """``table.json`` and ``table.md`` in ``out`` from the cell files; returns the table (a dict)."""
-    from .validation.cases import write_json
-
     pairs = records(spec, out)
     columns = spec.get("columns", [k for k, _ in spec["axes"]])
     rows, counts = [], {"done": 0, "unstable": 0, "failed": 0, "missing": 0}
@@ -831,20 +797,6 @@ def _write_text(path, text):
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     tmp.write_text(text)
     os.replace(tmp, path)
-
-
-def value_text(v):
-    """A table cell's text: 4 significant digits, a models list as rankine(beta=0.5), None as —."""
-    if v is None:
-        return "—"
-    if isinstance(v, float):
-        return f"{v:.4g}"
-    if isinstance(v, list):
-        if v and all(isinstance(m, dict) and "type" in m for m in v):
-            return " + ".join(f"{m['type']}(" + ", ".join(f"{k}={value_text(x)}" for k, x in m.items() if k != "type") + ")"
-                              for m in v)
-        return "[" + ", ".join(value_text(x) for x in v) + "]"
-    return str(v)
 
 
 def markdown(table):
@@ -1123,8 +1075,6 @@ def add_executor_arguments(parser, default_devices="--device"):
 def executor_arguments(args):
     """run_sweep's keyword arguments from :func:`add_executor_arguments`' options; a bad one raises
     :class:`warpsph.errors.SceneError` naming it (each of --devices is checked as --device is)."""
-    from .cli import _pick_device
-
     if args.workers < 1:
         raise SceneError("", "--workers", f"expected an integer >= 1, got {args.workers}")
     if args.max_retries < 0:
@@ -1134,7 +1084,7 @@ def executor_arguments(args):
     devices = [args.device] if getattr(args, "device", None) else None  # None: the sweep file's device
     if args.devices:
         try:
-            devices = [_pick_device(d.strip()) for d in args.devices.split(",") if d.strip()]
+            devices = [pick_device(d.strip()) for d in args.devices.split(",") if d.strip()]
         except SceneError as exc:
             raise SceneError("", "--devices", exc.reason) from None
         if not devices:
@@ -1151,10 +1101,8 @@ def _local_devices(devices, sweep_device, file):
     if devices is None:
         devices = [sweep_device or "cpu"]
         if sweep_device:
-            from .cli import _pick_device
-
             try:
-                devices = [_pick_device(sweep_device)]
+                devices = [pick_device(sweep_device)]
             except SceneError as exc:
                 raise SceneError(file, "device", exc.reason) from None
     if isinstance(devices, str):
@@ -1204,8 +1152,6 @@ def run_sweep(sweep, out, executor="local", workers=1, devices=None, address=Non
             raise SceneError(path, "--out", "exists and was not written by warpsph sweep: refusing to replace it; "
                                             "choose another --out")
     (out / "cells").mkdir(parents=True, exist_ok=True)
-    from .validation.cases import write_json
-
     write_json({"sweep": spec, "source": str(sweep) if not isinstance(sweep, dict) else None}, out / SPEC_FILE)
     all_cells = cells(spec)
     todo = [c for c in all_cells if finished(out, c) is None]

@@ -30,6 +30,10 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from warpsph.errors import SceneError
+from warpsph.models import REGISTRY, plugin_of
+from warpsph.scene import load_scene
+from warpsph.solvers import solver_class
 
 KERNELS = "warpsph.kernels"
 
@@ -69,9 +73,6 @@ def scene_modules(scene, bodies=None, fluid=None, decomposed=False, frames=False
     the shared vorticity pass when a model reads it and no viscosity pass fills it; bodies when one moves, or
     is closed and fluid was sampled (the fluid inside it is removed): without ``bodies``, whenever the scene has
     obstacles (an open static mesh launches none); inflow with emitters, sinks or an open domain."""
-    from warpsph.models import REGISTRY, plugin_of
-    from warpsph.solvers import solver_class
-
     domain, solver = scene.domain, scene.solver
     names = _k("neighbours", "density", "pressure", "integration", "stability")
     if (domain.walls and len(domain.periodic) < 3) or scene.obstacles:
@@ -101,8 +102,6 @@ def scene_modules(scene, bodies=None, fluid=None, decomposed=False, frames=False
 def frame_modules(scene) -> list[str]:
     """The Warp modules of ``warpsph run``'s frame diagnostics (:class:`~warpsph.diagnostics.Diagnostics`): its
     reductions, and the curl of v where no model keeps the vorticity."""
-    from warpsph.models import plugin_of
-
     keeps_vorticity = any(plugin_of(p).needs_vorticity for p in scene.models)
     return _k("diagnostics") + ([] if keeps_vorticity else _k("vorticity"))
 
@@ -242,9 +241,6 @@ def add_arguments(parser):
 def command(args):
     """``warpsph warmup``: the modules compiled into Warp's kernel cache; a table on stdout."""
     import warp as wp
-
-    from warpsph.errors import SceneError
-    from warpsph.scene import load_scene
 
     if args.workers is not None and args.workers < 1:
         raise SceneError("", "--workers", f"expected an integer >= 1, got {args.workers}")

@@ -20,7 +20,9 @@ import numpy as np
 import warp as wp
 
 from warpsph.errors import SceneError
-from warpsph.io import fsync
+from warpsph.io.files import fsync
+from warpsph.scene import Scene, load_scene, model_types, parse_dataclass
+from warpsph.simulation import Simulation
 
 FORMAT = "warpsph-checkpoint-1"
 
@@ -78,8 +80,6 @@ def _same(a, b):
 def _stored_scene(f, path):
     """The scene the checkpoint holds, its source the original scene file's absolute path (older
     checkpoints stored it relative to the working directory of the run)."""
-    from warpsph.scene import Scene, model_types, parse_dataclass
-
     source = Path(f.attrs["scene_file"]).absolute() if f.attrs["scene_file"] else path.absolute()
     stored = json.loads(f.attrs["scene"])
     stored.pop("source", None)
@@ -94,9 +94,6 @@ def load_checkpoint(path, scene=None, device=None):
     the checkpoint (its mesh files found beside the original scene file); ``scene`` (the same
     scene file, loaded with the same scale) is checked against it, and so is the original scene
     file while it exists: an edited scene file is refused."""
-    from warpsph.scene import load_scene
-    from warpsph.simulation import Simulation
-
     path = Path(path)
     try:
         f = h5py.File(path, "r")

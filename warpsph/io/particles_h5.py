@@ -19,7 +19,7 @@ from time import perf_counter
 
 import h5py
 
-from warpsph.io import fsync
+from warpsph.io.files import fsync
 
 FORMAT = "warpsph-particles-1"
 FLUSH_SHARE = 0.1  # saves (a sync, a rename and a copy of the file) take at most this share of the time

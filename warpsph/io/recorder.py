@@ -6,7 +6,7 @@ The USD cache (a single file, :class:`~warpsph.io.usd.UsdPointCache`, written in
 frames and the checkpoints. Each frame's arrays are copied off the device and written by a background thread
 (:class:`~warpsph.io.frames.FrameWriter`); a checkpoint waits for the writer, so it never claims a frame the cache
 does not hold. ``warpsph run`` and ``warpsph resume`` record through it (the CLI parses, steps, handles signals and
-reports); :class:`~warpsph.io.usd.UsdWriter` is the library's way to the same cache.
+reports); :class:`UsdWriter` is the library's way to the same cache.
 
 Writing errors are :class:`WriteError` (one line naming the file or frame); the frames written before stay readable.
 """
@@ -16,6 +16,13 @@ from __future__ import annotations
 import contextlib
 import os
 import time
+from pathlib import Path
+from types import SimpleNamespace
+from warpsph.diagnostics import DiagnosticsWriter
+from warpsph.errors import SceneError
+from warpsph.io.frames import FrameWriter, WriterFailed, parse_fields
+from warpsph.surface import (BackgroundMesher, DeviceMesher, SurfaceOptions, mesher_for, require_pysplashsurf,
+    surface_clip)
 
 class WriteError(Exception):
     """Writing an output failed (disk full, permissions): the frames written before stay readable."""
@@ -99,9 +106,6 @@ class Recorder:
 
     def __init__(self, sim, outputs, options, append=None, frames=None, background=True, cache_process=None,
                  stats=True):
-        from warpsph.diagnostics import DiagnosticsWriter
-        from warpsph.io.frames import FrameWriter, parse_fields
-        from warpsph.errors import SceneError
         from warpsph.io.usd import (FLUSH_SHARE, CacheProcess, DamagedCache, UsdClipCache, UsdPointCache,
                                     body_meshes, recover_cache, run_metadata)
 
@@ -152,8 +156,6 @@ class Recorder:
         self.payload = {"bytes": 0, "particle_frames": 0, "surface_seconds": 0.0}
         self.mesher = None
         if self.surface is not None:  # meshes on a thread of its own, fed by the writer (bounded: --surface-behind)
-            from warpsph.surface import BackgroundMesher, DeviceMesher, mesher_for, surface_clip
-
             clip = surface_clip(scene.domain, body_meshes(sim))  # the meshes stop at the walls and bodies
             every = int(options.get("surface_every", 1))
             parts = sim.parts()
@@ -201,8 +203,6 @@ class Recorder:
     def on_frame(self, sim, frame):
         """Measures frame ``frame``'s diagnostics, meshes it on the device (the preview on a GPU run) and hands
         its arrays to the writer; :class:`WriteError` when the writer failed on an earlier frame."""
-        from warpsph.io.frames import WriterFailed
-
         row = self.diagnostics.measure(sim, frame) if self.diagnostics is not None else None
         if self._mesh_on_device is not None:
             self._mesh_on_device(sim, frame)
@@ -213,8 +213,6 @@ class Recorder:
 
     def drain(self):
         """Waits until every frame handed over is written; :class:`WriteError` if one failed."""
-        from warpsph.io.frames import WriterFailed
-
         try:
             self.writer.flush()
         except WriterFailed as failed:
@@ -224,8 +222,6 @@ class Recorder:
         """Writes the meshes of every frame handed to the mesher (called with the writer drained, so on this thread
         alone): a checkpoint at frame F claims the meshes of frames <= F too. Without it a kill after the checkpoint
         lost the meshes still in flight, and the resumed run never meshed those frames again."""
-        from warpsph.io.frames import WriterFailed
-
         try:
             while True:
                 self._write_meshes()
@@ -277,12 +273,8 @@ class Recorder:
 def surface_options(options):
     """The :class:`~warpsph.surface.SurfaceOptions` of a run's options, or None without --surface;
     raises :class:`SceneError` naming the option (a bad value, pysplashsurf missing)."""
-    from warpsph.errors import SceneError
-
     if not int(options.get("surface", 0) or 0):
         return None
-    from warpsph.surface import SurfaceOptions, require_pysplashsurf
-
     surface = SurfaceOptions(cube=float(options.get("surface_cube", SurfaceOptions.cube)),
                              smoothing=float(options.get("surface_smoothing", SurfaceOptions.smoothing)),
                              method=str(options.get("surface_method", "splashsurf"))).check("--surface-")
@@ -295,3 +287,55 @@ def surface_options(options):
     if surface.method == "splashsurf":
         require_pysplashsurf("--surface")
     return surface
+
+
+class UsdWriter:
+    """The public USD writer: every frame of a :class:`~warpsph.simulation.Simulation` into a USD
+    point cache (layout in :mod:`warpsph.io.usd`'s docstring), with the domain's boundary samples and the
+    scene's bodies. Call it as the ``on_frame`` of :meth:`Simulation.run`, then :meth:`close`
+    (or use it as a context manager)::
+
+        with UsdWriter("out/dam_break.usdc", sim) as usd:
+            sim.run(frames=25, on_frame=usd)
+
+    ``fields``: the ``--fields`` names to write (``points``, ``velocities``, ``ids``, ``widths``,
+    ``density``, ``vorticity``, ...; None: all). ``clips=True`` writes one layer per frame
+    (:class:`~warpsph.io.usd.UsdClipCache`, for large runs) instead of a single file
+    (:class:`~warpsph.io.usd.UsdPointCache`, saved whenever a save costs at most ``FLUSH_SHARE`` of the time
+    since the last one, and at :meth:`close`). It writes through the same :class:`Recorder` as ``warpsph run``, on
+    the calling thread, without the run's CSV and checkpoints; a failed write raises :class:`WriteError` naming the
+    frame."""
+
+    def __init__(self, path, sim, fields=None, clips=False):
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        outputs = SimpleNamespace(out=self.path, partial=self.path)  # no NAME.partial: the file is the API's
+        options = {"fields": ",".join(fields) if fields is not None else None, "clips": int(clips)}
+        self._recorder = Recorder(sim, outputs, options, background=False, cache_process=False, stats=False)
+        self.cache = self._recorder.cache
+        self.closed = False
+
+    def __call__(self, sim, frame):
+        """Writes frame ``frame`` of ``sim`` (the ``on_frame`` signature)."""
+        self._recorder.on_frame(sim, frame)
+
+    @property
+    def frames(self):
+        """Frames written so far."""
+        return self.cache.frames
+
+    def close(self):
+        """Finishes the cache (a clip cache gets its top-level file); returns its path."""
+        if not self.closed:
+            self.closed = True
+            failed = [reason for reason in self._recorder.close() if reason]
+            if failed:
+                raise WriteError(f"cannot finish {self.path}: {failed[0]}")
+        return self.path
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+        return False

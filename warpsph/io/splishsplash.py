@@ -51,6 +51,9 @@ import numpy as np
 
 from warpsph import sampling
 from warpsph.errors import SceneError
+from ..sampling import rotation_matrix
+from warpsph.sampling import WALL_OFFSET
+from warpsph.solvers import solver_classes
 
 RUN_ANYWAY_ENV = "WARPSPH_SPLISHSPLASH_RUN_ANYWAY"
 REAL_MAX = 1e30  # SPlisHSPlasH's "never" (numeric_limits<Real>::max) for emitEndTime
@@ -61,8 +64,6 @@ METHODS = {0: "WCSPH", 1: "PCISPH", 2: "PBF", 3: "IISPH", 4: "DFSPH", 5: "Projec
 
 def solver_methods():
     """The pressure solvers warpsph runs, by SPlisHSPlasH's number: {simulationMethod: solver.method}."""
-    from warpsph.solvers import solver_classes
-
     return {cls.splishsplash_method: name for name, cls in solver_classes().items()
             if cls.splishsplash_method is not None}
 
@@ -194,8 +195,6 @@ def container_inset(boundary_method, map_thickness, radius):
     layer, which stands WALL_OFFSET r outside the faces. SPlisHSPlasH's boundary particles (method 0) lie on the
     mesh surface; a volume map (2) holds the fluid ``volume_map_standoff`` r from the surface, moved out by
     mapThickness (the map of an inverted mesh is thickness - distance)."""
-    from warpsph.scene_setup import WALL_OFFSET
-
     if boundary_method == 2:
         inset = (volume_map_standoff() - wall_layer_standoff() + WALL_OFFSET) * radius - map_thickness
         return inset, (f"a volume map holds the fluid {volume_map_standoff():.2f} r from its surface, warpsph's wall "
@@ -912,8 +911,6 @@ class _Reader:
             lo, hi = _box_bounds({"geometryFile": o["mesh"], "scale": [1, 1, 1], "translation": [0, 0, 0]},
                                  self.base, self.file, where)
             box = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-            from ..sampling import rotation_matrix
-
             rotated = (box * o["scale"]) @ rotation_matrix(o["rotation_axis"], o["rotation_angle"]).T + o["translation"]
             corners += rotated.tolist()
         if not corners:

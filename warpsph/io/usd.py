@@ -48,7 +48,9 @@ from pathlib import Path
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdUtils, Vt
 
-from warpsph.io import fsync
+from warpsph.io.files import fsync
+from .processes import load_tree, start_workers, stop_workers, store_tree
+from .splishsplash import dropped
 
 _PRIMVAR_TYPES = {1: Sdf.ValueTypeNames.FloatArray, 3: Sdf.ValueTypeNames.Float3Array}
 GENERATOR = "warpsph"  # customLayerData["generator"] of every layer warpsph writes: --overwrite replaces only these
@@ -59,8 +61,6 @@ def run_metadata(scene) -> dict:
     """The customLayerData a run's cache records about its scene: ``warpsph:import_dropped``, each part
     of a SPlisHSPlasH scene run anyway that the run leaves out ("key: what it would have changed"),
     when there is one."""
-    from .splishsplash import dropped
-
     items = dropped(scene)
     return {IMPORT_DROPPED: items} if items else {}
 
@@ -649,8 +649,6 @@ class CacheProcess:
     def __init__(self, kind, *args, **kwargs):
         from itertools import count
 
-        from .processes import start_workers
-
         self.path = Path(args[0] if args else kwargs["path"])
         self._jobs = count()
         self._state = {"frames": 0, "flushes": 0, "written_bytes": 0, "flush_share": kwargs.get("flush_share")}
@@ -674,8 +672,6 @@ class CacheProcess:
         job = os.path.join(self.folder, str(next(self._jobs)))
         os.mkdir(job)
         try:
-            from .processes import store_tree
-
             result, self._state = self.pool.submit(_cache_call, method, store_tree(args, job)).result()
         except BrokenProcessPool:
             raise OSError(f"{self.path}: the cache's writer process ended during {method} (killed?); the file "
@@ -685,8 +681,6 @@ class CacheProcess:
         return result
 
     def _stop(self):
-        from .processes import stop_workers
-
         if self.pool is not None:
             stop_workers(self.pool, self._remove)
             self.pool = None
@@ -724,8 +718,6 @@ def _cache_call(method, args):
     other ``method`` is called on it with ``args`` (positional, keyword), the arrays read back from their files.
     Returns (the call's result, the cache's counters)."""
     global _worker_cache
-    from .processes import load_tree
-
     args = load_tree(args)
     if method == "open":
         kind, positional, keywords = args
@@ -1004,61 +996,3 @@ def body_meshes(sim):
     space, a moving one in body space (its pose goes into each frame)."""
     return [(b.name, b.to_world(b.vertices) if b.kind == "static" else b.vertices, b.faces, b.kind != "static")
             for b in sim.bodies]
-
-
-class UsdWriter:
-    """The public USD writer: every frame of a :class:`~warpsph.simulation.Simulation` into a USD
-    point cache (layout in this module's docstring), with the domain's boundary samples and the
-    scene's bodies. Call it as the ``on_frame`` of :meth:`Simulation.run`, then :meth:`close`
-    (or use it as a context manager)::
-
-        with UsdWriter("out/dam_break.usdc", sim) as usd:
-            sim.run(frames=25, on_frame=usd)
-
-    ``fields``: the ``--fields`` names to write (``points``, ``velocities``, ``ids``, ``widths``,
-    ``density``, ``vorticity``, ...; None: all). ``clips=True`` writes one layer per frame
-    (:class:`UsdClipCache`, for large runs) instead of a single file (:class:`UsdPointCache`, saved
-    whenever a save costs at most ``FLUSH_SHARE`` of the time since the last one, and at :meth:`close`).
-    It writes through the same :class:`~warpsph.io.recorder.Recorder` as ``warpsph run``, on the calling
-    thread, without the run's CSV and checkpoints; a failed write raises
-    :class:`~warpsph.io.recorder.WriteError` naming the frame."""
-
-    def __init__(self, path, sim, fields=None, clips=False):
-        from types import SimpleNamespace
-
-        from warpsph.io.recorder import Recorder
-
-        self.path = Path(path)
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        outputs = SimpleNamespace(out=self.path, partial=self.path)  # no NAME.partial: the file is the API's
-        options = {"fields": ",".join(fields) if fields is not None else None, "clips": int(clips)}
-        self._recorder = Recorder(sim, outputs, options, background=False, cache_process=False, stats=False)
-        self.cache = self._recorder.cache
-        self.closed = False
-
-    def __call__(self, sim, frame):
-        """Writes frame ``frame`` of ``sim`` (the ``on_frame`` signature)."""
-        self._recorder.on_frame(sim, frame)
-
-    @property
-    def frames(self):
-        """Frames written so far."""
-        return self.cache.frames
-
-    def close(self):
-        """Finishes the cache (a clip cache gets its top-level file); returns its path."""
-        if not self.closed:
-            self.closed = True
-            failed = [reason for reason in self._recorder.close() if reason]
-            if failed:
-                from warpsph.io.recorder import WriteError
-
-                raise WriteError(f"cannot finish {self.path}: {failed[0]}")
-        return self.path
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-        return False

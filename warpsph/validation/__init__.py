@@ -19,6 +19,8 @@ Each case module runs alone too, e.g. ``python -m warpsph.validation.dam_front -
 """
 
 from .cases import CASES, validate
+from warpsph.errors import SceneError
+from warpsph.log import configure
 
 __all__ = ["CASES", "validate", "study_main"]
 
@@ -28,10 +30,6 @@ def study_main(doc, add_arguments, command, argv=None):
     ``warpsph`` logger shown on stderr; a :class:`~warpsph.errors.SceneError` naming an option becomes
     argparse's usage error."""
     import argparse
-
-    from warpsph.errors import SceneError
-
-    from warpsph.log import configure
 
     parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     add_arguments(parser)

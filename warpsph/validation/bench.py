@@ -28,6 +28,12 @@ from pathlib import Path
 
 from warpsph.errors import SceneError
 from warpsph.validation.cases import commit_info
+from warpsph.decomposition import DecomposedSimulation, device_names
+from warpsph.plots import _pyplot
+from warpsph.scene import load_scene, model_types
+from warpsph.simulation import Simulation, sample_scene
+from warpsph.solvers import solver_class, solver_names
+from warpsph.validation import study_main
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_SCENE = ROOT / "scenes" / "dam_break.json"
@@ -42,8 +48,6 @@ def add_arguments(parser):
     parser.add_argument("--warmup", type=int, default=100, help="steps before the timed ones (default 100)")
     parser.add_argument("--steps", type=int, default=50, help="timed steps, per timer (default 50)")
     parser.add_argument("--density-error", type=float, help="override solver.density_max_error [%%]")
-    from warpsph.solvers import solver_names
-
     parser.add_argument("--method", choices=solver_names(), help="override solver.method (the pressure solver)")
     parser.add_argument("--model", choices=MODELS,
                         help="turbulence model to run with its default parameters instead of the scene's models "
@@ -84,8 +88,6 @@ def check_arguments(args):
 
 
 def main(argv=None):
-    from warpsph.validation import study_main
-
     return study_main(__doc__, add_arguments, command, argv)
 
 
@@ -113,8 +115,6 @@ def neighbour_passes(result, models):
     """k: neighbour passes a step (density+factor 1; DFSPH, each solve: warm start 1 + source 1 + 2 per
     iteration; IISPH: coefficients 1 + 2 per iteration + the pressure acceleration 1; viscosity 1; the models'
     own passes)."""
-    from warpsph.solvers import solver_class
-
     extra = sum({"none": 0, "vorticity_refinement": 3, "rankine": 1, "micropolar": 1}[m] for m in models)
     solves = solver_class(result.get("solver_method") or "dfsph").solve_passes(result["mean_divergence_iterations"],
                                                                                 result["mean_density_iterations"])
@@ -155,9 +155,6 @@ def make_scene(args, particles):
     """The benchmark's scene at ~``particles`` fluid particles with the command line's overrides."""
     import dataclasses
 
-    from warpsph.scene import load_scene, model_types
-    from warpsph.simulation import sample_scene
-
     n_base = len(sample_scene(load_scene(args.scene))[0])
     scene = load_scene(args.scene, scale=particles / n_base)
     solver = scene.solver
@@ -180,8 +177,6 @@ def load_modules(args, device):
     kernels' modules (code, kernel stacks) is not counted as a large run's memory."""
     import warp as wp
 
-    from warpsph.simulation import Simulation
-
     small = Simulation(make_scene(args, 2e3), device=device)
     for _ in range(3):
         small.step()
@@ -192,8 +187,6 @@ def load_modules(args, device):
 def run(args, particles):
     """One size: the result dict (the JSON of a single ``--particles``)."""
     import warp as wp
-
-    from warpsph.simulation import Simulation
 
     scene = make_scene(args, particles)
     if getattr(args, "devices", None) or getattr(args, "subdomains", None):
@@ -279,8 +272,6 @@ def run_decomposed(args, scene):
     synchronised step that subdomain 0 spends in each stage (``halo``: migration and ghost rows)."""
     import warp as wp
 
-    from warpsph.decomposition import DecomposedSimulation, device_names
-
     devices = device_names(args.devices or args.device)
     start = time.perf_counter()
     sim = DecomposedSimulation(scene, devices, subdomains=args.subdomains)
@@ -315,8 +306,6 @@ def run_decomposed(args, scene):
 
 def scaling_plot(runs, out):
     """Step time against particle count of a multi-size result (a list, one per size) as the PNG ``out``."""
-    from warpsph.plots import _pyplot
-
     n = [r["fluid_particles"] for r in runs]
     ms = [r["ms_per_step"] for r in runs]
     plt = _pyplot()

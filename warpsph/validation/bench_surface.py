@@ -21,6 +21,10 @@ import statistics
 import sys
 import tempfile
 from pathlib import Path
+from warpsph import cli
+from warpsph.scene import load_scene
+from warpsph.simulation import sample_scene
+from warpsph.validation.cases import commit_info
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -43,8 +47,6 @@ def main(argv=None):
     import pysplashsurf  # noqa: F401
     import warp as wp
 
-    from warpsph import cli
-
     runs = {m: [] for m in args.modes}
     with tempfile.TemporaryDirectory() as tmp:
         for rep in range(args.reps + 1):  # rep 0 warms the kernel cache and is not counted
@@ -60,9 +62,6 @@ def main(argv=None):
                 print(f"rep {rep} {mode}: {1e3 * r['wall'] / r['steps']:.2f} ms/step, {r['frames']} frames"
                       + (f", {r['surface_seconds'] / r['frames']:.3f} s meshing per frame" if r.get("surface_seconds")
                          else "") + f", waited {r['writer_waited']:.2f} s", file=sys.stderr, flush=True)
-    from warpsph.scene import load_scene
-    from warpsph.simulation import sample_scene
-
     fluid = len(sample_scene(load_scene(args.scene, scale=args.scale))[0])
     rows = {}
     for mode, rs in runs.items():
@@ -75,8 +74,6 @@ def main(argv=None):
     if "plain" in rows:
         for mode in rows:
             rows[mode]["vs_plain_min"] = rows[mode]["ms_per_step_min"] / rows["plain"]["ms_per_step_min"]
-    from warpsph.validation.cases import commit_info
-
     report = {"scene": Path(args.scene).name, "scale": args.scale, "fluid_particles": fluid, "frames": args.frames,
               "reps": args.reps, "cube": args.cube, "device": str(wp.get_device(args.device if args.device != "cuda"
                                                                                   else "cuda:0").name),

@@ -54,6 +54,15 @@ from pathlib import Path
 import numpy as np
 
 from .taylor_green import METHODS, PACK_STEPS
+from . import lamb_oseen as lo, taylor_green as tg
+from ..errors import SceneError
+from ..simulation import InstabilityError
+from .dam_front import DEPTH, T_END, compare, dam_front
+from .hydrostatic import SIDE, hydrostatic
+from .rest import FILLS, tank_at_rest
+from .sinking import sinking_sphere
+from .standing_wave import standing_wave
+from warpsph.kernels.free_surface import BAND, SURFACE
 
 CASES = ("taylor-green", "lamb-oseen", "vortex-surface", "standing-wave", "hydrostatic", "dam-front", "tank-at-rest",
          "sinking-sphere")
@@ -113,8 +122,6 @@ def _finite(v):
 # --- the cases: (models, resolution, device) -> the row's measurements ----------------------------------
 
 def taylor_green_row(models, resolution, device, overrides=None):
-    from . import taylor_green as tg
-
     start = time.perf_counter()
     sim, ke0 = tg.build(models, resolution, tg.NU, tg.T_END, device, FRAMES, pack_steps=tg.PACK_STEPS,
                         overrides=overrides)
@@ -137,8 +144,6 @@ def density_error(sim):
     """The summation density's error at the current positions, unremoved (no mean taken out), over the fluid
     away from the free surface and its band (the whole fluid where the solver does not detect a surface):
     (mean of rho / rho0 - 1, mean of |rho / rho0 - 1|), in %."""
-    from warpsph.kernels.free_surface import BAND, SURFACE
-
     sim.update_densities()
     sim.pressure_solver.detect_free_surface()
     error = sim.host(sim.fluid.density).astype(np.float64) / sim.rest_density - 1.0
@@ -151,8 +156,6 @@ def density_error(sim):
 
 
 def lamb_oseen_row(models, resolution, device, overrides=None, free_surface=False):
-    from . import lamb_oseen as lo
-
     core = lo.CORE_RADIUS * resolution / lo.L  # build takes the core in spacings
     start = time.perf_counter()
     sim, p, edges = lo.build(models, resolution, lo.NU, lo.T_END, core, lo.U_PEAK, lo.DEPTH, device, FRAMES,
@@ -182,8 +185,6 @@ def vortex_surface_row(models, resolution, device, overrides=None):
 
 
 def standing_wave_row(models, resolution, device, overrides=None):
-    from .standing_wave import standing_wave
-
     timing = {}
 
     def on_run(sim, run, record):
@@ -198,8 +199,6 @@ def standing_wave_row(models, resolution, device, overrides=None):
 
 
 def hydrostatic_row(models, resolution, device, overrides=None):
-    from .hydrostatic import SIDE, hydrostatic
-
     start = time.perf_counter()
     r = hydrostatic(radius=SIDE / (2 * resolution), device=device, models=models, overrides=overrides)
     total = time.perf_counter() - start
@@ -213,8 +212,6 @@ def hydrostatic_row(models, resolution, device, overrides=None):
 
 
 def dam_front_row(models, resolution, device, overrides=None):
-    from .dam_front import DEPTH, T_END, compare, dam_front
-
     timing = {}
     start = time.perf_counter()
     T, Z, sim = dam_front(resolution, device, T_END, models=models, depth=DEPTH, timing=timing, overrides=overrides)
@@ -227,8 +224,6 @@ def dam_front_row(models, resolution, device, overrides=None):
 
 
 def tank_at_rest_row(models, resolution, device, overrides=None):
-    from .rest import FILLS, tank_at_rest
-
     tanks, wall, steps, particles = [], 0.0, 0, 0
     start = time.perf_counter()
     for fill in FILLS:
@@ -245,8 +240,6 @@ def tank_at_rest_row(models, resolution, device, overrides=None):
 
 
 def sinking_sphere_row(models, resolution, device, overrides=None):
-    from .sinking import sinking_sphere
-
     timing = []
     start = time.perf_counter()
     r = sinking_sphere(resolution, device, models=models, overrides=overrides,
@@ -263,8 +256,6 @@ ROWS = {"taylor-green": taylor_green_row, "lamb-oseen": lamb_oseen_row, "vortex-
 def warm_up(models, device, overrides=None):
     """Loads every kernel module a method uses outside the timed rows: a tiny vortex, a few steps (the second
     captures the CUDA graph) and one measurement."""
-    from . import lamb_oseen as lo
-
     sim, p, edges = lo.build(models, resolution=8, core=1.0, device=device, frames=FRAMES, overrides=overrides)
     for _ in range(3):
         sim.step()
@@ -366,8 +357,6 @@ def validate(case, resolutions, methods=("dfsph",), device="cpu", out=None, log=
     ``solver``: the pressure solver (scene key ``solver.method``, "dfsph" or "iisph"; None: the default)."""
     import warp as wp
 
-    from ..simulation import InstabilityError
-
     if case not in CASES:
         raise ValueError(f"unknown case {case!r}; expected one of {', '.join(CASES)}")
     say = log or (lambda line: None)
@@ -415,8 +404,6 @@ def check_arguments(case, resolutions, json_path):
     """The command line's CASE and --resolutions (strings) checked before anything runs; returns
     (case, [int resolutions], --json as a Path or None: the CLI checks it as every verb's output file).
     Raises :class:`warpsph.errors.SceneError` naming the option."""
-    from ..errors import SceneError
-
     if case not in CASES:
         raise SceneError("", "CASE", f"unknown case '{case}'; expected one of {', '.join(CASES)}")
     values = []

@@ -17,6 +17,9 @@ import argparse
 import time
 
 import numpy as np
+from warpsph.plots import write_report
+from warpsph.scene import scene_from_dict, with_overrides
+from warpsph.simulation import Simulation
 
 # (T, Z/a) for a = 2.25 in, from ../shared/reference/sph-facts.md
 MARTIN_MOYCE = np.array([(0.832, 1.217), (1.219, 1.474), (1.997, 2.292), (2.547, 2.995), (3.345, 4.134),
@@ -33,9 +36,6 @@ def dam_front(resolution=10, device="cpu", T_end=T_END, samples_per_T=8, models=
     """Runs the dam break; returns arrays T and Z/a, and the simulation. ``timing`` (a dict) receives
     ``wall_s``: the run alone, device synchronised, the per-frame front measurement subtracted.
     ``overrides``: dotted scene keys to set (:func:`warpsph.scene.with_overrides`)."""
-    from warpsph.scene import scene_from_dict, with_overrides
-    from warpsph.simulation import Simulation
-
     d = A / resolution
     r = d / 2
     scale_T = np.sqrt(2 * G / A)
@@ -117,8 +117,6 @@ def main(argv=None):
     print(f"{sim.num_fluid} particles: RMS error of Z/a {result['raw_rms']:.3f} raw, {result['shifted_rms']:.3f} "
           f"with time shift {result['time_shift_T']:+.3f}")
     if args.out:
-        from warpsph.plots import write_report
-
         write_report(result, args.out, figures(result))
 
 if __name__ == "__main__":

@@ -16,6 +16,9 @@ import argparse
 import time
 
 import numpy as np
+from warpsph.plots import write_report
+from warpsph.scene import scene_from_dict, with_overrides
+from warpsph.simulation import Simulation
 
 SIDE = 0.4  # m: the water cube
 T_END = 1.5  # s: settled time (gravity ramped in over the first 0.2 s)
@@ -33,9 +36,6 @@ def ramp_gravity(sim, ramp, g=9.81):
 def hydrostatic(radius=0.02, T=T_END, device="cpu", ramp=0.2, models=(), overrides=None):
     """Runs the tank; returns the measurements (with ``wall_s``: the stepping alone, device synchronised, and
     ``steps``). ``overrides``: dotted scene keys to set (:func:`warpsph.scene.with_overrides`)."""
-    from warpsph.scene import scene_from_dict, with_overrides
-    from warpsph.simulation import Simulation
-
     side = SIDE
     data = {"name": "hydrostatic", "particle_radius": radius, "gravity": [0, 0, 0],
             "domain": {"min": [0, 0, 0], "max": [side, 1.5 * side, side]},
@@ -100,8 +100,6 @@ def main(argv=None):
           f"max {100 * result['density_error_max']:.3f} %; mid-depth p / rho g h = {result['mid_depth_pressure_ratio']:.3f}; "
           f"probe RMS error {100 * result['probe_pressure_rms_error_relative']:.1f} % of rho g H; max |v| {result['max_speed']:.4f} m/s")
     if args.out:
-        from warpsph.plots import write_report
-
         write_report(result, args.out, figures(result))
 
 if __name__ == "__main__":

@@ -53,6 +53,12 @@ import argparse
 import numpy as np
 
 from .taylor_green import METHODS  # the same four methods and parameters
+from warpsph.kernels.diagnostics import boundary_pressure_torque, gather_by_id, scatter_by_id
+from warpsph.models.vorticity import curl_of
+from warpsph.plots import write_report
+from warpsph.scene import scene_from_dict, with_overrides
+from warpsph.simulation import InstabilityError, Simulation
+from warpsph.solver import DENSITY, DIVERGENCE
 
 R_PEAK = 1.1209  # u_theta peaks at r = 1.1209 r_c (root of 1 + 2 s = exp(s), s = r^2 / r_c^2)
 L = 1.0  # box side [m]
@@ -157,8 +163,6 @@ def sph_curl_z(sim):
     """z-vorticity of the current state with the simulator's SPH curl (fresh neighbour lists and densities)."""
     import warp as wp
 
-    from warpsph.models.vorticity import curl_of
-
     f = sim.fluid
     with wp.ScopedDevice(sim.device):
         sim.update_densities()
@@ -211,9 +215,6 @@ def build(models, resolution=24, nu=0.01, T=0.5, core=3.0, u_peak=0.5, depth=6, 
     ``solver``: scene "solver" keys (e.g. {"density_max_error": 0.05}); None: the defaults.
     ``pack_steps`` > 0: the scene's ``initial_packing`` of that many steps instead of the lattice.
     ``overrides``: dotted scene keys to set (:func:`warpsph.scene.with_overrides`)."""
-    from warpsph.scene import scene_from_dict, with_overrides
-    from warpsph.simulation import Simulation
-
     p = setup(resolution, nu, core, u_peak, depth)
     d = p["spacing"]
     fill = SURFACE_FILL * L if free_surface else L
@@ -271,17 +272,12 @@ class AngularMomentumBudget:
     def _remember(self, sim):
         import warp as wp
 
-        from warpsph.kernels.diagnostics import scatter_by_id
-
         wp.launch(scatter_by_id, sim.num_fluid, inputs=[sim.fluid.x, sim.fluid.ids, self.by_id], device=sim.device)
 
     def __call__(self, sim):
         import time
 
         import warp as wp
-
-        from warpsph.kernels.diagnostics import boundary_pressure_torque, gather_by_id
-        from warpsph.solver import DENSITY, DIVERGENCE
 
         wp.synchronize_device(sim.device)
         begin = time.perf_counter()
@@ -382,8 +378,6 @@ def main(argv=None):
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING
-    from warpsph.simulation import InstabilityError
-
     p = setup(args.resolution, args.nu, args.core, args.u_peak, args.depth)
     report = {"case": "Lamb-Oseen vortex, box L = 1 m periodic in z, quasi-2D, no gravity", "resolution": args.resolution,
               "T": args.T, "warp": wp.__version__, **p, "methods": {}}
@@ -404,8 +398,6 @@ def main(argv=None):
               f"r_peak {s['r_peak_end']:.3f} (exact {s['r_peak_exact_end']:.3f}), KE {s['ke_ratio_end']:.3f}, "
               f"nu_eff {s['nu_effective']:.4f}")
     if args.out:
-        from warpsph.plots import write_report
-
         write_report(report, args.out, figures(report))
 
 

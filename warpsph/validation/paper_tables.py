@@ -56,6 +56,12 @@ import json
 from pathlib import Path
 
 import numpy as np
+from warpsph.device import init_warp
+from warpsph.diagnostics import vorticity_now
+from warpsph.simulation import InstabilityError, Simulation
+from warpsph.sweep import cells, cells_commit, load_sweep, records, scene_of
+from warpsph.validation.cases import commit_info, device_info
+from warpsph.validation.taylor_green import METHODS
 
 TIMES = (2.0, 4.0, 6.0, 8.0, 10.0)
 CALM_LEVELS = (0.1, 0.01)   # calm: E below 10 % and 1 % of the energy at the stop
@@ -80,8 +86,6 @@ def label(models):
 
 def cell_label(params, fixed=()):
     """The method's name, then the cell's other keys (not those the sweep holds for every cell)."""
-    from warpsph.validation.taylor_green import METHODS
-
     text = label(METHODS[params["method"]] if "method" in params else params.get("models", []))
     if params.get("solver.method") == "iisph":
         text = "IISPH" if text == "DFSPH" else f"{text} (IISPH)"
@@ -90,8 +94,6 @@ def cell_label(params, fixed=()):
 
 
 def load(sweep, out):
-    from warpsph.sweep import cells_commit, load_sweep, records
-
     spec = load_sweep(sweep)
     rows = []
     pairs = records(spec, out)
@@ -237,8 +239,6 @@ def stop_time(sweep):
     """calm's t_s: the last keyframe time of the moving bodies of the sweep's first cell's scene (a drift's end
     too, and a spin's spin_end + spin_down); None when no body has keyframes, or one spins or drifts to the run's end
     (give --stop)."""
-    from warpsph.sweep import cells, load_sweep, scene_of
-
     times = []
     for body in scene_of(cells(load_sweep(sweep))[0]).obstacles:
         m = body.motion
@@ -413,10 +413,6 @@ def fig4_cell(cell, times, device):
     """Runs one scene cell to each of ``times``; returns (record, {time key: (x, zeta, volume)})."""
     import time as clock
 
-    from warpsph.diagnostics import vorticity_now
-    from warpsph.simulation import InstabilityError, Simulation
-    from warpsph.sweep import scene_of
-
     t0 = clock.perf_counter()
     sim = Simulation(scene_of(cell), device=device)
     record = {"id": cell["id"], "params": cell["params"], "status": "done", "particles": sim.num_fluid,
@@ -440,15 +436,11 @@ def fig4_cell(cell, times, device):
 
 def fig4_records(sweep, out, times, device=None):
     """(meta, [(label, record, arrays)]) for the sweep's cells, each run (or read from OUT/cells) to ``times``."""
-    from warpsph.cli import _init_warp
-    from warpsph.sweep import cells, cells_commit, load_sweep
-    from warpsph.validation.cases import commit_info, device_info
-
     spec = load_sweep(sweep)
     if spec.get("kind") != "scene":
         raise ValueError("vr-fig4 takes a scene-file sweep (scene, scale, cells)")
     device = device or spec.get("device") or "cpu"
-    _init_warp()
+    init_warp()
     folder = Path(out) / "cells"
     folder.mkdir(parents=True, exist_ok=True)
     keys = [_fig4_key(t) for t in times]
@@ -618,8 +610,6 @@ def main(argv=None):
     if (a.kind == "table1") != (a.out is None):
         p.error("table1 takes the benchmarks' folder alone; the other kinds a sweep file and its --out folder")
     if a.kind == "vr-fig4":
-        from warpsph.sweep import load_sweep, scene_of
-
         try:
             slabs = [parse_slab(x) for x in (a.slab or ["z=mid"])]
         except ValueError as exc:

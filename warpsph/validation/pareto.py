@@ -55,9 +55,17 @@ import sys
 import time
 from pathlib import Path
 
+from warpsph import tables
 from warpsph.errors import SceneError
-from warpsph.validation.cases import MIN_RESOLUTION, timed_run
-from warpsph.validation.lamb_oseen import CORE_RADIUS as LAMB_OSEEN_CORE_RADIUS
+from warpsph.validation.cases import MIN_RESOLUTION, commit_info, timed_run
+from warpsph.validation.lamb_oseen import (CORE_RADIUS as LAMB_OSEEN_CORE_RADIUS, L, build, kinetic_ratios, measure,
+    summary)
+from warpsph.simulation import InstabilityError, Simulation
+from warpsph.sweep import add_executor_arguments, executor_arguments, records, run_sweep
+from warpsph.validation import study_main, taylor_green, taylor_green as tg
+from warpsph.validation.dam_front import compare, dam_front
+from warpsph.validation.taylor_green import PACK_STEPS, T_END
+import warpsph.scene as scene_module
 
 # name -> (label, scene "models" list)
 METHODS = {
@@ -79,26 +87,9 @@ logger = logging.getLogger(__name__)
 # --- the Pareto front -------------------------------------------------------------------------------
 
 def pareto_flags(points, x=TIME_KEY, y=ERROR_KEY):
-    """Per point: True when no other point has both a lower ``x`` and a lower ``y`` (strictly), False
-    when one has, None when the point has no finite ``x`` and ``y`` (unstable, or not measured).
-    Sort and sweep: a point is dominated iff the least ``y`` among the points of strictly smaller ``x``
-    is below its own."""
-    def value(p, key):
-        v = p.get(key)
-        return float(v) if isinstance(v, (int, float)) and math.isfinite(v) else None
-
-    flags = [None] * len(points)
-    valid = sorted((value(p, x), value(p, y), n) for n, p in enumerate(points)
-                   if value(p, x) is not None and value(p, y) is not None)
-    best = math.inf  # least y among the points of strictly smaller x
-    k = 0
-    while k < len(valid):
-        group = [v for v in valid[k:] if v[0] == valid[k][0]]  # equal x: they do not dominate each other
-        for _, yv, n in group:
-            flags[n] = not best < yv
-        best = min(best, min(v[1] for v in group))
-        k += len(group)
-    return flags
+    """:func:`warpsph.tables.pareto_flags` of the study's measures (default: time per simulated second and
+    error)."""
+    return tables.pareto_flags(points, x, y)
 
 
 def mark_pareto(points):
@@ -116,15 +107,11 @@ def warm_up_method(models, device, case="lamb-oseen"):
     """Loads (compiles) every kernel module a method uses, outside the timed runs: a tiny vortex, a few
     steps (the second captures the CUDA graph) and one measurement."""
     if case == "taylor-green":
-        from warpsph.validation import taylor_green as tg
-
         sim, ke0 = tg.build(models, resolution=8, device=device, solver=taylor_green_solver(0.05), pack_steps=2)
         for _ in range(3):
             sim.step()
         tg.measure(sim, ke0, 0.01)
     else:
-        from warpsph.validation.lamb_oseen import build, measure
-
         sim, p, edges = build(models, resolution=8, core=1.0, device=device, frames=10)
         for _ in range(3):
             sim.step()
@@ -145,10 +132,6 @@ def lamb_oseen_point(models, resolution, tolerance, device, core_radius=CORE_RAD
                      depth=6, frames=10, on_instability="stop", pack_steps=None):
     """One vortex run: error, timing and solver statistics (a dict; ``unstable`` when it blew up). It starts
     from the packing that ``warpsph validate lamb-oseen`` uses (``pack_steps``; None: its default)."""
-    from warpsph.validation.lamb_oseen import L, build, kinetic_ratios, measure, summary
-    from warpsph.validation.taylor_green import PACK_STEPS
-    from warpsph.simulation import InstabilityError
-
     core = core_radius * resolution / L  # the validation tool takes the core in spacings
     pack_steps = PACK_STEPS if pack_steps is None else pack_steps
     start = time.perf_counter()
@@ -191,9 +174,6 @@ def taylor_green_solver(tolerance):
 def taylor_green_point(models, resolution, tolerance, device, nu=0.01, T=0.3, frames=10, on_instability="stop",
                        pack_steps=None):
     """One Taylor-Green run (default solver, packed start): error, timing and solver statistics."""
-    from warpsph.validation import taylor_green as tg
-    from warpsph.simulation import InstabilityError
-
     pack_steps = tg.PACK_STEPS if pack_steps is None else pack_steps
     start = time.perf_counter()
     sim, ke0 = tg.build(models, resolution, nu, T, device, frames, taylor_green_solver(tolerance), pack_steps)
@@ -226,9 +206,6 @@ def taylor_green_point(models, resolution, tolerance, device, nu=0.01, T=0.3, fr
 def _dam_front_hooks(tolerance, log):
     """warpsph.validation.dam_front.dam_front builds its scene and runs it inside; this injects the solver tolerance
     into its scene dict and times its ``run`` like :func:`timed_run` (patched for the call only)."""
-    import warpsph.scene as scene_module
-    from warpsph.simulation import Simulation
-
     scene_from_dict, run = scene_module.scene_from_dict, Simulation.run
 
     def with_solver(data, *args, **kwargs):
@@ -248,9 +225,6 @@ def _dam_front_hooks(tolerance, log):
 
 
 def dam_front_point(models, resolution, tolerance, device, T_end=6.0, depth=4):
-    from warpsph.validation.dam_front import compare, dam_front
-    from warpsph.simulation import InstabilityError
-
     log = {}
     try:
         with _dam_front_hooks(tolerance, log):
@@ -279,8 +253,6 @@ def point(method, resolution, tolerance, device="cpu", case="lamb-oseen", core_r
         out["warmup_s"] = time.perf_counter() - start
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     if case == "taylor-green":
-        from warpsph.validation.taylor_green import T_END
-
         out.update(taylor_green_point(models, resolution, tolerance, device, nu, T_END if T is None else T, frames,
                                       on_instability, pack_steps))
     else:
@@ -317,8 +289,6 @@ def commit():
     """The commit (and uncommitted simulator files): warpsph's commit_info, so WARPSPH_COMMIT overrides git's where
     the checkout's .git is absent or stale (a copy of the working tree on another machine); PARETO_COMMIT, the
     older name, still does."""
-    from warpsph.validation.cases import commit_info
-
     if os.environ.get("PARETO_COMMIT") and not os.environ.get("WARPSPH_COMMIT"):
         return {"commit": os.environ["PARETO_COMMIT"], "commit_from": "PARETO_COMMIT"}
     return commit_info()
@@ -515,16 +485,11 @@ def study(methods, resolutions, tolerances, device="cpu", out=None, core_radius=
 
     import warp as wp
 
-    from warpsph.sweep import records, run_sweep
-    from warpsph.validation.lamb_oseen import L
-
     wp.config.log_level = wp.LOG_WARNING
     wp.init()
     say = (lambda *a: None) if quiet else (lambda *a: logger.info(" ".join(map(str, a))))
     tg = case == "taylor-green"
     if tg:
-        from warpsph.validation import taylor_green
-
         T = taylor_green.T_END if T is None else T
         depth = 6
         pack_steps = taylor_green.PACK_STEPS if pack_steps is None else pack_steps
@@ -633,14 +598,10 @@ def add_arguments(parser):
                         help="draw the PNG (and table) of JSON made elsewhere; with --out, write JSON, table and PNG "
                              "there; several files (same set-up and device, e.g. one per tolerance) are merged")
     parser.add_argument("--no-plot", action="store_true", help="no PNG")
-    from warpsph.sweep import add_executor_arguments
-
     add_executor_arguments(parser)
 
 
 def main(argv=None):
-    from warpsph.validation import study_main
-
     return study_main(__doc__, add_arguments, command, argv)
 
 
@@ -684,8 +645,6 @@ def command(args):
         png = plot(report, out.with_suffix(".png"))
         print(f"wrote {png}" + (f", {out}, {out.with_suffix('.md')}" if args.out else ""))
         return 0
-    from warpsph.sweep import executor_arguments
-
     report = study(args.methods, args.resolutions, args.tolerances, args.device, args.out, args.core_radius, args.nu,
                    args.T, args.u_peak, args.depth, args.frames, args.dam_front, args.dam_T_end, png=not args.no_plot,
                    on_instability=args.on_instability, case=args.case, pack_steps=args.pack_steps,

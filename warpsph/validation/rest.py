@@ -13,6 +13,8 @@ how many particles the solver took for the free surface at the end (none in the 
 import numpy as np
 
 from .hydrostatic import ramp_gravity
+from warpsph.scene import scene_from_dict, with_overrides
+from warpsph.simulation import Simulation
 
 SIDE = 0.4  # m
 T_END = 5.0  # s
@@ -24,9 +26,6 @@ G = 9.81
 def tank_at_rest(resolution, fill, device="cpu", T=T_END, models=(), overrides=None, on_run=None):
     """Runs one tank (``resolution`` particles across the side) to ``T``; returns its measurements.
     ``on_run(sim, run)``: called with the simulation and a function that runs it (for timing)."""
-    from warpsph.scene import scene_from_dict, with_overrides
-    from warpsph.simulation import Simulation
-
     radius = SIDE / (2 * resolution)
     # whole particle layers; a pool keeps at least one empty layer above it
     layers = resolution if fill >= 1.0 else max(1, min(resolution - 1, round(fill * resolution)))

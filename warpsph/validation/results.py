@@ -14,12 +14,15 @@ import sys
 from pathlib import Path
 
 from warpsph.errors import SceneError
+from warpsph.plots import draw_figures, sweep_figures
+from warpsph.validation import dam_front, hydrostatic, lamb_oseen, study_main, taylor_green
+from warpsph.validation.bench import scaling_plot
+from warpsph.validation.pareto import plot as pareto_plot
+from warpsph.validation.stress import heat_map
 
 
 def figures_of(report):
     """The validation module whose report this is, or None."""
-    from warpsph.validation import dam_front, hydrostatic, lamb_oseen, taylor_green
-
     case = report.get("case", "") if isinstance(report, dict) else ""
     if case.startswith("Taylor-Green"):
         return taylor_green.figures
@@ -49,27 +52,17 @@ def plot(path, out_dir=None):
     out = (Path(out_dir) / path.name) if out_dir else path
     png = out.with_suffix(".png")
     if isinstance(report, list) and report and "ms_per_step" in report[0]:
-        from warpsph.validation.bench import scaling_plot
-
         return [scaling_plot(report, png)]
     if isinstance(report, dict) and "points" in report:
-        from warpsph.validation.pareto import plot as pareto_plot
-
         return [pareto_plot(report, png)]
     if isinstance(report, dict) and "sweep" in report and "rows" in report:  # warpsph sweep's table.json
-        from warpsph.plots import sweep_figures
-
         return sweep_figures(report, out.with_suffix(""))
     if isinstance(report, dict) and "cells" in report and "axes" in report:
-        from warpsph.validation.stress import heat_map
-
         heat_map(report, png)
         return [png]
     figures = figures_of(report)
     if figures is None:
         return []
-    from warpsph.plots import draw_figures
-
     return draw_figures(out, figures(report))
 
 
@@ -92,8 +85,6 @@ def command(args):
 
 
 def main(argv=None):
-    from warpsph.validation import study_main
-
     return study_main(__doc__, add_arguments, command, argv)
 
 

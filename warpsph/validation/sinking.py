@@ -17,6 +17,8 @@ import math
 from pathlib import Path
 
 import numpy as np
+from warpsph.scene import scene_from_dict, with_overrides
+from warpsph.simulation import Simulation
 
 D = 0.1  # m, the sphere's diameter
 SIDE = 6 * D  # m
@@ -57,9 +59,6 @@ def sinking_sphere(resolution, device="cpu", T=T_END, density=SPHERE_DENSITY, mo
     """Runs one sphere (``resolution`` particles across its diameter) to ``T`` or until it has crossed the
     window; returns the measurements. ``on_run(sim, run)``: called with the simulation and a function that
     runs it (for timing)."""
-    from warpsph.scene import scene_from_dict, with_overrides
-    from warpsph.simulation import Simulation
-
     radius = D / (2 * resolution)
     centre = SIDE / 2
     sphere = {"mesh": "meshes/unit_sphere.obj", "scale": [D, D, D], "translation": [centre, START, centre],

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from warpsph import SceneError, load_scene
 from warpsph.io.splishsplash import conversion_of, translate
+from warpsph.simulation import Simulation, count_particles, sample_scene
 
 
 def short(item):
@@ -52,8 +53,6 @@ def row(path, steps, scale):
         warnings.simplefilter("ignore")
         try:
             scene = load_scene(path)
-            from warpsph.simulation import Simulation, count_particles, sample_scene
-
             count = str(count_particles(scene)[0])
             sample_scene(scene)
             if steps:

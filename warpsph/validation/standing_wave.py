@@ -24,6 +24,8 @@ gamma / (2 nu k^2) - 1 is reported beside it (``decay_error_pct``).
 from __future__ import annotations
 
 import numpy as np
+from warpsph.scene import scene_from_dict, with_overrides
+from warpsph.simulation import Simulation
 
 L = 1.0  # tank length [m]
 H = 0.5  # water depth [m]
@@ -51,9 +53,6 @@ def mode(x):
 
 def build(resolution, device="cpu", nu=NU, models=(), overrides=None):
     """The tank at t = 0 with the mode's velocity (resolution: particles across L)."""
-    from warpsph.scene import scene_from_dict, with_overrides
-    from warpsph.simulation import Simulation
-
     d = L / resolution
     k, w, _ = theory(nu)
     data = {"name": "standing_wave", "particle_radius": d / 2, "gravity": [0, -G, 0],

@@ -41,6 +41,10 @@ from pathlib import Path
 import numpy as np
 
 from warpsph.errors import SceneError
+from warpsph.plots import _pyplot
+from warpsph.scene import load_scene
+from warpsph.sweep import add_executor_arguments, executor_arguments, records, run_sweep
+from warpsph.validation import study_main
 
 AXES = {  # name -> (default values, label)
     "alpha": ([0.0, 1.0, 1.2, 1.3, 2.0], "VR alpha"),
@@ -106,9 +110,6 @@ def stress(scene_path, scale=0.05, seconds=2.0, axes=None, values=None, device="
     """Runs the matrix; returns the report (dict). ``values`` overrides an axis's values. ``executor``:
     run_sweep's executor, workers, devices, address, num_gpus, max_retries; the cells' files go to
     ``sweep_dir`` (plain/ and matrix/; None: a temporary folder)."""
-    from warpsph.scene import load_scene
-    from warpsph.sweep import records, run_sweep
-
     base = load_scene(scene_path, scale=scale)
     axes = list(AXES) if axes is None else list(axes)
     values = {a: list((values or {}).get(a) or AXES[a][0]) for a in axes}
@@ -200,8 +201,6 @@ def markdown(report):
 def heat_map(report, out):
     """Rows: axes, columns: their values; three panels (KE of the last quarter / DFSPH, max density error, density
     iterations); a blown-up cell is black with the time it failed."""
-    from warpsph.plots import _pyplot
-
     plt = _pyplot()
     rows = [("plain", [c for c in report["cells"] if c["axis"] is None])]
     rows += [(a, [c for c in report["cells"] if c["axis"] == a]) for a in report["axes"]]
@@ -276,8 +275,6 @@ def add_arguments(parser):
                             help=f"{label} values (default {' '.join(f'{v:g}' for v in defaults)})")
     parser.add_argument("--device", default="cpu", help="cpu (default), cuda or cuda:N")
     parser.add_argument("--out", help="output prefix: OUT.json, OUT.md, OUT.png (and the cells in OUT.sweep/)")
-    from warpsph.sweep import add_executor_arguments
-
     add_executor_arguments(parser)
 
 
@@ -297,8 +294,6 @@ def check_arguments(args):
 
 
 def main(argv=None):
-    from warpsph.validation import study_main
-
     return study_main(__doc__, add_arguments, command, argv)
 
 
@@ -308,8 +303,6 @@ def command(args):
     import warp as wp
 
     wp.config.log_level = wp.LOG_WARNING
-    from warpsph.sweep import executor_arguments
-
     executor = executor_arguments(args)
     values = {a: getattr(args, a) for a in AXES if getattr(args, a)}
     prefix = Path(args.out).with_suffix("") if args.out and Path(args.out).suffix in (".json", ".md", ".png") else args.out

@@ -25,6 +25,8 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+from warpsph.surface import SurfaceOptions, boundary_edges, mesh_volume, reconstruct, reconstruct_preview
+from warpsph.validation.cases import commit_info
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -44,8 +46,6 @@ def roughness(points, faces):
 
 
 def describe(mesh, n, r):
-    from warpsph.surface import boundary_edges, mesh_volume
-
     edges = np.linalg.norm(mesh.points[mesh.faces[:, 0]] - mesh.points[mesh.faces[:, 1]], axis=1)
     return {"vertices": len(mesh.points), "triangles": len(mesh.faces), "open_edges": boundary_edges(mesh.faces),
             "volume_vs_particles": mesh_volume(mesh.points, mesh.faces) / (n * (2 * r) ** 3),
@@ -79,9 +79,6 @@ def main(argv=None):
 
     import pysplashsurf
     import warp as wp
-
-    from warpsph.surface import SurfaceOptions, reconstruct, reconstruct_preview
-    from warpsph.validation.cases import commit_info
 
     wp.init()
     sets = {}

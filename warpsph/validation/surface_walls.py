@@ -20,6 +20,9 @@ import sys
 from pathlib import Path
 
 import numpy as np
+from warpsph.scene import Scene
+from warpsph.surface import stage_clip, stage_poses
+from warpsph.surface_clip import push_out_of_bodies
 
 
 def outside(points, lo, hi):
@@ -38,8 +41,6 @@ def main(argv=None):
 
     from pxr import Usd
 
-    from warpsph.scene import Scene
-
     domain = Scene.load(args.scene).domain
     walled = [domain.walls and "xyz"[k] not in domain.periodic for k in range(3)]
     lo = np.array([domain.min[k] if walled[k] else -np.inf for k in range(3)])
@@ -52,8 +53,6 @@ def main(argv=None):
         samples = widths.GetTimeSamples()
         radius = float(widths.Get(samples[0])[0]) / 2.0
     rows = []
-    from warpsph.surface import stage_clip, stage_poses
-
     clip, _ = stage_clip(stage)
     bodies = clip.bodies if clip is not None else ()
     for t in mesh.GetAttribute("points").GetTimeSamples():
@@ -64,8 +63,6 @@ def main(argv=None):
         line = (f"frame {rows[-1]['frame']:4d}: {len(d):7d} vertices, largest outside {rows[-1]['max_outside_r']:.3f} r, "
                 f"{100 * rows[-1]['share_outside']:.1f} % outside")
         if bodies and len(points):
-            from warpsph.surface_clip import push_out_of_bodies
-
             pushed = points.copy()
             push_out_of_bodies(pushed, bodies, stage_poses(stage, clip, t))
             depth = np.linalg.norm(pushed.astype(np.float64) - points, axis=1) / radius

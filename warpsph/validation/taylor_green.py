@@ -14,6 +14,9 @@ the papers' claim that refinement recovers numerical dissipation.
 import argparse
 
 import numpy as np
+from warpsph.plots import write_report
+from warpsph.scene import scene_from_dict, with_overrides
+from warpsph.simulation import InstabilityError, Simulation
 
 METHODS = {
     "dfsph": [],
@@ -60,9 +63,6 @@ def build(models, resolution=20, nu=0.01, T=0.5, device="cpu", frames=10, solver
     """The vortex at t = 0: (simulation, KE(0)). ``pack_steps`` > 0 starts from the scene's
     ``initial_packing`` of that many steps instead of the cubic lattice; the velocity is the analytic field at the particles.
     ``overrides``: dotted scene keys to set (:func:`warpsph.scene.with_overrides`)."""
-    from warpsph.scene import scene_from_dict, with_overrides
-    from warpsph.simulation import Simulation
-
     data = scene_data(models, resolution, nu, T, frames, solver)
     if pack_steps:
         data["initial_packing"] = {"steps": pack_steps, "jitter": PACK_JITTER}
@@ -116,8 +116,6 @@ def main(argv=None):
     wp.config.log_level = wp.LOG_WARNING
     report = {"case": "Taylor-Green, periodic, L = 1, U = 1", "resolution": args.resolution, "nu": args.nu,
               "T": args.T, "pack_steps": args.pack_steps, "warp": wp.__version__, "methods": {}}
-    from warpsph.simulation import InstabilityError
-
     for name in args.methods:
         try:
             rows, sim = taylor_green(METHODS[name], args.resolution, args.nu, args.T, args.device,
@@ -135,8 +133,6 @@ def main(argv=None):
         print(f"{name:11s} KE(T)/KE0 {last['ke_ratio']:.4f} (exact {last['ke_ratio_exact']:.4f}, "
               f"error {100 * (last['ke_ratio'] / last['ke_ratio_exact'] - 1):+.1f} %), L1 |u| error {last['l1_speed_error']:.4f}")
     if args.out:
-        from warpsph.plots import write_report
-
         write_report(report, args.out, figures(report))
 
 if __name__ == "__main__":
