@@ -145,7 +145,7 @@ def test_resume_keeps_meshing(tmp_path):
 SLOW_MESHER = """
 import sys, time
 from warpsph import surface
-def slow_mesher(options, radius, device="cpu", clip=None):  # in the run's process, so that the sleep holds
+def slow_mesher(options, radius, device="cpu", workers=None, clip=None):  # in the run's process, so that the sleep holds
     def mesh(arrays):
         time.sleep(0.2)  # a slow mesher: the signal arrives while a frame is being meshed
         return surface.mesh_frame(arrays["x"], radius, arrays.get("v"), arrays.get("vorticity"), options, device, clip)
