@@ -133,3 +133,38 @@ def test_the_api_reference_is_the_public_api_with_docstrings(site):
     for path in sorted(ids - {"warpsph"}):
         obj = package[path.removeprefix("warpsph.")]
         assert obj.docstring is not None and obj.docstring.value.strip(), f"{path} has no docstring"
+
+
+def listed_members():
+    """The dotted paths of the members the API pages list by name (``members:`` of a ``:::`` directive)."""
+    import yaml
+
+    listed = set()
+    for page in (ROOT / "docs" / "api").glob("*.md"):
+        for target, block in re.findall(r"^::: (\S+)\n((?:[ \t]+\S.*\n?)*)", page.read_text(), re.MULTILINE):
+            members = ((yaml.safe_load(block) or {}).get("options") or {}).get("members")
+            listed.update(f"{target}.{name}" for name in members or ())
+    return listed
+
+
+def test_every_public_name_on_the_api_pages_has_an_example(site):
+    """Each public module, each module-level name on the API pages (class, function, exception, constant) and each
+    class member a page lists by name has an example in its docstring (an ``Example:`` with a fenced python block:
+    tests/test_api_examples.py runs them). A class's other members are shown by the class's example, and the
+    submodules that only group a page's names by theirs."""
+    griffe = pytest.importorskip("griffe", reason="reading the API pages' objects needs griffe (mkdocstrings-python installs it)")
+    from test_api_examples import examples
+
+    done, site = site
+    assert done.returncode == 0, done.stdout + done.stderr
+    package = griffe.GriffeLoader(search_paths=[str(ROOT)]).load("warpsph")
+    listed = listed_members()
+    needed, missing = [], []
+    for path in sorted(documented(site)):
+        obj = package if path == "warpsph" else package[path.removeprefix("warpsph.")]
+        if (path in PUBLIC_MODULES if obj.is_module else obj.parent.is_module or path in listed):
+            needed.append(path)
+            if not examples(obj.docstring.value if obj.docstring else ""):
+                missing.append(path)
+    assert len(needed) > 60, needed  # the enumeration itself works
+    assert not missing, f"{len(missing)} of {len(needed)} public names on the API pages have no example: {missing}"

@@ -1,17 +1,19 @@
 """warpsph: DFSPH fluids on NVIDIA Warp with turbulence refinement models.
 
-The public Python API::
-
-    import warpsph
-
-    scene = warpsph.Scene.load("scenes/dam_break.json", scale=0.1)   # or warpsph.Scene.from_dict({...})
-    sim = warpsph.Simulation(scene, device="cpu")                     # "cuda", "cuda:0" or None (default device)
-    with warpsph.io.UsdWriter("out/dam_break.usdc", sim) as usd:
-        sim.run(frames=25, on_frame=usd)                               # on_frame(sim, frame) after each frame
-    x, v = sim.positions(), sim.velocities()                           # numpy copies; sim.fluid.x is the Warp array
-
 ``Simulation`` (which imports Warp) and ``io`` (USD needs usd-core) load on first use, so
 ``import warpsph`` stays fast. See ``examples/`` for runnable scripts.
+
+Example:
+
+```python
+import warpsph
+
+scene = warpsph.Scene.load("scenes/dam_break.json", scale=0.05)  # or warpsph.Scene.from_dict({...})
+sim = warpsph.Simulation(scene, device="cpu")  # "cuda", "cuda:0" or None (Warp's default device)
+with warpsph.io.UsdWriter("out/dam_break.usdc", sim) as usd:
+    sim.run(frames=5, on_frame=usd)  # on_frame(sim, frame) after each frame
+x, v = sim.positions(), sim.velocities()  # numpy copies; sim.fluid.x is the Warp array
+```
 """
 
 __version__ = "0.1.0"

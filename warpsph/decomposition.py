@@ -70,7 +70,21 @@ def device_names(text):
 
 
 class DecompositionError(RuntimeError):
-    """A subdomain outgrew its rows (raise ``capacity_factor`` or rebalance more often)."""
+    """A subdomain outgrew its rows (raise ``capacity_factor`` or rebalance more often).
+
+    Example:
+
+    ```python
+    import warpsph
+    from warpsph.decomposition import DecompositionError
+
+    scene = warpsph.load_scene("scenes/dam_break.json", scale=0.05)
+    try:
+        warpsph.DecomposedSimulation(scene, ["cpu"], subdomains=2, rebalance_interval=20).run(frames=2)
+    except DecompositionError:  # retry with more room per subdomain
+        warpsph.DecomposedSimulation(scene, ["cpu"], subdomains=2, capacity_factor=2.5).run(frames=2)
+    ```
+    """
 
 
 class Subdomain:
@@ -328,8 +342,16 @@ class DecomposedSimulation:
     ``devices[k % len(devices)]``. Steps, frames and the accessors of :class:`Simulation`; the particle
     accessors gather every subdomain's particles, ordered by id.
 
-    >>> sim = DecomposedSimulation(load_scene("scenes/dam_break.json", scale=0.05), ["cpu"], subdomains=2)
-    >>> sim.run(frames=10)
+    Example:
+
+    ```python
+    import warpsph
+
+    scene = warpsph.load_scene("scenes/dam_break.json", scale=0.05)
+    sim = warpsph.DecomposedSimulation(scene, ["cpu"], subdomains=2)  # ["cuda:0", "cuda:1"]: one slab per GPU
+    sim.run(frames=10)
+    x = sim.positions()  # every subdomain's particles, ordered by id
+    ```
     """
 
     def __init__(self, scene, devices, subdomains=None, axis=None, capacity_factor=CAPACITY_FACTOR,
@@ -465,13 +487,36 @@ class DecomposedSimulation:
         return min(len(coordinate), int(factor * need) + 64)
 
     def slab_bounds(self, k):
-        """[lower, upper) of slab k along the axis (unbounded outward where the axis is not periodic)."""
+        """[lower, upper) of slab k along the axis (unbounded outward where the axis is not periodic).
+
+        Example:
+
+        ```python
+        import warpsph
+
+        scene = warpsph.load_scene("scenes/dam_break.json", scale=0.05)
+        sim = warpsph.DecomposedSimulation(scene, ["cpu"], subdomains=2)
+        print([sim.slab_bounds(k) for k in range(2)])  # the cut at the fluid's median along sim.axis
+        ```
+        """
         lower, upper = (self.lower, self.upper) if self.period > 0.0 else (-1e30, 1e30)
         return (lower if k == 0 else float(self.cuts[k - 1]),
                 upper if k == self.count - 1 else float(self.cuts[k]))
 
     def rebalance(self):
-        """Moves the cuts back to the fluid's quantiles (the next step migrates the particles)."""
+        """Moves the cuts back to the fluid's quantiles (the next step migrates the particles).
+
+        Example:
+
+        ```python
+        import warpsph
+
+        scene = warpsph.load_scene("scenes/dam_break.json", scale=0.05)
+        sim = warpsph.DecomposedSimulation(scene, ["cpu"], subdomains=2)
+        sim.run(frames=3)
+        sim.rebalance()  # also every rebalance_interval steps (default 100)
+        ```
+        """
         coordinate = np.concatenate([s.host(s.fluid.x)[:, self.axis] for s in self.sims])
         self.cuts = self._balanced_cuts(coordinate)
         for s in self.subdomains:
@@ -599,7 +644,18 @@ class DecomposedSimulation:
         return sum(s.kinetic_energy() for s in self.sims)
 
     def owned_counts(self):
-        """Particles per subdomain (its own, without ghosts)."""
+        """Particles per subdomain (its own, without ghosts).
+
+        Example:
+
+        ```python
+        import warpsph
+
+        scene = warpsph.load_scene("scenes/dam_break.json", scale=0.05)
+        sim = warpsph.DecomposedSimulation(scene, ["cpu"], subdomains=2)
+        assert sum(sim.owned_counts()) == sim.num_fluid
+        ```
+        """
         return [s.num_fluid for s in self.sims]
 
     def _advance_to(self, target, on_step=None):

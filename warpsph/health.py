@@ -20,7 +20,20 @@ CHECK_NAMES = {int(NOT_FINITE): "NaN or inf in position, velocity or density",
 
 
 class InstabilityError(RuntimeError):
-    """The simulation became unstable; the message names the step, time, check and particle."""
+    """The simulation became unstable; the message names the step, time, check and particle.
+
+    Example:
+
+    ```python
+    import warpsph
+
+    sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+    try:
+        sim.run(frames=2)
+    except warpsph.InstabilityError as error:  # error.step, .time, .check, .particle_id, .position
+        print("unstable:", error)
+    ```
+    """
 
     def __init__(self, step, time, check, particle_id=None, position=None):
         self.step, self.time, self.check, self.particle_id, self.position = step, time, check, particle_id, position

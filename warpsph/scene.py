@@ -343,7 +343,17 @@ class InitialPacking:
 
 @schema
 class Scene:
-    """A scene file's top level."""
+    """A scene file's top level.
+
+    Example:
+
+    ```python
+    import warpsph
+
+    scene = warpsph.Scene.load("scenes/dam_break.json", scale=0.05)  # a 5 % version (larger radius)
+    print(scene.name, scene.particle_radius, scene.domain.max, scene.output.fps)
+    ```
+    """
 
     particle_radius: float = key(doc="particle radius r; the spacing is 2r and the kernel support 4r", unit="m", gt=0)
     domain: Box = key(doc="the domain box")
@@ -366,17 +376,46 @@ class Scene:
 
     @property
     def particle_diameter(self):
-        """The particle spacing 2r [m]."""
+        """The particle spacing 2r [m].
+
+        Example:
+
+        ```python
+        import warpsph
+
+        scene = warpsph.Scene.load("scenes/dam_break.json")
+        assert scene.particle_diameter == 2 * scene.particle_radius
+        ```
+        """
         return 2.0 * self.particle_radius
 
     @property
     def support_radius(self):
-        """The kernel's support 4r [m]."""
+        """The kernel's support 4r [m].
+
+        Example:
+
+        ```python
+        import warpsph
+
+        scene = warpsph.Scene.load("scenes/dam_break.json")
+        assert scene.support_radius == 4 * scene.particle_radius
+        ```
+        """
         return 4.0 * self.particle_radius
 
     @property
     def time_step_bounds(self):
-        """(dt_min, dt_max) in seconds, resolved from the radius where the file leaves them null."""
+        """(dt_min, dt_max) in seconds, resolved from the radius where the file leaves them null.
+
+        Example:
+
+        ```python
+        import warpsph
+
+        dt_min, dt_max = warpsph.Scene.load("scenes/dam_break.json", scale=0.05).time_step_bounds
+        ```
+        """
         dt_max = self.time.dt_max if self.time.dt_max is not None else DT_MAX_PER_RADIUS * self.particle_radius
         dt_min = self.time.dt_min if self.time.dt_min is not None else dt_max / 50.0
         return min(dt_min, dt_max), dt_max
@@ -412,7 +451,18 @@ class Scene:
                     raise SceneError(path, f"{where}[{n}].mesh", "mesh file not found")
 
     def mesh_path(self, obstacle) -> Path:
-        """An obstacle's or fluid mesh's file, relative to the scene file."""
+        """An obstacle's or fluid mesh's file, relative to the scene file.
+
+        Example:
+
+        ```python
+        import warpsph
+
+        scene = warpsph.Scene.load("scenes/dam_break_pillars.json", scale=0.05)
+        paths = [scene.mesh_path(o) for o in scene.obstacles]  # scenes/meshes/...
+        assert all(p.is_file() for p in paths)
+        ```
+        """
         base = Path(self.source).parent if self.source else Path(".")
         return base / obstacle.mesh
 
@@ -421,14 +471,31 @@ class Scene:
         """Reads and validates a scene file (warpsph JSON or SPlisHSPlasH); ``scale`` multiplies the
         particle count (see :func:`load_scene`).
 
-        >>> scene = Scene.load("scenes/dam_break.json", scale=0.1)
+        Example:
+
+        ```python
+        import warpsph
+
+        scene = warpsph.Scene.load("scenes/dam_break.json", scale=0.1)  # 10 % of the particles
+        ```
         """
         return load_scene(path, scale=scale)
 
     @classmethod
     def from_dict(cls, data: dict, base_dir=None, scale: float = 1.0) -> "Scene":
         """Builds and validates a scene from a dict with the keys of a scene file; mesh paths
-        resolve against ``base_dir`` (see :func:`scene_from_dict`)."""
+        resolve against ``base_dir`` (see :func:`scene_from_dict`).
+
+        Example:
+
+        ```python
+        import warpsph
+
+        scene = warpsph.Scene.from_dict({
+            "particle_radius": 0.02, "domain": {"min": [0, 0, 0], "max": [0.4, 0.4, 0.2]},
+            "fluid_blocks": [{"start": [0, 0, 0], "end": [0.2, 0.2, 0.2]}]})
+        ```
+        """
         return scene_from_dict(data, base_dir=base_dir, scale=scale)
 
 
@@ -714,6 +781,15 @@ def load_scene(path, scale: float = 1.0, run_anyway=None) -> Scene:
     ``scale ** (1/3)``, so ``scale=0.01`` runs a 1 % version of the scene and the
     scene file keeps the paper's full-size radius. ``run_anyway``: a SPlisHSPlasH scene
     runs without the physics warpsph refuses (see :mod:`warpsph.io.splishsplash`).
+
+    Example:
+
+    ```python
+    import warpsph
+
+    scene = warpsph.load_scene("scenes/dam_break.json", scale=0.01)  # a 1 % version: 4.6x the radius
+    sim = warpsph.Simulation(scene)
+    ```
     """
     path = Path(path)
     if not (isinstance(scale, (int, float)) and math.isfinite(scale) and scale > 0):
@@ -780,7 +856,18 @@ def _path_text(steps):
 
 
 def scene_from_dict(data: dict, base_dir=None, scale: float = 1.0) -> Scene:
-    """Builds a scene from a dict (for scripts and tests); mesh paths resolve against ``base_dir``."""
+    """Builds a scene from a dict (for scripts and tests); mesh paths resolve against ``base_dir``.
+
+    Example:
+
+    ```python
+    import warpsph
+
+    scene = warpsph.scene_from_dict({
+        "particle_radius": 0.02, "domain": {"min": [0, 0, 0], "max": [0.4, 0.4, 0.2]},
+        "fluid_blocks": [{"start": [0, 0, 0], "end": [0.2, 0.2, 0.2]}], "output": {"fps": 30}})
+    ```
+    """
     file = Path(base_dir or ".") / "<dict>"
     scene = parse_dataclass(Scene, data, file)
     return rescale(dataclasses.replace(scene, source=str(file)), scale)

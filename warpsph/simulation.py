@@ -98,8 +98,16 @@ class StageTimer:
 class Simulation:
     """A scene on a device. ``step()`` advances one adaptive time step; ``run()`` frames.
 
-    >>> sim = Simulation(load_scene("scenes/dam_break.json", scale=0.05), device="cpu")
-    >>> sim.run(frames=10)
+    Example:
+
+    ```python
+    import warpsph
+
+    scene = warpsph.load_scene("scenes/dam_break.json", scale=0.05)
+    sim = warpsph.Simulation(scene, device="cpu")  # "cuda", "cuda:0"; None: Warp's default device
+    sim.run(frames=10)
+    print(sim.time, sim.num_fluid, sim.kinetic_energy())
+    ```
     """
 
     def __init__(self, scene: Scene, device=None, profile=False, use_graph=None, particles=None, halo=None,
@@ -239,7 +247,17 @@ class Simulation:
 
     @property
     def num_fluid(self) -> int:
-        """Fluid particles now (rows 0 .. num_fluid - 1 of every per-particle array)."""
+        """Fluid particles now (rows 0 .. num_fluid - 1 of every per-particle array).
+
+        Example:
+
+        ```python
+        import warpsph
+
+        sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+        assert sim.positions().shape == (sim.num_fluid, 3)
+        ```
+        """
         return self.state.num_fluid
 
     @num_fluid.setter
@@ -273,7 +291,18 @@ class Simulation:
 
     @property
     def frame(self) -> int:
-        """The last output frame reached by :meth:`run`."""
+        """The last output frame reached by :meth:`run`.
+
+        Example:
+
+        ```python
+        import warpsph
+
+        sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+        sim.run(frames=2)
+        assert sim.frame == 2
+        ```
+        """
         return self.state.frame
 
     @frame.setter
@@ -283,7 +312,19 @@ class Simulation:
     @property
     def gravity(self) -> wp.vec3:
         """Gravity [m/s^2]; may be changed between steps (a ramp, a tilting tank): setting it drops
-        the captured CUDA graph, whose launches hold the value they were captured with."""
+        the captured CUDA graph, whose launches hold the value they were captured with.
+
+        Example:
+
+        ```python
+        import warpsph
+
+        sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+        for tilt in (0.0, 0.5, 1.0):  # tilt the tank a little each frame
+            sim.gravity = (tilt, -9.81, 0.0)
+            sim.run(frames=sim.frame + 1)
+        ```
+        """
         return self._gravity
 
     @gravity.setter
@@ -329,23 +370,78 @@ class Simulation:
         return out.copy() if self.device.is_cpu else out
 
     def positions(self):
-        """Fluid particle positions [m] as a new (num_fluid, 3) float32 numpy array."""
+        """Fluid particle positions [m] as a new (num_fluid, 3) float32 numpy array.
+
+        Example:
+
+        ```python
+        import warpsph
+
+        sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+        x = sim.positions()
+        print(x[:, 1].max())  # the highest particle
+        ```
+        """
         return self._copy(self.fluid.x)
 
     def velocities(self):
-        """Fluid particle velocities [m/s] as a new (num_fluid, 3) float32 numpy array."""
+        """Fluid particle velocities [m/s] as a new (num_fluid, 3) float32 numpy array.
+
+        Example:
+
+        ```python
+        import warpsph
+
+        sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+        sim.run(frames=2)
+        speed = (sim.velocities() ** 2).sum(axis=1) ** 0.5
+        ```
+        """
         return self._copy(self.fluid.v)
 
     def densities(self):
-        """Fluid particle densities [kg/m^3] as a new (num_fluid,) float32 numpy array."""
+        """Fluid particle densities [kg/m^3] as a new (num_fluid,) float32 numpy array.
+
+        Example:
+
+        ```python
+        import warpsph
+
+        sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+        sim.step()
+        print(sim.densities().mean() / sim.scene.fluid.density)  # about 1
+        ```
+        """
         return self._copy(self.fluid.density)
 
     def ids(self):
-        """Stable particle ids (int32, unchanged by re-sorting) of the rows of :meth:`positions`."""
+        """Stable particle ids (int32, unchanged by re-sorting) of the rows of :meth:`positions`.
+
+        Example:
+
+        ```python
+        import warpsph
+
+        sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+        sim.run(frames=2)
+        x = sim.positions()[sim.ids().argsort()]  # rows in id order, frame after frame
+        ```
+        """
         return self._copy(self.fluid.ids)
 
     def field_values(self, name):
-        """A published per-particle field (:meth:`fields`) of the rows of :meth:`positions`, as numpy."""
+        """A published per-particle field (:meth:`fields`) of the rows of :meth:`positions`, as numpy.
+
+        Example:
+
+        ```python
+        import warpsph
+
+        sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+        sim.step()
+        rho = sim.field_values("density")  # aligned with sim.positions()
+        ```
+        """
         return self._copy(self.fields()[name])
 
     def parts(self):
@@ -354,7 +450,18 @@ class Simulation:
         return [self]
 
     def kinetic_energy(self):
-        """Kinetic energy of the fluid [J], summed on the host in float64."""
+        """Kinetic energy of the fluid [J], summed on the host in float64.
+
+        Example:
+
+        ```python
+        import warpsph
+
+        sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+        energy = []
+        sim.run(frames=3, on_frame=lambda sim, frame: energy.append(sim.kinetic_energy()))
+        ```
+        """
         v = self.velocities().astype(np.float64)
         return 0.5 * self.particle_mass * float(np.sum(v * v))
 
@@ -398,7 +505,18 @@ class Simulation:
         densities of the new positions: it turns v^n (advected at the end of the last
         step) into the divergence-free v~ that the models refine. IISPH has no divergence
         correction and no free-surface pass (no-ops): its one solve is the density solve
-        after the non-pressure forces, where DFSPH's is, as SPlisHSPlasH's TimeStepIISPH orders it."""
+        after the non-pressure forces, where DFSPH's is, as SPlisHSPlasH's TimeStepIISPH orders it.
+
+        Example:
+
+        ```python
+        import warpsph
+
+        sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+        sim.step()  # one adaptive time step
+        print(sim.time, sim.statistics()["density_iterations"])
+        ```
+        """
         with wp.ScopedDevice(self.device):
             # t^n, read from the device once for the emitters and the bodies' poses
             now = self.time if self.inflow is not None or self.moving_bodies is not None else None
@@ -509,11 +627,33 @@ class Simulation:
     # -- host views -------------------------------------------------------------------------------------
     @property
     def time(self) -> float:
-        """Simulated time [s] (reads the device clock)."""
+        """Simulated time [s] (reads the device clock).
+
+        Example:
+
+        ```python
+        import warpsph
+
+        sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+        sim.run(frames=2)
+        print(f"t = {sim.time:.3f} s")  # 2 frames at 25 fps: 0.08 s
+        ```
+        """
         return float(self.time_device.numpy()[0])
 
     def check_health(self):
-        """The first failed health check of the last step as an :class:`InstabilityError`, or None."""
+        """The first failed health check of the last step as an :class:`InstabilityError`, or None.
+
+        Example:
+
+        ```python
+        import warpsph
+
+        sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+        sim.step()
+        assert sim.check_health() is None  # healthy (run() raises it after a step)
+        ```
+        """
         return health.first_failure(self)
 
     # -- state: what a checkpoint keeps and a retried step restores -----------------------------------------
@@ -577,7 +717,18 @@ class Simulation:
         ``on_frame(sim, frame)`` after the initial state and each frame, and ``on_step(sim)`` after each step that
         passed its health check (a measurement over every step; with ``on_instability`` "reduce-dt" the steps of a
         frame that is redone are reported again). A simulation restored from a checkpoint continues after its last
-        frame (``self.frame``)."""
+        frame (``self.frame``).
+
+        Example:
+
+        ```python
+        import warpsph
+
+        sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+        sim.run(frames=5, on_frame=lambda sim, frame: print(frame, sim.time))  # frames 0 (the start) .. 5
+        sim.run(until_time=0.4)  # continues after frame 5
+        ```
+        """
         fps = self.scene.output.fps
         frames = self.scene.output.frames if frames is None and until_time is None else frames
         if until_time is not None:
@@ -594,7 +745,18 @@ class Simulation:
 
     def statistics(self):
         """Solver iterations per solve, the last average errors and the particles removed so far
-        (inside sinks; outside an open domain)."""
+        (inside sinks; outside an open domain).
+
+        Example:
+
+        ```python
+        import warpsph
+
+        sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+        sim.run(frames=1)
+        print(sim.statistics())  # {'steps': ..., 'density_iterations': ..., 'density_error': ..., ...}
+        ```
+        """
         div_it, div_n, dens_it, dens_n = self.pressure_solver.iteration_totals()
         div_err, dens_err = self.pressure_solver.last_errors()
         return {
@@ -608,7 +770,17 @@ class Simulation:
         }
 
     def fields(self):
-        """Per-particle fields by name, for every writer (USD, checkpoints, plots)."""
+        """Per-particle fields by name, for every writer (USD, checkpoints, plots).
+
+        Example:
+
+        ```python
+        import warpsph
+
+        sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+        print(sorted(sim.fields()))  # ['density', ...]: Warp arrays over the rows
+        ```
+        """
         out = {"density": self.fluid.density}
         if self.vorticity_field is not None:
             out["vorticity"] = self.vorticity_field.vorticity

@@ -41,7 +41,19 @@ def scene_hash(scene) -> str:
 
 def save_checkpoint(sim, path, extra=None):
     """Writes the state to ``path`` through a temporary file and a rename: a crash never
-    leaves a corrupt file under ``path``. ``extra`` (run options) is kept as ``run:`` attributes."""
+    leaves a corrupt file under ``path``. ``extra`` (run options) is kept as ``run:`` attributes.
+
+    Example:
+
+    ```python
+    import warpsph
+    from warpsph.io.checkpoint import save_checkpoint
+
+    sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+    sim.run(frames=2)
+    save_checkpoint(sim, "out/dam_break.checkpoint.h5")  # what `warpsph resume` continues
+    ```
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp")
@@ -93,7 +105,21 @@ def load_checkpoint(path, scene=None, device=None):
     """A :class:`Simulation` in the checkpoint's state. By default the scene is the one stored in
     the checkpoint (its mesh files found beside the original scene file); ``scene`` (the same
     scene file, loaded with the same scale) is checked against it, and so is the original scene
-    file while it exists: an edited scene file is refused."""
+    file while it exists: an edited scene file is refused.
+
+    Example:
+
+    ```python
+    import warpsph
+    from warpsph.io.checkpoint import load_checkpoint, save_checkpoint
+
+    sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+    sim.run(frames=2)
+    save_checkpoint(sim, "out/dam_break.checkpoint.h5")
+    sim = load_checkpoint("out/dam_break.checkpoint.h5", device="cpu")
+    sim.run(frames=4)  # continues after frame 2, as the first run would have
+    ```
+    """
     path = Path(path)
     try:
         f = h5py.File(path, "r")
@@ -138,7 +164,16 @@ def load_checkpoint(path, scene=None, device=None):
 
 
 def is_checkpoint(path):
-    """Whether ``path`` is a checkpoint that warpsph wrote."""
+    """Whether ``path`` is a checkpoint that warpsph wrote.
+
+    Example:
+
+    ```python
+    from warpsph.io.checkpoint import is_checkpoint
+
+    assert not is_checkpoint("scenes/dam_break.json")  # False for any other file, or none
+    ```
+    """
     try:
         with h5py.File(path, "r") as f:
             return f.attrs.get("format") == FORMAT

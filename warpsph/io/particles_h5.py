@@ -29,7 +29,22 @@ class ParticleFrames:
     """An ``on_frame`` callback that appends each frame to an HDF5 file, saved crash-consistently (see the
     module's docstring) after a frame while a save costs at most ``flush_share`` of the time since the last one
     (None: after every frame), at :meth:`flush` (a checkpoint) and at :meth:`close`.
-    ``append``: continue the file after frame ``append`` (later frames are dropped)."""
+    ``append``: continue the file after frame ``append`` (later frames are dropped).
+
+    Example:
+
+    ```python
+    import h5py
+    import warpsph
+    from warpsph.io.particles_h5 import ParticleFrames
+
+    sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+    frames = ParticleFrames("dam_break.particles.h5")
+    sim.run(frames=3, on_frame=frames)
+    frames.close()
+    x = h5py.File("dam_break.particles.h5")["frames/000003/x"][...]
+    ```
+    """
 
     def __init__(self, path, append=None, flush_share=FLUSH_SHARE):
         self.path = Path(path)
@@ -119,7 +134,17 @@ class ParticleFrames:
 
 
 def is_particles_h5(path):
-    """Whether ``path`` is an HDF5 file of particle frames that warpsph wrote."""
+    """Whether ``path`` is an HDF5 file of particle frames that warpsph wrote.
+
+    Example:
+
+    ```python
+    from warpsph.io.particles_h5 import ParticleFrames, is_particles_h5
+
+    ParticleFrames("empty.particles.h5").close()  # a file of no frames
+    assert is_particles_h5("empty.particles.h5") and not is_particles_h5("scenes/dam_break.json")
+    ```
+    """
     try:
         with h5py.File(path, "r") as f:
             return f.attrs.get("format") == FORMAT or set(f) == {"frames"}

@@ -293,18 +293,25 @@ class UsdWriter:
     """The public USD writer: every frame of a :class:`~warpsph.simulation.Simulation` into a USD
     point cache (layout in :mod:`warpsph.io.usd`'s docstring), with the domain's boundary samples and the
     scene's bodies. Call it as the ``on_frame`` of :meth:`Simulation.run`, then :meth:`close`
-    (or use it as a context manager)::
-
-        with UsdWriter("out/dam_break.usdc", sim) as usd:
-            sim.run(frames=25, on_frame=usd)
-
-    ``fields``: the ``--fields`` names to write (``points``, ``velocities``, ``ids``, ``widths``,
-    ``density``, ``vorticity``, ...; None: all). ``clips=True`` writes one layer per frame
+    (or use it as a context manager). ``fields``: the ``--fields`` names to write (``points``, ``velocities``,
+    ``ids``, ``widths``, ``density``, ``vorticity``, ...; None: all). ``clips=True`` writes one layer per frame
     (:class:`~warpsph.io.usd.UsdClipCache`, for large runs) instead of a single file
     (:class:`~warpsph.io.usd.UsdPointCache`, saved whenever a save costs at most ``FLUSH_SHARE`` of the time
     since the last one, and at :meth:`close`). It writes through the same :class:`Recorder` as ``warpsph run``, on
     the calling thread, without the run's CSV and checkpoints; a failed write raises :class:`WriteError` naming the
-    frame."""
+    frame.
+
+    Example:
+
+    ```python
+    import warpsph
+
+    sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+    with warpsph.io.UsdWriter("out/dam_break.usdc", sim, fields=["points", "velocities"]) as usd:
+        sim.run(frames=5, on_frame=usd)  # on_frame(sim, frame) after the start and each frame
+    print(usd.frames, usd.path)  # 6 frames (0 .. 5)
+    ```
+    """
 
     def __init__(self, path, sim, fields=None, clips=False):
         self.path = Path(path)

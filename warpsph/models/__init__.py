@@ -28,6 +28,36 @@ whole registration (tests/test_plugins.py defines one inside the test file).
 
 A scene names its models; a scene without one launches none of their kernels and
 allocates none of their arrays.
+
+Example:
+
+```python
+import warp as wp
+import warpsph
+from warpsph.models import Model, register
+from warpsph.scene import key, schema
+
+@wp.kernel
+def damp(v: wp.array(dtype=wp.vec3), rate: float, dt: wp.array(dtype=float)):
+    v[wp.tid()] = v[wp.tid()] * (1.0 - rate * dt[0])
+
+@schema
+class Damping:  # a linear drag: the scene entry {"type": "damping", "rate": ...}
+    rate: float = key(2.0, doc="drag rate", unit="1/s", ge=0.0)
+
+@register("damping")
+class DampingModel(Model):
+    Parameters = Damping
+
+    def step(self, ctx):
+        ctx.launch(damp, ctx.num_fluid, [ctx.fluid.v, self.params.rate, ctx.dt])
+
+scene = warpsph.scene_from_dict({
+    "particle_radius": 0.02, "domain": {"min": [0, 0, 0], "max": [0.4, 0.4, 0.2]},
+    "fluid_blocks": [{"start": [0, 0, 0], "end": [0.2, 0.2, 0.2]}],
+    "models": [{"type": "damping", "rate": 5.0}]})
+warpsph.Simulation(scene).run(frames=2)
+```
 """
 
 from .base import NO_HISTORY, REGISTRY, Model, ModelContext, plugin_of, register, scene_models  # noqa: F401

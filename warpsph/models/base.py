@@ -14,12 +14,59 @@ REGISTRY: dict = {}
 # of its first component) as "none yet" and skip the particle's first correction, as they skip everyone's
 # on the first step. The marker travels with the particle through re-sorting, sinks and checkpoints.
 NO_HISTORY = wp.vec3(math.nan, math.nan, math.nan)
-"""The carried vector of a particle with no history yet (NaN): :meth:`Model.emitted` marks new rows with it."""
+"""The carried vector of a particle with no history yet (NaN): :meth:`Model.emitted` marks new rows with it.
+
+Example:
+
+```python
+import warp as wp
+from warpsph.models import NO_HISTORY
+
+@wp.kernel
+def has_history(carried: wp.array(dtype=wp.vec3), out: wp.array(dtype=int)):
+    out[wp.tid()] = int(not wp.isnan(carried[wp.tid()][0]))  # skip a new particle's first correction
+
+carried, out = wp.array([NO_HISTORY, wp.vec3(0.0)], dtype=wp.vec3), wp.zeros(2, dtype=int)
+wp.launch(has_history, 2, [carried, out])
+assert out.numpy().tolist() == [0, 1]
+```
+"""
 
 
 def register(name):
     """Class decorator that makes a model available to scenes under ``name``: ``{"type": name, ...}``
-    in a scene's "models" is validated against ``cls.Parameters``. Re-registering a name replaces it."""
+    in a scene's "models" is validated against ``cls.Parameters``. Re-registering a name replaces it.
+
+    Example:
+
+    ```python
+    import warp as wp
+    import warpsph
+    from warpsph.models import Model, register
+    from warpsph.scene import key, schema
+
+    @wp.kernel
+    def damp(v: wp.array(dtype=wp.vec3), rate: float, dt: wp.array(dtype=float)):
+        v[wp.tid()] = v[wp.tid()] * (1.0 - rate * dt[0])
+
+    @schema
+    class Damping:  # a linear drag: the scene entry {"type": "damping", "rate": ...}
+        rate: float = key(2.0, doc="drag rate", unit="1/s", ge=0.0)
+
+    @register("damping")
+    class DampingModel(Model):
+        Parameters = Damping
+
+        def step(self, ctx):
+            ctx.launch(damp, ctx.num_fluid, [ctx.fluid.v, self.params.rate, ctx.dt])
+
+    scene = warpsph.scene_from_dict({
+        "particle_radius": 0.02, "domain": {"min": [0, 0, 0], "max": [0.4, 0.4, 0.2]},
+        "fluid_blocks": [{"start": [0, 0, 0], "end": [0.2, 0.2, 0.2]}],
+        "models": [{"type": "damping", "rate": 5.0}]})
+    warpsph.Simulation(scene).run(frames=2)
+    ```
+    """
 
     def wrap(cls):
         if cls.Parameters is not None:
@@ -32,7 +79,17 @@ def register(name):
 
 
 def scene_models():
-    """{name: plug-in class} of the models a scene can name (those with ``Parameters``)."""
+    """{name: plug-in class} of the models a scene can name (those with ``Parameters``).
+
+    Example:
+
+    ```python
+    from warpsph.models import scene_models
+
+    print(sorted(scene_models()))  # ['micropolar', 'rankine', 'vorticity_refinement', ...]
+    print(scene_models()["rankine"].Parameters)  # the scene entry's parameters
+    ```
+    """
     return {name: cls for name, cls in REGISTRY.items() if cls.Parameters is not None}
 
 
@@ -44,7 +101,35 @@ def plugin_of(params):
 class ModelContext:
     """What a model plug-in sees of the simulation: the fluid's arrays and count, the neighbour lists, the
     boundary samples, the shared vorticity field, the constants and the clock, and the allocation and
-    launch calls. Nothing else (no solver, no bodies, no writers): the interface is this class."""
+    launch calls. Nothing else (no solver, no bodies, no writers): the interface is this class.
+
+    Example:
+
+    ```python
+    import warpsph
+    from warpsph.models import Model, register
+    from warpsph.scene import schema
+
+    @schema
+    class Probe:
+        pass  # no parameters
+
+    @register("probe")
+    class ProbeModel(Model):  # {"type": "probe"}: reads the context each step
+        Parameters = Probe
+
+        def step(self, ctx):
+            self.last = (ctx.num_fluid, ctx.particle_radius, ctx.device, ctx.host(ctx.fluid.v).shape)
+
+    scene = warpsph.scene_from_dict({
+        "particle_radius": 0.02, "domain": {"min": [0, 0, 0], "max": [0.4, 0.4, 0.2]},
+        "fluid_blocks": [{"start": [0, 0, 0], "end": [0.2, 0.2, 0.2]}],
+        "models": [{"type": "probe"}]})
+    sim = warpsph.Simulation(scene)
+    sim.step()
+    print(sim.turbulence_models[0].last)
+    ```
+    """
 
     __slots__ = ("_sim",)
 
@@ -70,6 +155,7 @@ class ModelContext:
     support_radius = property(lambda self: self._sim.support_radius)
     """The kernel's support 4r [m]."""
     dt = property(lambda self: self._sim.dt, doc="This step's dt [s], a device array of one.")
+    """This step's dt [s], a device array of one."""
 
     @property
     def viscous_substeps(self):
@@ -77,7 +163,6 @@ class ModelContext:
         when the scene takes none (``solver.viscosity_substeps`` 1)."""
         sim = self._sim
         return (*sim.viscous_substeps, sim.substeps_left) if sim.max_viscous_substeps > 1 else None
-    """This step's dt [s], a device array of one."""
 
     @property
     def surface_flags(self):
@@ -122,7 +207,44 @@ class ModelContext:
 
 
 class Model:
-    """Base class with the do-nothing parts of the interface."""
+    """Base class with the do-nothing parts of the interface.
+
+    Example:
+
+    ```python
+    import warpsph
+    from warpsph.models import Model, register
+    from warpsph.scene import schema
+
+    @schema
+    class Speed:
+        pass  # no parameters
+
+    @register("max_speed")
+    class MaxSpeed(Model):  # {"type": "max_speed"}: publishes a per-particle field, keeps a flag
+        Parameters = Speed
+        output_fields = {"speed": 4}  # bytes per particle
+        flag_names = ("steps",)
+
+        def __init__(self, ctx, params):
+            super().__init__(ctx, params)
+            self.speed, self.steps = ctx.per_particle(self.name, float), 0
+
+        def step(self, ctx):
+            self.steps += 1
+
+        def fields(self):
+            return {"speed": self.speed}
+
+    scene = warpsph.scene_from_dict({
+        "particle_radius": 0.02, "domain": {"min": [0, 0, 0], "max": [0.4, 0.4, 0.2]},
+        "fluid_blocks": [{"start": [0, 0, 0], "end": [0.2, 0.2, 0.2]}],
+        "models": [{"type": "max_speed"}]})
+    sim = warpsph.Simulation(scene)
+    sim.run(frames=1)
+    print(sim.field_values("speed").shape, sim.turbulence_models[0].flags())
+    ```
+    """
 
     name = "model"
     """The registration name (set by :func:`register`)."""

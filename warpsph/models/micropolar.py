@@ -11,7 +11,20 @@ from .base import Model, register
 @schema
 class Micropolar:
     """Micropolar's scene parameters (Bender et al. 2017/2018; SPlisHSPlasH's defaults: nu_t 0.1,
-    Theta^-1 0.5, zeta 0.1; the stress matrix ran nu_t up to 0.4)."""
+    Theta^-1 0.5, zeta 0.1; the stress matrix ran nu_t up to 0.4).
+
+    Example:
+
+    ```python
+    import warpsph
+
+    scene = warpsph.scene_from_dict({
+        "particle_radius": 0.02, "domain": {"min": [0, 0, 0], "max": [0.4, 0.4, 0.2]},
+        "fluid_blocks": [{"start": [0, 0, 0], "end": [0.2, 0.2, 0.2]}],
+        "models": [{"type": "micropolar", "transfer_coefficient": 0.1}]})
+    warpsph.Simulation(scene).run(frames=2)
+    ```
+    """
 
     transfer_coefficient: float = key(0.05, doc="nu_t, the coupling of v and omega", ge=0.0, le=1.0)
     inverse_inertia: float = key(0.5, doc="Theta^-1, the inverse micro-inertia", gt=0.0, le=10.0)
@@ -20,7 +33,23 @@ class Micropolar:
 
 @register("micropolar")
 class MicropolarModel(Model):
-    """Angular velocity omega per particle, coupled to v through nu_t. One launch and a copy."""
+    """Angular velocity omega per particle, coupled to v through nu_t. One launch and a copy.
+
+    Example:
+
+    ```python
+    import warpsph
+
+    scene = warpsph.scene_from_dict({
+        "particle_radius": 0.02, "domain": {"min": [0, 0, 0], "max": [0.4, 0.4, 0.2]},
+        "fluid_blocks": [{"start": [0, 0, 0], "end": [0.2, 0.2, 0.2]}],
+        "models": [{"type": "micropolar"}]})
+    sim = warpsph.Simulation(scene)
+    sim.run(frames=2)
+    omega = sim.field_values("angular_velocity")  # (num_fluid, 3) [rad/s]
+    omega_device, inertia = sim.turbulence_models[0].spin()
+    ```
+    """
 
     Parameters = Micropolar
     bytes_per_particle = 12  # one vec3 per particle

@@ -12,7 +12,20 @@ from .base import NO_HISTORY, Model, register
 
 @schema
 class RankineFeedback:
-    """Rankine feedback's scene parameters (Rankine paper, Algorithm 1): r_c = beta sqrt(4 1.25643 nu dt)."""
+    """Rankine feedback's scene parameters (Rankine paper, Algorithm 1): r_c = beta sqrt(4 1.25643 nu dt).
+
+    Example:
+
+    ```python
+    import warpsph
+
+    scene = warpsph.scene_from_dict({
+        "particle_radius": 0.02, "domain": {"min": [0, 0, 0], "max": [0.4, 0.4, 0.2]},
+        "fluid_blocks": [{"start": [0, 0, 0], "end": [0.2, 0.2, 0.2]}],
+        "models": [{"type": "rankine", "beta": 0.6}]})
+    warpsph.Simulation(scene).run(frames=2)
+    ```
+    """
 
     beta: float = key(1.0, doc="intensity beta of eq 11 (Fig 7's sweep)", ge=0.0, le=1.0)
     viscosity: Optional[float] = key(None, doc="nu of eq 11; null: the fluid's", unit="m^2/s",
@@ -29,7 +42,22 @@ class RankineModel(Model):
     the paper keeps the core inside a particle, and above about 0.9 r the feedback ran away), and applies beta
     after that bound, so the feedback (eq 15, proportional to r_c^2) grows as beta^2 over the whole range.
     Bounding beta r_c^max instead made every beta above 0.7 r / r_c^max (about 0.44 at the viscous time-step
-    limit) the same model."""
+    limit) the same model.
+
+    Example:
+
+    ```python
+    import warpsph
+
+    scene = warpsph.scene_from_dict({
+        "particle_radius": 0.02, "domain": {"min": [0, 0, 0], "max": [0.4, 0.4, 0.2]},
+        "fluid_blocks": [{"start": [0, 0, 0], "end": [0.2, 0.2, 0.2]}],
+        "models": [{"type": "rankine"}]})
+    sim = warpsph.Simulation(scene)
+    sim.run(frames=2)
+    rankine = sim.turbulence_models[0]  # this class; sim.field_values("vorticity"): omega^n
+    ```
+    """
 
     Parameters = RankineFeedback
     bytes_per_particle = 12  # one vec3 per particle

@@ -23,7 +23,20 @@ class Viscosity(Model):
     eq 4 on the surface and its band, with IISPH (no surface flags) and in a periodic box. Lamb-Oseen on the H200 at
     64 / 128 / 256 across: 0.97 / 0.69 / 0.39 % with it, 1.90 / 1.52 / 1.12 % with eq 4 (peak vorticity 2-4 %
     high; docs/notes/solver.md). In the periodic box the corrected operator did not fall from 128 to 256 across
-    (Taylor-Green 0.33 / 0.34 %, eq 4 0.33 / 0.26 %)."""
+    (Taylor-Green 0.33 / 0.34 %, eq 4 0.33 / 0.26 %).
+
+    Example:
+
+    ```python
+    import warpsph
+
+    scene = warpsph.scene_from_dict({
+        "particle_radius": 0.02, "domain": {"min": [0, 0, 0], "max": [0.4, 0.4, 0.2]},
+        "fluid_blocks": [{"start": [0, 0, 0], "end": [0.2, 0.2, 0.2]}],
+        "fluid": {"viscosity": 0.01}})
+    warpsph.Simulation(scene).run(frames=2)  # viscosity 0: no viscosity kernels
+    ```
+    """
 
     computes_vorticity = True  # fills the shared vorticity field (ctx.vorticity) in the same pass when it exists
     corrected_bytes_per_particle = 24  # the strain rate, where the operator is the corrected one

@@ -17,7 +17,20 @@ from .base import NO_HISTORY, Model, register
 
 @schema
 class VorticityRefinement:
-    """Vorticity refinement's scene parameters (VR paper, Algorithm 2): v <- v~ + alpha dv (eq 17)."""
+    """Vorticity refinement's scene parameters (VR paper, Algorithm 2): v <- v~ + alpha dv (eq 17).
+
+    Example:
+
+    ```python
+    import warpsph
+
+    scene = warpsph.scene_from_dict({
+        "particle_radius": 0.02, "domain": {"min": [0, 0, 0], "max": [0.4, 0.4, 0.2]},
+        "fluid_blocks": [{"start": [0, 0, 0], "end": [0.2, 0.2, 0.2]}],
+        "models": [{"type": "vorticity_refinement", "alpha": 0.5}]})
+    warpsph.Simulation(scene).run(frames=2)
+    ```
+    """
 
     alpha: float = key(1.0, doc="refinement strength alpha of eq 17 (the VR paper uses 0 to 1.3; every alpha in "
                                 "[0, 2] ran stable in the stress matrix)", ge=0.0, le=2.0)
@@ -30,7 +43,22 @@ class VorticityRefinementModel(Model):
     """Per step, after the divergence solve gave v~ and its vorticity zeta~ (shared field):
     V d zeta = V (zeta^{n+1} - zeta~) (eq 12) over the target, psi (eq 15), v += alpha curl psi (eqs 16-17); then
     zeta^n = curl v of the refined velocity and from it the next ideal zeta^{n+1} (eqs 9-11).
-    Three neighbour passes; one scratch vector per particle (psi) besides the carried target."""
+    Three neighbour passes; one scratch vector per particle (psi) besides the carried target.
+
+    Example:
+
+    ```python
+    import warpsph
+
+    scene = warpsph.scene_from_dict({
+        "particle_radius": 0.02, "domain": {"min": [0, 0, 0], "max": [0.4, 0.4, 0.2]},
+        "fluid_blocks": [{"start": [0, 0, 0], "end": [0.2, 0.2, 0.2]}],
+        "models": [{"type": "vorticity_refinement"}]})
+    sim = warpsph.Simulation(scene)
+    sim.run(frames=2)
+    vr = sim.turbulence_models[0]  # this class; sim.field_values("vorticity"): its zeta per particle
+    ```
+    """
 
     Parameters = VorticityRefinement
     bytes_per_particle = 12  # one vec3 per particle
