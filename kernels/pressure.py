@@ -431,6 +431,8 @@ def update_solver_status(
     iterations: wp.array(dtype=wp.int32),
     totals: wp.array(dtype=wp.int64),
     max_iteration_streak: wp.array(dtype=wp.int32),
+    coupling_residual: wp.array(dtype=float),
+    coupling_tolerance: float,
 ):
     """One thread: average error over the fluid and the loop condition, on the device.
 
@@ -441,7 +443,11 @@ def update_solver_status(
     [``min_error``, ``max_error``] (the periodic box's rate half: a tolerance per unit time). Besides the average, the largest error must be below
     ``max_peak_error``: in a tall column the average hides a crushed bottom layer. When the loop ends, its iterations are added to
     ``totals[2 kind]`` and ``totals[2 kind + 1]`` counts the solves; ``max_iteration_streak[kind]``
-    counts the consecutive solves that stopped at ``max_iterations``."""
+    counts the consecutive solves that stopped at ``max_iterations``. With dynamic bodies coupled in the solve
+    (``coupling_residual`` of one value, else empty: warpsph/bodies.py MovingBodies.couple) the loop also goes on
+    while a body's velocity is still moving towards the fluid's reaction by more than the density change it causes
+    in a step beside it allows: residual dt > ``coupling_tolerance`` (the solve's relative tolerance x the particle
+    diameter); the residual is cleared for the next iteration."""
     if first != 0:
         iterations[0] = 0
     else:
@@ -460,7 +466,11 @@ def update_solver_status(
     if max_rate > 0.0:
         eta = wp.max(wp.min(eta, max_rate * dt[0]), min_error)
     done = iterations[0]
-    if (avg > eta or peak > eta_peak or done < min_iterations) and done < max_iterations:
+    coupled = False
+    if coupling_residual.shape[0] > 0:
+        coupled = coupling_residual[0] * dt[0] > coupling_tolerance
+        coupling_residual[0] = 0.0
+    if (avg > eta or peak > eta_peak or coupled or done < min_iterations) and done < max_iterations:
         condition[0] = 1
     else:
         condition[0] = 0

@@ -227,7 +227,8 @@ def test_rate_tolerance_is_per_unit_time_within_its_bounds(device):
                  streak=wp.zeros(2, dtype=wp.int32, device=device))
         wp.launch(update_solver_status, 1, inputs=[a["stats"], 10, per_step, 1.0, 0, *rate, a["dt"], 0, 100, 1, 1,
                                                    a["average"], a["condition"], a["iterations"], a["totals"],
-                                                   a["streak"]], device=device)
+                                                   a["streak"], wp.zeros(0, dtype=float, device=device), 0.0],
+                  device=device)
         return bool(a["condition"].numpy()[0])
 
     # a 0.19 ms step: the tolerance is 3.04e-6, not the per-step 1e-5

@@ -18,7 +18,17 @@ import warp as wp
 
 from warpsph import sampling
 from warpsph.errors import SceneError
-from warpsph.kernels.bodies import measure_body_contacts, place_body_samples, sum_body_impulses
+from warpsph.kernels.bodies import (
+    correct_body_stiffness,
+    measure_body_contacts,
+    measure_body_response,
+    place_body_samples,
+    place_body_velocities,
+    solve_body_response,
+    sum_body_impulses,
+    sum_coupling_impulses,
+    update_body_velocities,
+)
 from warpsph.scene import Motion, Obstacle
 
 BODY_INSET = 1.2  # particle radii between a closed mesh's surface and its samples (as the domain walls' offset)
@@ -27,7 +37,11 @@ BODY_INSET = 1.2  # particle radii between a closed mesh's surface and its sampl
 # after 0.4 s. Each step's acceleration is therefore relaxed towards the last one by the added mass
 # m_a = ADDED_MASS rho0 V w (w: the share of the body's samples the fluid touched this step):
 # (M + m_a) a = F_fluid + M g + m_a a_last. Gravity acts on the true mass, equilibria (a = 0) are
-# unchanged, and a body in air (w = 0) falls at g.
+# unchanged, and a body in air (w = 0) falls at g. That lag drops momentum whenever the wetted share changes (a box
+# of density 50 thrown into water rebounded and box + fluid gained 1.5 times its momentum): with a solver that
+# couples the bodies inside its pressure iterations (``PressureSolver.couples_bodies``: DFSPH) the relaxation acts
+# there instead, on the iterate of the body's velocity (:meth:`MovingBodies.couple`), and the step ends on Newton's
+# law with the step's whole impulse (momentum exact); the lagged form stays for the others (IISPH).
 ADDED_MASS = 1.0
 STATE_COLUMNS = 24  # a dynamic body's state row: position 3, rotation 9, velocity 3, angular velocity 3,
 # acceleration 3, angular acceleration 3 (float64: the bodies step in float64, and a resume must be bit-identical)
@@ -417,6 +431,73 @@ class MovingBodies:
         starts = np.concatenate([[0], np.cumsum(counts)]) - dynamic_local
         self._dynamic_slices = [slice(int(starts[k]), int(starts[k + 1])) for k in range(n)]
         self._contacts = self._contact_arrays(list(obstacles)) if self.dynamic and n + len(obstacles) > 1 else None
+        self.coupling = None  # the strong coupling's arrays (:meth:`start_coupling`), none unless a solver couples
+
+    def start_coupling(self):
+        """Allocates the arrays of the strong coupling (:meth:`respond`, :meth:`couple`): the dynamic bodies'
+        velocities at the step's start, inverse mass, world inertia and its inverse, reach (the farthest sample), the
+        iteration's trial impulse, the fluid's stiffness against each body's motion and the velocity change they give,
+        the impulse's share of the velocity (``lag``) and the residual the solve's loop reads. Only for a scene with
+        dynamic bodies, whose solver iterates its pressure (``PressureSolver.couples_bodies``)."""
+        if not self.dynamic:
+            return
+        sim, n = self.sim, len(self.bodies)
+        dynamic = [b.kind == "dynamic" for b in self.bodies]
+        self.coupling = {
+            "start_velocity": sim.zeros("bodies", n, dtype=wp.vec3),
+            "start_angular_velocity": sim.zeros("bodies", n, dtype=wp.vec3),
+            "inverse_mass": sim.array("bodies", np.array([1.0 / b.mass if d else 0.0 for b, d in zip(self.bodies, dynamic)],
+                                                         np.float32), float),
+            "inertia": sim.zeros("bodies", n, dtype=wp.mat33),
+            "inverse_inertia": sim.zeros("bodies", n, dtype=wp.mat33),
+            "reach": sim.array("bodies", np.array([np.linalg.norm(b.samples, axis=1).max() if d else 0.0
+                                                   for b, d in zip(self.bodies, dynamic)], np.float32), float),
+            "trial": sim.zeros("bodies", 2 * n, dtype=wp.vec3),
+            "response": sim.zeros("bodies", 3 * n, dtype=wp.mat33),
+            "delta": sim.zeros("bodies", 2 * n, dtype=wp.vec3),
+            "lag": sim.zeros("bodies", 2 * n, dtype=wp.vec3),
+            "residual": sim.zeros("bodies", 1),  # the largest velocity change of the last update (the loop reads it)
+        }
+        self.lag_mismatch = 0.0  # the last step's largest |J / M - lag| [m/s] (:meth:`integrate`)
+
+    def respond(self, stiffness, factor, surface, free_surface, correction):
+        """Strong coupling, before a Jacobi iteration's pressure apply: each dynamic body's velocity change under the
+        iteration's ``stiffness`` with the fluid's answer to that motion taken in (a block of the coupled system's
+        diagonal, :func:`~warpsph.kernels.bodies.solve_body_response`), and the stiffness of the particles beside it
+        corrected by it (:func:`~warpsph.kernels.bodies.correct_body_stiffness`). ``factor``, ``surface``,
+        ``free_surface``, ``correction``: the solve's. All on the device."""
+        c, sim = self.coupling, self.sim
+        n = len(self.bodies)
+        nb, boundary = sim.neighbours.lists, sim.boundary.samples
+        sim.launch(measure_body_response, sim.num_fluid,
+                   [sim.fluid.x, nb, boundary, correction, stiffness, factor, surface, free_surface,
+                    self._dynamic_sample_body, self.position, sim.support_radius, sim.dt, n, c["trial"], c["response"]])
+        sim.launch(solve_body_response, n - self.num_kinematic,
+                   [c["trial"], c["response"], c["inverse_mass"], c["inertia"], sim.particle_mass, self.num_kinematic, n,
+                    c["delta"]])
+        sim.launch(correct_body_stiffness, sim.num_fluid,
+                   [sim.fluid.x, nb, boundary, correction, factor, surface, free_surface, self._dynamic_sample_body,
+                    self.position, c["delta"], sim.support_radius, sim.dt, n, stiffness])
+
+    def couple(self, gravity_weight):
+        """Strong coupling, after a pressure apply (and at a solve's start): the dynamic bodies' velocities under the
+        fluid's reactions so far this step (:func:`~warpsph.kernels.bodies.update_body_velocities`; ``gravity_weight``
+        1 in the density solve: the step's g dt is in) and their samples' velocities from those, for the next source.
+        All on the device, no host read."""
+        c, sim = self.coupling, self.sim
+        n = len(self.bodies)
+        dynamic_local = self.first_dynamic - self.first_sample
+        count = self.num_samples - dynamic_local
+        sim.launch(sum_coupling_impulses, count,
+                   [sim.boundary.impulse, sim.boundary.x, self._dynamic_sample_body, self.position, self.first_dynamic,
+                    n, self.totals])
+        sim.launch(update_body_velocities, n - self.num_kinematic,
+                   [self.totals, c["start_velocity"], c["start_angular_velocity"], c["inverse_mass"],
+                    c["inverse_inertia"], c["reach"], sim.particle_mass, sim.gravity, float(gravity_weight), sim.dt,
+                    self.num_kinematic, n, c["lag"], self.velocity, self.angular_velocity, c["residual"]])
+        sim.launch(place_body_velocities, count,
+                   [self.local[dynamic_local:], self._dynamic_sample_body, self.rotation, self.velocity,
+                    self.angular_velocity, dynamic_local, sim.boundary.v])
 
     def _contact_arrays(self, obstacles):
         """Body-space meshes and poses of every body a dynamic one can touch: the moving bodies (their own
@@ -452,6 +533,15 @@ class MovingBodies:
         sim.launch(place_body_samples, self.num_samples,
                    [self.local, self.sample_body, self.rotation, self.position, self.velocity, self.angular_velocity,
                     self.first_sample, sim.boundary.x, sim.boundary.v])
+        c = self.coupling
+        if c is not None:  # the step's start for the strong coupling (:meth:`couple`)
+            c["start_velocity"].assign(self.velocity)
+            c["start_angular_velocity"].assign(self.angular_velocity)
+            world = [b.rotation @ b.inertia @ b.rotation.T if b.kind == "dynamic" else np.eye(3) for b in self.bodies]
+            c["inertia"].assign(np.stack(world).astype(np.float32))
+            c["inverse_inertia"].assign(np.stack([np.linalg.inv(i) for i in world]).astype(np.float32))
+            c["lag"].zero_()
+            self.totals.zero_()  # (the last step's sums, read by :meth:`integrate`)
 
     def poses(self):
         """{name: (position, rotation)} of every moving body, for the USD writer."""
@@ -474,17 +564,24 @@ class MovingBodies:
                    [sim.boundary.impulse, sim.boundary.x, self._dynamic_sample_body, self.position, self.first_dynamic, n,
                     self.totals])
         totals = self.totals.numpy().astype(np.float64) * sim.particle_mass
+        lag = self.coupling["lag"].numpy() if self.coupling is not None else None
+        self.lag_mismatch = 0.0
         for k, body in enumerate(self.bodies):
             if body.kind != "dynamic":
                 continue
             linear, angular = totals[k], totals[n + k]
-            wetted = totals[2 * n + k][0] / sim.particle_mass / self.sample_counts[k]
-            relax = body.mass / (body.mass + wetted * body.added_mass)  # see ADDED_MASS
             inertia_world = body.rotation @ body.inertia @ body.rotation.T
-            body.acceleration = (relax * (linear / (dt * body.mass) + np.asarray(gravity))
-                                 + (1.0 - relax) * body.acceleration)
-            body.angular_acceleration = (relax * np.linalg.solve(inertia_world, angular / dt)
-                                         + (1.0 - relax) * body.angular_acceleration)
+            if lag is not None:  # coupled in the solves (:meth:`couple`): Newton's law with the step's impulse
+                body.acceleration = linear / (dt * body.mass) + np.asarray(gravity)
+                body.angular_acceleration = np.linalg.solve(inertia_world, angular / dt)
+                self.lag_mismatch = max(self.lag_mismatch, float(np.linalg.norm(linear / body.mass - lag[k])))
+            else:
+                wetted = totals[2 * n + k][0] / sim.particle_mass / self.sample_counts[k]
+                relax = body.mass / (body.mass + wetted * body.added_mass)  # see ADDED_MASS
+                body.acceleration = (relax * (linear / (dt * body.mass) + np.asarray(gravity))
+                                     + (1.0 - relax) * body.acceleration)
+                body.angular_acceleration = (relax * np.linalg.solve(inertia_world, angular / dt)
+                                             + (1.0 - relax) * body.angular_acceleration)
             body.velocity = body.velocity + dt * body.acceleration
             body.angular_velocity = body.angular_velocity + dt * body.angular_acceleration
             body.position = body.position + dt * body.velocity

@@ -71,6 +71,7 @@ class IISPHSolver(PressureSolver):
         self.error = sim.scratch(float, 9)
         self.pressure = sim.per_particle("pressure")  # p / rho0 of the last solve: the next step's warm start
         self.no_gradient_correction = z("pressure", 0, dtype=SymmetricMatrix)  # DFSPH's periodic box only
+        self.no_coupling = z("pressure", 0)  # its bodies take the step's impulse after the solve (no strong coupling)
         self.error_stats = z("pressure", 3)  # sum |error|, max |error| (update_solver_status resets them)
         self.average_error = z("pressure", 1)
         self.condition = z("pressure", 1, dtype=wp.int32)  # read by wp.capture_while
@@ -123,7 +124,7 @@ class IISPHSolver(PressureSolver):
             sim.launch(update_solver_status, 1,
                        [self.error_stats, n, max_error, max_error * PEAK_ERROR_RATIO, 0, 0.0, 0.0, sim.dt, s.min_iterations,
                         s.max_iterations, 0, DENSITY, self.average_error, self.condition, self.iterations, self.totals,
-                        self.max_iteration_streak])
+                        self.max_iteration_streak, self.no_coupling, 0.0])
 
         wp.capture_while(self.condition, iteration)
         # a_p of the final pressures: q = p / rho^2 is the DFSPH stiffness, so DFSPH's kernel applies it (and

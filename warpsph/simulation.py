@@ -196,6 +196,8 @@ class Simulation:
                             [self.neighbours.boundary_grid.grid, self.boundary.x, sample_body, first_moving_body,
                              self.support_radius, self.neighbours.lower, self.neighbours.period, self.boundary.volume])
             self.pressure_solver = solver_class(self)
+            if self.moving_bodies is not None and solver_class.couples_bodies:
+                self.moving_bodies.start_coupling()  # dynamic bodies move inside the pressure iterations
             viscous = scene.fluid.viscous
             self.model_context = ModelContext(self)  # what the plug-ins see
             self.viscosity_model = REGISTRY["viscosity"](self.model_context) if viscous else None

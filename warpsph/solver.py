@@ -84,6 +84,7 @@ class DFSPHSolver(PressureSolver):
     scratch_columns = 2  # stiffness and error live within a solve: they share the models' scratch pool
     splishsplash_method = 4
     decomposable = True
+    couples_bodies = True  # the dynamic bodies move inside both solves' iterations (:meth:`_couple`)
 
     @staticmethod
     def columns(scene):
@@ -144,6 +145,7 @@ class DFSPHSolver(PressureSolver):
         self.gradient_correction = sim.per_particle("pressure", SymmetricMatrix)  # L_i
         self.corrected_factor = sim.per_particle("pressure")  # ... and the factor of the corrected solves
         self.no_gradient_correction = sim.zeros("pressure", 0, dtype=SymmetricMatrix)
+        self.no_coupling = sim.zeros("pressure", 0)  # no bodies' residual in the loop's decision (:meth:`_residual`)
         if self.drift_by_positions:  # the drift solve's velocity, and its stiffness for the warm start
             self.drift_velocity = sim.per_particle("pressure", wp.vec3)
             self.pressure_sum.append(sim.per_particle("pressure"))
@@ -299,9 +301,28 @@ class DFSPHSolver(PressureSolver):
     def _apply(self, kind, accumulate, velocity):
         sim = self.sim
         corrected = self._corrected(kind)
+        if accumulate and self._coupled(kind):  # the bodies' answer to this iteration's pressure (not the bulk's warm start)
+            sim.moving_bodies.respond(self.stiffness, self._factor(kind), self.surface, self.free_surface,
+                                      self._correction(kind))
         sim.launch(apply_corrected_pressure_acceleration if corrected else apply_pressure_acceleration, sim.num_fluid,
                    [self.stiffness, sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume,
                     sim.support_radius, sim.dt, accumulate, self.pressure_sum[kind], self._correction(kind), velocity])
+        self._couple(kind)
+
+    def _couple(self, kind):
+        """Strong fluid-rigid coupling (Gissler et al. 2019): after each apply of the divergence and density solves
+        (and at their start), the dynamic bodies' velocities take the pressure reactions the fluid has given them so
+        far this step, and their samples' velocities, which the next source reads, follow
+        (:meth:`~warpsph.bodies.MovingBodies.couple`). Without dynamic bodies nothing is launched; the periodic box's
+        drift half (its velocity moves positions only) leaves the bodies as its rate half left them."""
+        if self._coupled(kind):
+            self.sim.moving_bodies.couple(gravity_weight=1.0 if kind == DENSITY else 0.0)
+
+    def _coupled(self, kind):
+        """Whether a solve of ``kind`` moves dynamic bodies in its iterations: there are some, and it is not the
+        periodic box's drift half."""
+        bodies = self.sim.moving_bodies
+        return bodies is not None and bodies.coupling is not None and kind != DRIFT
 
     def _measure(self, kind, inputs, max_error, min_it, max_it, first, rate=(0.0, 0.0)):
         """Source, stiffness and error of the current velocities, and the loop's decision. The first
@@ -328,7 +349,13 @@ class DFSPHSolver(PressureSolver):
                    [self.error_stats, sim.global_count, max_error, max_error * PEAK_ERROR_RATIO, int(kind == DIVERGENCE), *rate, sim.dt, min_it, max_it,
                     int(first), 0 if kind == DRIFT else kind, self.average_error[kind], self.condition,
                     self.iterations, *((self.drift_totals, self.drift_streak) if kind == DRIFT
-                                       else (self.totals, self.max_iteration_streak))])
+                                       else (self.totals, self.max_iteration_streak)),
+                    self._residual(kind), max_error * sim.scene.particle_diameter])
+
+    def _residual(self, kind):
+        """The coupled bodies' velocity residual the loop of a solve of ``kind`` reads (:meth:`_couple`), or an empty
+        array (no dynamic bodies; the drift half)."""
+        return self.sim.moving_bodies.coupling["residual"] if self._coupled(kind) else self.no_coupling
 
     def _solve(self, kind, inputs, max_error, min_it, max_it, velocity=None, rate=(0.0, 0.0)):
         """One pressure solve of ``kind`` (DIVERGENCE, DENSITY or DRIFT) that accumulates its stiffness in
@@ -336,6 +363,7 @@ class DFSPHSolver(PressureSolver):
         a tolerance per unit time, rate[0] x dt within [rate[1], max_error] (none when rate[0] is 0)."""
         sim = self.sim
         velocity = sim.fluid.v if velocity is None else velocity
+        self._couple(kind)  # the bodies' velocities as the fluid's now (the density solve: after the step's g dt)
         if not sim.scene.solver.warm_start:
             self.pressure_sum[kind].zero_()
         elif self._bulk_first(kind):

@@ -12,6 +12,8 @@ of warpsph asks of it, so that nothing else names a solver:
 - ``needs_factor``: whether the density pass writes DFSPH's factor for it;
 - ``splishsplash_method``: SPlisHSPlasH's ``Configuration.simulationMethod`` it stands for (the importer);
 - ``decomposable``: whether it runs over subdomains (:mod:`warpsph.decomposition`);
+- ``couples_bodies``: whether it moves the dynamic bodies inside its pressure iterations
+  (:meth:`~warpsph.bodies.MovingBodies.couple`, strong coupling); else they take the step's impulses after it;
 - ``solve_passes(divergence_iterations, density_iterations)``: its neighbour passes a step (the benchmark's k).
 
 What the stepper (:class:`~warpsph.simulation.Simulation`) calls on an instance, made with ``cls(sim)``:
@@ -47,6 +49,7 @@ class PressureSolver:
     scratch_columns = 0
     splishsplash_method = None
     decomposable = False
+    couples_bodies = False
 
     @classmethod
     def columns(cls, scene):
