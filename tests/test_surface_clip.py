@@ -5,9 +5,11 @@ centres, and the particles sit up to the walls: unclipped, the meshes poked up t
 tank's walls and floor. Every mesh (``warpsph run --surface`` in its worker process, and ``warpsph
 surface`` on a finished cache, which reads the domain from the cache's ``warpsph:domain``) has its
 vertices outside a walled face moved onto it, along walled axes only (periodic axes wrap), and
-those inside a closed body moved onto the body's surface."""
+those inside a closed body moved onto the body's surface, those within 1.2 r of an open body's mesh (a shell:
+the funnel, the hemisphere) 1.2 r off it on the fluid's side."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,7 +18,8 @@ from pxr import Sdf, Usd
 from conftest import tank_scene
 from warpsph.cli import main
 from warpsph.scene import Box
-from warpsph.surface import SurfaceMesh, SurfaceOptions, UsdFrames, boundary_edges, clip_mesh, mesh_frame, surface_clip
+from warpsph.surface import (SurfaceMesh, SurfaceOptions, UsdFrames, boundary_edges, clip_mesh, distances_to_mesh,
+                             mesh_frame, surface_clip)
 
 R = 0.02
 TOLERANCE = 0.25  # r: the goal of #42
@@ -51,11 +54,11 @@ def box_mesh(lo, hi):
     return v, f
 
 
-def clipped_copy(mesh, clip, poses=None):
+def clipped_copy(mesh, clip, poses=None, radius=None):
     """A copy of ``mesh`` clipped by :func:`clip_mesh` (the mesh itself untouched)."""
     copy = SurfaceMesh(mesh.points.copy(), mesh.faces.copy(), mesh.normals.copy(),
                        None if mesh.velocities is None else mesh.velocities.copy())
-    clip_mesh(copy, clip, poses)
+    clip_mesh(copy, clip, poses, radius)
     return copy
 
 
@@ -133,8 +136,9 @@ def test_vertices_inside_a_body_move_onto_its_surface_static_or_moving(method):
     np.testing.assert_array_equal(np.any(moving.points != raw.points, axis=1), np.any(static.points != raw.points, axis=1))
     unposed = clipped_copy(raw, clip)  # no pose: the moving body is left out
     np.testing.assert_array_equal(unposed.points, raw.points)
-    # an open mesh has no inside: left out
-    assert surface_clip(None, [("lid", vertices, faces[:-2], False)]) is None
+    # an open mesh has no inside: a shell
+    [lid] = surface_clip(None, [("lid", vertices, faces[:-2], False)]).bodies
+    assert not lid.closed and all(b.closed for b in clip.bodies)
 
 
 def test_clip_mesh_counts_the_vertices_it_moves():
@@ -210,3 +214,139 @@ def test_a_run_records_its_domain_and_its_meshes_stop_at_the_walls(tmp_path, cli
                      "--out", str(tmp_path / "again.usdc")]) == 0
         for frame in range(5):
             assert outside(surface_points(tmp_path / "again.usdc", frame), lo, hi, r) < 1e-5
+
+
+HEMISPHERE = Path(__file__).resolve().parents[1] / "scenes" / "meshes" / "hemisphere.obj"
+
+
+def hemisphere():
+    """scenes/meshes/hemisphere.obj (a dome of radius 0.4 on y = 0, open below and at a few seams) as warpsph
+    places it: processed by trimesh; (vertices, faces)."""
+    import trimesh
+
+    mesh = trimesh.load(HEMISPHERE, force="mesh")
+    assert boundary_edges(np.asarray(mesh.faces)) > 0
+    return np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int32)
+
+
+def from_dome(points, radius=0.4):
+    """Signed distance of points from the dome |p| = radius, y >= 0 (positive outside it); below y = 0 the
+    distance from its rim (positive)."""
+    p = np.asarray(points, np.float64)
+    rho = np.linalg.norm(p, axis=1)
+    rim = np.hypot(np.hypot(p[:, 0], p[:, 2]) - radius, p[:, 1])
+    return np.where(p[:, 1] >= 0.0, rho - radius, rim)
+
+
+def fluid_on_the_dome(gap):
+    """A layer of particles 2 R apart over the dome, the innermost ``gap`` radii off it (the fluid at rest keeps
+    2.2 R off an open body's samples, which lie on its mesh; an impact comes closer)."""
+    g = np.arange(-0.56, 0.56 + 1e-9, 2 * R)
+    x = np.stack(np.meshgrid(g, np.arange(0.0, 0.56, 2 * R) + R, g, indexing="ij"), -1).reshape(-1, 3)
+    d = from_dome(x)
+    return x[(d >= gap * R) & (d <= gap * R + 0.1)].astype(np.float32)
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("gap", [1.2, 0.5])
+def test_an_open_shell_s_mesh_keeps_the_fluid_s_surface_1_2_r_off_it_on_the_fluid_s_side(method, gap):
+    """The hemisphere's dome (open: the fluid's clip left it out before, and the mesh came within 0.5 r of the
+    shell, or through it into the dome where the fluid came within 0.5 r): clipped, no vertex within
+    SHELL - 0.25 r of the dome and none inside it."""
+    from warpsph.surface_clip import SHELL, depths_in_bodies
+
+    need(method)
+    vertices, faces = hemisphere()
+    x = fluid_on_the_dome(gap)
+    options = SurfaceOptions(method=method)
+    raw = mesh_frame(x, R, None, None, options)
+    d = from_dome(raw.points) / R
+    assert distances_to_mesh(raw.points, vertices, faces).min() / R < SHELL - TOLERANCE  # the bug: into the shell ...
+    if gap < 1.0:
+        assert (d < 0).any()  # ... and through it, into the dome
+    clip = surface_clip(None, [("dome", vertices, faces, False)])
+    assert [b.closed for b in clip.bodies] == [False]
+    meshed = mesh_frame(x, R, None, None, options, clip=clip)  # as a run meshes
+    clipped = clipped_copy(raw, clip, radius=R)
+    for mesh in (meshed, clipped):
+        assert distances_to_mesh(mesh.points, vertices, faces).min() / R >= SHELL - TOLERANCE  # out of the shell ...
+        assert from_dome(mesh.points).min() > 0  # ... on the fluid's side: outside the dome
+        assert depths_in_bodies(mesh.points, clip.bodies, radius=R).max() / R < 0.01
+    np.testing.assert_array_equal(clipped.faces, raw.faces)
+    moved = np.any(clipped.points != raw.points, axis=1)
+    far = distances_to_mesh(raw.points, vertices, faces) / R > SHELL + 1e-3
+    assert moved.any() and not moved[far].any()  # only the vertices in the shell moved
+    unclipped = clipped_copy(raw, clip)  # without the particle radius a shell has no thickness: left out
+    np.testing.assert_array_equal(unclipped.points, raw.points)
+
+
+def test_a_vertex_in_a_shell_goes_to_the_fluid_s_side_told_by_its_normal_or_off_the_rim():
+    """Single vertices by an open square (y = 0, |x|, |z| <= 1): one above it whose normal points at the sheet (fluid
+    above) goes up to SHELL r; one above it whose normal points away (the fluid below: a surface that came through)
+    goes below; one on the sheet goes against its normal; one beside the rim goes straight off the rim; one
+    farther than SHELL r stays; a moving sheet is queried at its pose."""
+    from warpsph.surface_clip import SHELL, push_out_of_bodies
+
+    sheet = np.array([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]], np.float64)
+    faces = np.array([[0, 2, 1], [0, 3, 2]], np.int32)
+    clip = surface_clip(None, [("sheet", sheet, faces, False)])
+    h = SHELL * R
+    points = np.array([[0.1, 0.3 * R, 0.2], [0.1, 0.3 * R, -0.2], [0.3, 0.0, 0.3], [1.0 + 0.5 * R, 0.0, 0.5],
+                       [0.0, 1.5 * R, 0.0]], np.float32)
+    normals = np.array([[0, -1, 0], [0, 1, 0], [0, 1, 0], [0, 1, 0], [0, -1, 0]], np.float32)
+    for pose, body in ((None, clip), ({"sheet": (np.array([0.0, 1.0, 0.0]), np.eye(3))},
+                                      surface_clip(None, [("sheet", sheet, faces, True)]))):
+        shift = np.zeros(3, np.float32) if pose is None else np.float32([0.0, 1.0, 0.0])
+        p = points + shift
+        moved = push_out_of_bodies(p, body.bodies, pose, R, normals)
+        p -= shift
+        assert moved.tolist() == [True, True, True, True, False]
+        np.testing.assert_allclose(p[0], [0.1, h, 0.2], atol=1e-6)
+        np.testing.assert_allclose(p[1], [0.1, -h, -0.2], atol=1e-6)
+        np.testing.assert_allclose(p[2], [0.3, -h, 0.3], atol=1e-6)
+        np.testing.assert_allclose(p[3], [1.0 + h, 0.0, 0.5], atol=1e-6)
+        np.testing.assert_allclose(p[4], points[4], atol=1e-6)
+
+
+def test_the_device_mesher_clips_an_open_shell_on_the_host_as_the_cpu_does():
+    """A GPU run's preview (DeviceMesher) has its walls clamped on the device and the bodies done on the writer's
+    thread by clip_mesh, with the particle radius: its mesh is the CPU path's (mesh_frame's)."""
+    from warpsph.surface import DeviceMesher
+
+    vertices, faces = hemisphere()
+    x = fluid_on_the_dome(1.2)
+    options = SurfaceOptions(method="preview")
+    domain = Box(min=(-0.6, 0.0, -0.6), max=(0.6, 0.6, 0.6))
+    clip = surface_clip(domain, [("dome", vertices, faces, False)])
+    raw = mesh_frame(x, R, None, None, options)
+    mesher = DeviceMesher(options, R, clip=clip)
+    made = clipped_copy(raw, surface_clip(domain))  # as preview_on_device hands it over: the walls clamped
+    made.seconds = 0.0
+    mesher._made[3] = made
+    assert mesher.submit(3, {})
+    [(frame, mesh)] = mesher.ready()
+    np.testing.assert_array_equal(mesh.points, mesh_frame(x, R, None, None, options, clip=clip).points)
+    assert distances_to_mesh(mesh.points, vertices, faces).min() / R >= 1.2 - TOLERANCE
+
+
+def _study_scenes():
+    from warpsph.validation.surface_walls import STUDY
+
+    return sorted(STUDY)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scene", _study_scenes())
+def test_every_shipped_scene_s_meshes_stay_within_0_25_r_of_the_walls_and_bodies(tmp_path, scene):
+    """The study of #42 (python -m warpsph.validation.surface_walls --study) for one shipped scene: run small on the
+    CPU (2-8K particles, to its first contact with the bodies), meshed with both methods; no vertex more than 0.25 r
+    outside a walled face, inside a closed body or into an open body's shell (1-2 min a scene)."""
+    need("splashsurf")
+    from warpsph.validation.surface_walls import study
+
+    rows = study(tmp_path, [scene], log=None)["rows"]
+    assert [r["method"] for r in rows] == ["splashsurf", "preview"]
+    for row in rows:
+        assert row["meshes"] > 5 and row["particles"] > 500
+        assert row["max_outside_r"] <= TOLERANCE, row
+        assert (row["max_in_body_r"] or 0.0) <= TOLERANCE, row

@@ -17,7 +17,8 @@ radius* (its ``reconstruct_surface`` docstring says absolute units); warpsph pas
 tests it (a sphere's mesh keeps the sphere's radius, its edges are about ``cube`` r long).
 
 Every mesh is clipped to the tank (#42, :func:`clip_mesh`): vertices outside the domain's walled faces
-are moved onto them and vertices inside a closed body onto its surface (:func:`surface_clip` of the
+are moved onto them, vertices inside a closed body onto its surface and vertices within 1.2 r of an
+open body's mesh (a shell: the funnel) 1.2 r off it on the fluid's side (:func:`surface_clip` of the
 scene's domain and bodies; ``warpsph surface`` reads the domain from the cache's ``warpsph:domain``).
 
 Per vertex the mesh carries the particles' velocity interpolated with the SPH kernel (for motion
@@ -114,20 +115,23 @@ class SurfaceMesh:
 
 @dataclass(frozen=True, eq=False)
 class ClipBody:
-    """A closed body the fluid's surface is pushed out of: ``vertices`` (V, 3) in world space (a static
-    body) or in body space (a moving one, placed by each frame's pose), ``faces`` (F, 3), outward."""
+    """A body the fluid's surface is pushed out of: ``vertices`` (V, 3) in world space (a static
+    body) or in body space (a moving one, placed by each frame's pose), ``faces`` (F, 3), outward;
+    ``closed`` false: an open mesh (boundary edges, no inside), a shell of ``surface_clip.SHELL`` r
+    (1.2 r) either side of the mesh."""
 
     name: str
     vertices: np.ndarray
     faces: np.ndarray
     moving: bool = False
+    closed: bool = True
 
 
 @dataclass(frozen=True, eq=False)
 class SurfaceClip:
     """What a mesh is clipped to (#42): the walled faces of the domain, ``lo`` and ``hi`` per axis (-inf and
-    +inf along an axis without walls: periodic, or an open domain), and the closed ``bodies``
-    (:class:`ClipBody`). The colour field's iso surface reaches about a particle radius beyond the
+    +inf along an axis without walls: periodic, or an open domain), and the ``bodies``
+    (:class:`ClipBody`: closed meshes and open shells). The colour field's iso surface reaches about a particle radius beyond the
     outermost particle centres, and the particles sit up to the wall (``inside_lo``/``inside_hi`` of the
     simulation): unclipped, splashsurf's meshes reached 1.3 r through the walls and the floor."""
 
@@ -151,41 +155,50 @@ class SurfaceClip:
 def surface_clip(domain=None, bodies=()):
     """The :class:`SurfaceClip` of a scene: the walled faces of ``domain`` (a scene's ``Box``, or anything
     with ``min``, ``max``, ``periodic`` and ``walls``: the faces the simulation keeps the particles inside)
-    and the closed meshes among ``bodies`` ((name, vertices, faces, moving) as
-    :func:`warpsph.io.usd.body_meshes` gives them; an open mesh has no inside and is left out). None when
-    there is nothing to clip to."""
+    and the meshes of ``bodies`` ((name, vertices, faces, moving) as :func:`warpsph.io.usd.body_meshes`
+    gives them; a mesh with boundary edges has no inside and is an open shell, ``ClipBody.closed``
+    false: its boundary samples lie on the mesh, and the fluid keeps 1.2 r off it on either side). None
+    when there is nothing to clip to."""
     lo, hi = walled_faces(domain) if domain is not None else ((-np.inf,) * 3, (np.inf,) * 3)
-    closed = []
+    clipped = []
     for name, vertices, faces, moving in bodies or ():
         vertices, faces = np.asarray(vertices, np.float64).reshape(-1, 3), np.asarray(faces, np.int32).reshape(-1, 3)
-        if len(faces) == 0 or boundary_edges(faces) != 0:
+        if len(faces) == 0:
             continue
-        if mesh_volume(vertices, faces) < 0:  # inward triangles: the winding number would call the inside outside
+        closed = boundary_edges(faces) == 0
+        if closed and mesh_volume(vertices, faces) < 0:  # inward triangles: the winding number would call the inside outside
             faces = np.ascontiguousarray(faces[:, ::-1])
-        closed.append(ClipBody(str(name), vertices, faces, bool(moving)))
-    clip = SurfaceClip(lo, hi, tuple(closed))
+        clipped.append(ClipBody(str(name), vertices, faces, bool(moving), closed))
+    clip = SurfaceClip(lo, hi, tuple(clipped))
     return clip if clip.walled or clip.bodies else None
 
 
-def clip_mesh(mesh, clip, poses=None):
-    """Moves the vertices of ``mesh`` that lie inside a body of ``clip`` onto the body's surface (the
-    nearest point; a moving body at its pose in ``poses``, {name: (position, rotation)}, left out without
-    one), then those outside a walled face onto the face (along walled axes only). Returns the number of
+def clip_mesh(mesh, clip, poses=None, radius=None):
+    """Moves the vertices of ``mesh`` that lie outside a walled face of ``clip`` onto the face (along walled
+    axes only), then those inside a closed body of ``clip`` onto the body's surface (the nearest point)
+    and those within ``surface_clip.SHELL`` ``radius`` (the particle radius; open bodies are left out
+    without it) of an open body's mesh to that distance on the fluid's side (the side the vertex's normal
+    points away from; a moving body at its pose in ``poses``, {name: (position, rotation)}, left out
+    without one), then onto the walls again (a body reaching through a wall). Returns the number of
     vertices moved. The faces stay (a closed mesh stays closed), and so do the velocities and the
     normals (the colour field's at the vertex meshed: at a vertex flattened onto a wall they point out of
-    the fluid, into the wall, as the flattened surface's own normal does)."""
+    the fluid, into the wall, as the flattened surface's own normal does). A GPU run's preview has its
+    walls clamped on the device (:func:`preview_on_device`) and the rest done here on the host."""
     if clip is None or len(mesh.points) == 0:
         return 0
     points = np.array(mesh.points, np.float32)
     moved = np.zeros(len(points), bool)
+    lo, hi = wall_bounds(clip) if clip.walled else (None, None)
+    if clip.walled:
+        moved |= ((points < lo) | (points > hi)).any(axis=1)
+        np.clip(points, lo, hi, out=points)
     if clip.bodies:
         from .surface_clip import push_out_of_bodies
 
-        moved |= push_out_of_bodies(points, clip.bodies, poses)
-    if clip.walled:
-        lo, hi = wall_bounds(clip)
-        moved |= ((points < lo) | (points > hi)).any(axis=1)
-        np.clip(points, lo, hi, out=points)
+        pushed = push_out_of_bodies(points, clip.bodies, poses, radius, mesh.normals)
+        moved |= pushed
+        if clip.walled and pushed.any():
+            np.clip(points, lo, hi, out=points)
     mesh.points = points
     return int(moved.sum())
 
@@ -549,9 +562,10 @@ class DeviceMesher:
         self._writing = []  # (frame, future, its folder) of the meshes being written into their layers
         self._jobs = 0
         self.options, self.radius, self.clip, self.every = options, float(radius), clip, max(1, int(every))
-        # what each frame is clipped to: the walls on the device (mesh_now), the bodies on the writer's (submit)
+        # what each frame is clipped to: the walls on the device (mesh_now), the bodies on the writer's (submit), by
+        # clip_mesh as on the CPU (its walls again: a no-op but where a body pushed a vertex through them)
         self._walls = wall_bounds(clip) if clip is not None and clip.walled else None
-        self._bodies = SurfaceClip(bodies=clip.bodies) if clip is not None and clip.bodies else None
+        self._bodies = SurfaceClip(clip.lo, clip.hi, clip.bodies) if clip is not None and clip.bodies else None
         self.behind, self.workers = "wait", 1
         self.skipped, self.meshed, self.seconds, self.waited = [], 0, 0.0, 0.0
         self.error = None  # (frame, exception)
@@ -599,7 +613,7 @@ class DeviceMesher:
         start = time.perf_counter()
         mesh.wait()
         if self._bodies is not None:  # the walls were clamped on the device
-            clip_mesh(mesh, self._bodies, arrays.get("poses"))
+            clip_mesh(mesh, self._bodies, arrays.get("poses"), self.radius)
         mesh.seconds += time.perf_counter() - start
         if arrays.get("layer") is not None:
             self._write_in_layer(frame, mesh, arrays["layer"])
@@ -777,7 +791,7 @@ def mesh_frame(points, radius, velocities=None, vorticity=None, options=SurfaceO
         mesh = reconstruct(points, radius, velocities, vorticity, options)
     if clip is not None:
         start = time.perf_counter()
-        clip_mesh(mesh, clip, poses)
+        clip_mesh(mesh, clip, poses, radius)
         mesh.seconds += time.perf_counter() - start
     return mesh
 
@@ -1159,7 +1173,7 @@ def distances_to_mesh(query, points, faces):
         return distance.numpy().astype(np.float64)
 
 
-def mesh_quality(mesh, reference=None, radius=1.0, clip=None, sliver_degrees=SLIVER_DEGREES):
+def mesh_quality(mesh, reference=None, radius=1.0, clip=None, sliver_degrees=SLIVER_DEGREES, poses=None):
     """The quality of a surface mesh, as a dict of plain numbers (the side-by-side comparison of the surface
     methods, #42).
 
@@ -1175,7 +1189,9 @@ def mesh_quality(mesh, reference=None, radius=1.0, clip=None, sliver_degrees=SLI
     surface and ``reverse_mean``, ``reverse_max`` from the reference's vertices to this mesh (what the mesh
     misses), in radii, and ``distance_over_1r``, ``reverse_over_1r``: the fractions of those vertices more than
     one radius away (droplets one mesh has and the other lacks); with ``clip``: ``outside_walls_max``, the largest distance of a vertex outside a
-    walled face of the domain, in radii (0 when none is outside).
+    walled face of the domain, in radii (0 when none is outside), and with bodies in it ``in_bodies_max``, the
+    largest depth of a vertex inside a closed body or into an open one's shell (``surface_clip.SHELL``
+    ``radius`` either side of its mesh: give the particle radius), the moving ones at ``poses``.
 
     >>> import trimesh
     >>> q = mesh_quality(trimesh.creation.icosphere(subdivisions=3, radius=1.0))
@@ -1210,4 +1226,9 @@ def mesh_quality(mesh, reference=None, radius=1.0, clip=None, sliver_degrees=SLI
         lo, hi = np.asarray(clip.lo, np.float64), np.asarray(clip.hi, np.float64)
         outside = np.maximum(np.maximum(lo - points, points - hi), 0.0) if len(points) else np.zeros((0, 3))
         quality["outside_walls_max"] = float(outside.max()) / radius if len(points) else 0.0
+        if clip.bodies:
+            from .surface_clip import depths_in_bodies
+
+            depth = depths_in_bodies(points, clip.bodies, poses, radius) if len(points) else np.zeros(0)
+            quality["in_bodies_max"] = float(depth.max()) / radius if len(depth) else 0.0
     return quality
