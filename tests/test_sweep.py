@@ -1,6 +1,7 @@
 """``warpsph sweep`` (#20): a 4-cell Taylor-Green sweep (6 and 8 across, dfsph and vr, no warm-up: a few
 seconds a cell on one CPU core) through the local executor and a local Ray instance (identical tables but for
-the timings), resumed without rerunning finished cells, finished after a SIGKILL of its driver, a blow-up
+the timings; each cell a Ray task given the CPUs and no GPU that warpsph asked for, read inside the cell; a cuda
+sweep refused up front on an instance without GPUs), resumed without rerunning finished cells, finished after a SIGKILL of its driver, a blow-up
 recorded as a result, and bad sweep files naming the key (exit 2, nothing written). Scene-file sweeps (two
 models x two viscosities of a 360-particle slosh: the higher viscosity keeps less kinetic energy and enstrophy;
 a blow-up with its step and message; models[K].KEY items), the Pareto study and the stress matrix through the
@@ -79,19 +80,83 @@ def test_rerun_skips_finished_cells(local, tmp_path):
     assert {name for name in after if after[name] != before.get(name)} == {cells[0].name, cells[1].name}
 
 
-@pytest.mark.slow
-def test_ray_gives_the_same_table(local, tmp_path):
+@pytest.fixture(scope="module")
+def ray_cluster():
+    """A local Ray instance of 2 CPUs and no GPU (whatever the machine has), shared by the real-Ray tests; its
+    workers import tests/sweep_cells.py (PYTHONPATH). Skipped only without ray (warpsph[ray])."""
     ray = pytest.importorskip("ray", reason="the Ray executor needs ray (warpsph[ray])")
-    try:
-        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
-    except Exception as exc:  # noqa: BLE001
-        pytest.skip(f"ray cannot start here: {exc}")
-    try:
-        table = run_sweep(SWEEP, tmp_path / "ray", executor="ray", max_retries=1, log=lambda line: None)
-    finally:
-        ray.shutdown()
+    path = os.pathsep.join(p for p in (os.path.dirname(os.path.abspath(__file__)), os.environ.get("PYTHONPATH")) if p)
+    ray.init(num_cpus=2, num_gpus=0, include_dashboard=False, log_to_driver=False,
+             runtime_env={"env_vars": {"PYTHONPATH": path}})
+    yield ray
+    ray.shutdown()
+
+
+@pytest.mark.slow
+def test_ray_gives_the_same_table(local, ray_cluster, tmp_path):
+    table = run_sweep(SWEEP, tmp_path / "ray", executor="ray", max_retries=1, log=lambda line: None)
     assert table["complete"]
     assert comparable(table) == comparable(local[1])
+
+
+def _spy_remote(monkeypatch, ray, check):
+    """ray.remote with each call's options passed to ``check`` first (it fails the test before a task starts)."""
+    remote, asked = ray.remote, []
+
+    def spy(*args, **options):
+        asked.append(options)
+        check(options)
+        return remote(*args, **options)
+    monkeypatch.setattr(ray, "remote", spy)
+    return asked
+
+
+PLACED_SWEEP = {"name": "placed", "base": {"function": "sweep_cells:ray_placed"},
+                "axes": {"viscosity": [0.01, 0.05]}, "measures": ["particles", "steps"], "warm_up": False}
+
+
+@pytest.mark.slow
+def test_ray_cells_run_as_tasks_with_the_resources_asked(ray_cluster, tmp_path, monkeypatch, capsys):
+    """A 2-cell sweep of a tiny scene through warpsph sweep --executor ray --num-cpus 0.5 on the CPU path: each
+    cell is a Ray task of its own, run in a Ray worker (not the driver) on the instance's node, and Ray assigned
+    it what warpsph asked for: 0.5 CPU and no GPU (the cell records ray.get_runtime_context() itself)."""
+    ray = ray_cluster
+    asked = _spy_remote(monkeypatch, ray, lambda options: None)
+    path = tmp_path / "placed.json"
+    path.write_text(json.dumps(PLACED_SWEEP))
+    out = tmp_path / "out"
+    assert main(["sweep", str(path), "--out", str(out), "--executor", "ray", "--num-cpus", "0.5"]) == 0, \
+        capsys.readouterr().err
+    assert asked == [{"num_gpus": 0, "num_cpus": 0.5, "max_retries": 3}]
+    records = [json.loads(p.read_text()) for p in sorted((out / "cells").glob("*.json"))]
+    nodes = {n["NodeID"] for n in ray.nodes() if n["Alive"]}
+    assert len(records) == 2 and all(r["status"] == "done" for r in records), records
+    for r in records:
+        row = r["row"]
+        assert row["resources"] == {"CPU": 0.5} and row["gpu_ids"] == [], row
+        assert r["device_alias"] == "cpu" and row["particles"] > 0 and row["steps"] == 3
+        assert row["node_id"] in nodes and row["worker_id"]
+        assert row["pid"] == r["pid"] != os.getpid()  # run_cell ran in the Ray worker that ran the cell
+    assert len({r["row"]["task_id"] for r in records}) == 2  # a task per cell
+    table = json.loads((out / "table.json").read_text())
+    assert table["complete"] and [row["device"] for row in table["rows"]] == ["cpu", "cpu"]
+
+
+@pytest.mark.slow
+def test_ray_refuses_cuda_on_a_cluster_without_gpus(ray_cluster, tmp_path, monkeypatch, capsys):
+    """A sweep file's "device": "cuda" on a Ray instance without GPUs (started by this process before the sweep,
+    as a script would) is refused before any cell is submitted, naming the sweep file's key; before, it was
+    taken for a cluster joined that might gain GPU nodes, and the cells waited forever."""
+    ray = ray_cluster
+    assert not ray.cluster_resources().get("GPU")
+    asked = _spy_remote(monkeypatch, ray, lambda options: pytest.fail(f"a cell was submitted: {options}"))
+    path = tmp_path / "cuda.json"
+    path.write_text(json.dumps({**PLACED_SWEEP, "device": "cuda"}))
+    out = tmp_path / "out"
+    assert main(["sweep", str(path), "--out", str(out), "--executor", "ray"]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: device: the cells ask for 1 GPU each, and the Ray instance has 0" in err, err
+    assert len(err.splitlines()) == 1 and not asked and not out.exists()
 
 
 class FakeRef:
@@ -171,7 +236,8 @@ def test_ray_sweep_file_device_through_the_cli(tmp_path, capsys, fake_ray):
     ("cuda", ["--num-gpus", "0"], 1, "--num-gpus", "0 gives the cells no GPU"),
     ("cuda:1", [], 1, "device", "Ray places each cell itself"),
     ("cuda", ["--devices", "cpu", "--num-gpus", "1"], 1, "--num-gpus", "1 GPUs per cell, but --devices is cpu"),
-    ("cuda", [], 0, "--num-gpus", "the cells ask for 1 GPU each, and the Ray instance has 0"),
+    ("cuda", [], 0, "device", "the cells ask for 1 GPU each, and the Ray instance has 0"),
+    ("cuda", ["--num-gpus", "0.5"], 0, "--num-gpus", "the cells ask for 0.5 GPU each, and the Ray instance has 0"),
 ])
 def test_ray_refuses_a_device_it_cannot_honour(tmp_path, capsys, fake_ray, sweep_device, options, gpus, key, words):
     """Refused before any cell runs, naming the option or the sweep file's key."""

@@ -1001,27 +1001,36 @@ def ray_placement(devices, sweep_device, num_gpus, file="<sweep>"):
     return gpus, "cuda:0" if kind == "cuda" else "cpu"  # Ray sets CUDA_VISIBLE_DEVICES per task
 
 
-def _check_ray_gpus(ray, num_gpus, started):
-    """Refuses GPU cells on a Ray instance this sweep started without GPUs (they would wait forever); a cluster
-    joined may still add GPU nodes: a warning."""
+def _check_ray_gpus(ray, num_gpus, started, asked_by=("", "--num-gpus")):
+    """Refuses GPU cells on a Ray instance this program started without GPUs (they would wait forever), naming
+    ``asked_by`` ((file, key): the option or sweep file key that asked for the GPU); a cluster joined may still
+    add GPU nodes: a warning."""
     have = ray.cluster_resources().get("GPU", 0)
     if num_gpus <= have:
         return
     text = f"the cells ask for {num_gpus:g} GPU each, and the Ray {'instance' if started else 'cluster'} has {have:g}"
     if started:
-        raise SceneError("", "--num-gpus", text + "; use a machine with a GPU, --address of a cluster with GPUs, "
-                                                  "or the device cpu")
+        raise SceneError(*asked_by, text + "; use a machine with a GPU, --address of a cluster with GPUs, or the "
+                                           "device cpu")
     logging.getLogger(__name__).warning("%s: the cells wait until GPU nodes join", text)
 
 
-def _ray_connect(address, num_gpus, init_kwargs=None):
+def _ray_started_here(ray):
+    """Whether the Ray instance this process is connected to was started by it (ray.init without an address, as
+    a test or a script calls it before run_sweep): its head node runs here and gains no GPU later. Read from
+    Ray's record of its node; False when that is not there (a cluster joined)."""
+    node = getattr(getattr(getattr(ray, "_private", None), "worker", None), "_global_node", None)
+    return getattr(node, "head", False) is True
+
+
+def _ray_connect(address, num_gpus, init_kwargs=None, asked_by=("", "--num-gpus")):
     """The ray module, joined to the cluster at ``address`` or a local instance (started unless the program
-    started one); GPU cells on an instance without GPUs are refused here (:func:`_check_ray_gpus`)."""
+    started one); GPU cells on a local instance without GPUs are refused here (:func:`_check_ray_gpus`)."""
     try:
         import ray
     except ImportError:
         raise SceneError("", "--executor", "ray is not installed: pip install 'warpsph[ray]' (or use --executor local)") from None
-    started = not ray.is_initialized() and not address
+    started = not address and (not ray.is_initialized() or _ray_started_here(ray))
     if not ray.is_initialized():
         kwargs = dict(init_kwargs or {})
         kwargs.setdefault("include_dashboard", False)
@@ -1030,7 +1039,7 @@ def _ray_connect(address, num_gpus, init_kwargs=None):
             kwargs["address"] = address
         ray.init(**kwargs)
     if num_gpus:
-        _check_ray_gpus(ray, num_gpus, started)
+        _check_ray_gpus(ray, num_gpus, started, asked_by)
     return ray
 
 
@@ -1139,8 +1148,9 @@ def run_sweep(sweep, out, executor="local", workers=1, devices=None, address=Non
         raise SceneError("", "--workers", f"expected an integer >= 1, got {workers!r}")
     file = sweep if not isinstance(sweep, dict) else "<sweep>"
     if executor == "ray":  # the device honoured or refused before anything is written, as for the local executor
+        asked_by = ("", "--num-gpus") if num_gpus is not None else ("", "--devices") if devices else (file, "device")
         num_gpus, ray_device = ray_placement(devices, spec["device"], num_gpus, file)
-        ray = _ray_connect(address, num_gpus, ray_init)
+        ray = _ray_connect(address, num_gpus, ray_init, asked_by)
     else:
         devices = _local_devices(devices, spec["device"], file)
     out = Path(out)
