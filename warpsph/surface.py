@@ -24,6 +24,20 @@ scene's domain and bodies; ``warpsph surface`` reads the domain from the cache's
 Per vertex the mesh carries the particles' velocity interpolated with the SPH kernel (for motion
 blur: USD ``velocities``) and, when the frame has a vorticity field (a turbulence model runs),
 the vorticity magnitude (a primvar for shading foam and detail).
+
+Example:
+
+```python
+import warpsph
+from warpsph.surface import SurfaceOptions, mesh_frame, surface_clip
+
+sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+sim.run(frames=2)
+mesh = mesh_frame(sim.positions(), sim.scene.particle_radius, sim.velocities(),
+                  options=SurfaceOptions(method="preview"),  # the default "splashsurf" needs pysplashsurf
+                  clip=surface_clip(sim.scene.domain))  # no vertex through the tank's walls
+print(len(mesh.points), len(mesh.faces))
+```
 """
 
 from __future__ import annotations
@@ -50,7 +64,17 @@ ISO_DEFAULTS = {"splashsurf": 0.6, "preview": 0.5}
 
 @dataclass(frozen=True)
 class SurfaceOptions:
-    """Reconstruction parameters; ``smoothing`` and ``cube`` in multiples of the particle radius."""
+    """Reconstruction parameters; ``smoothing`` and ``cube`` in multiples of the particle radius.
+
+    Example:
+
+    ```python
+    from warpsph.surface import SurfaceOptions
+
+    fine = SurfaceOptions(cube=0.5, smoothing=2.0).check()  # SceneError naming an out-of-range option
+    print(fine.threshold, SurfaceOptions(method="preview").threshold)  # the iso values: 0.6, 0.5
+    ```
+    """
 
     cube: float = 0.75
     smoothing: float = 2.0
@@ -86,7 +110,21 @@ class SurfaceMesh:
     """A triangle mesh: ``points`` (V, 3) float32, ``faces`` (F, 3) int32, ``normals`` and
     ``velocities`` (V, 3) float32 (velocities None when not asked), ``primvars`` {name: (V,) or
     (V, 3) float32}; ``seconds`` the reconstruction's wall time. ``layer``: the USD layer the mesh was
-    written into where it was made (a --clips frame layer, by the mesher's worker), its arrays then empty."""
+    written into where it was made (a --clips frame layer, by the mesher's worker), its arrays then empty.
+
+    Example:
+
+    ```python
+    import numpy as np
+    from warpsph.surface import reconstruct_preview
+
+    r = 0.01  # particles 2r apart in a ball of radius 0.1 m
+    g = np.mgrid[-0.1:0.1:2 * r, -0.1:0.1:2 * r, -0.1:0.1:2 * r].reshape(3, -1).T
+    points = g[(g ** 2).sum(axis=1) < 0.1 ** 2].astype(np.float32)
+    mesh = reconstruct_preview(points, r)  # a SurfaceMesh
+    print(mesh.points.shape, mesh.faces.shape, mesh.normals.shape, mesh.seconds)
+    ```
+    """
 
     points: np.ndarray
     faces: np.ndarray
@@ -118,7 +156,24 @@ class ClipBody:
     """A body the fluid's surface is pushed out of: ``vertices`` (V, 3) in world space (a static
     body) or in body space (a moving one, placed by each frame's pose), ``faces`` (F, 3), outward;
     ``closed`` false: an open mesh (boundary edges, no inside), a shell of ``surface_clip.SHELL`` r
-    (1.2 r) either side of the mesh."""
+    (1.2 r) either side of the mesh.
+
+    Example:
+
+    ```python
+    import numpy as np
+    import trimesh
+    from warpsph.surface import ClipBody, SurfaceClip, clip_mesh, reconstruct_preview
+
+    r = 0.01  # particles 2r apart in a ball of radius 0.1 m
+    g = np.mgrid[-0.1:0.1:2 * r, -0.1:0.1:2 * r, -0.1:0.1:2 * r].reshape(3, -1).T
+    points = g[(g ** 2).sum(axis=1) < 0.1 ** 2].astype(np.float32)
+    box = trimesh.creation.box(bounds=((0.05, -0.05, -0.05), (0.15, 0.05, 0.05)))  # closed, outward
+    clip = SurfaceClip(bodies=(ClipBody("box", box.vertices, box.faces),))
+    mesh = reconstruct_preview(points, r)
+    assert clip_mesh(mesh, clip) > 0  # the vertices inside the box moved onto its faces
+    ```
+    """
 
     name: str
     vertices: np.ndarray
@@ -133,7 +188,23 @@ class SurfaceClip:
     +inf along an axis without walls: periodic, or an open domain), and the ``bodies``
     (:class:`ClipBody`: closed meshes and open shells). The colour field's iso surface reaches about a particle radius beyond the
     outermost particle centres, and the particles sit up to the wall (``inside_lo``/``inside_hi`` of the
-    simulation): unclipped, splashsurf's meshes reached 1.3 r through the walls and the floor."""
+    simulation): unclipped, splashsurf's meshes reached 1.3 r through the walls and the floor.
+
+    Example:
+
+    ```python
+    import numpy as np
+    from warpsph.surface import SurfaceClip, clip_mesh, reconstruct_preview
+
+    r = 0.01  # particles 2r apart in a ball of radius 0.1 m
+    g = np.mgrid[-0.1:0.1:2 * r, -0.1:0.1:2 * r, -0.1:0.1:2 * r].reshape(3, -1).T
+    points = g[(g ** 2).sum(axis=1) < 0.1 ** 2].astype(np.float32)
+    clip = SurfaceClip(lo=(-np.inf, 0.0, -np.inf), hi=(np.inf, np.inf, np.inf))  # a floor at y = 0
+    print(clip.walled, "|", clip.describe())  # "y" | the walls across y
+    mesh = reconstruct_preview(points, r)
+    print(clip_mesh(mesh, clip), "vertices moved onto the floor")
+    ```
+    """
 
     lo: tuple = (-np.inf, -np.inf, -np.inf)
     hi: tuple = (np.inf, np.inf, np.inf)
@@ -158,7 +229,19 @@ def surface_clip(domain=None, bodies=()):
     and the meshes of ``bodies`` ((name, vertices, faces, moving) as :func:`warpsph.io.usd.body_meshes`
     gives them; a mesh with boundary edges has no inside and is an open shell, ``ClipBody.closed``
     false: its boundary samples lie on the mesh, and the fluid keeps 1.2 r off it on either side). None
-    when there is nothing to clip to."""
+    when there is nothing to clip to.
+
+    Example:
+
+    ```python
+    import warpsph
+    from warpsph.surface import surface_clip
+
+    scene = warpsph.load_scene("scenes/dam_break.json", scale=0.05)
+    clip = surface_clip(scene.domain)  # the tank's walls; bodies: (name, vertices, faces, moving) tuples
+    print(clip.describe())
+    ```
+    """
     lo, hi = walled_faces(domain) if domain is not None else ((-np.inf,) * 3, (np.inf,) * 3)
     clipped = []
     for name, vertices, faces, moving in bodies or ():
@@ -183,7 +266,22 @@ def clip_mesh(mesh, clip, poses=None, radius=None):
     vertices moved. The faces stay (a closed mesh stays closed), and so do the velocities and the
     normals (the colour field's at the vertex meshed: at a vertex flattened onto a wall they point out of
     the fluid, into the wall, as the flattened surface's own normal does). A GPU run's preview has its
-    walls clamped on the device (:func:`preview_on_device`) and the rest done here on the host."""
+    walls clamped on the device (:func:`preview_on_device`) and the rest done here on the host.
+
+    Example:
+
+    ```python
+    import numpy as np
+    from warpsph.surface import SurfaceClip, clip_mesh, reconstruct_preview
+
+    r = 0.01  # particles 2r apart in a ball of radius 0.1 m
+    g = np.mgrid[-0.1:0.1:2 * r, -0.1:0.1:2 * r, -0.1:0.1:2 * r].reshape(3, -1).T
+    points = g[(g ** 2).sum(axis=1) < 0.1 ** 2].astype(np.float32)
+    mesh = reconstruct_preview(points, r)
+    moved = clip_mesh(mesh, SurfaceClip(hi=(0.05, np.inf, np.inf)))  # a wall at x = 0.05
+    assert moved > 0 and mesh.points[:, 0].max() <= 0.05 + 1e-6
+    ```
+    """
     if clip is None or len(mesh.points) == 0:
         return 0
     points = np.array(mesh.points, np.float32)
@@ -226,7 +324,21 @@ def reconstruct(points, radius, velocities=None, vorticity=None, options=Surface
 
     ``velocities`` (N, 3): interpolated to the vertices; ``vorticity`` (N, 3) or its magnitude (N,):
     its magnitude interpolated as the primvar ``vorticity_magnitude``. ``threads``: splashsurf's
-    own multi-threading (rayon; it releases the GIL)."""
+    own multi-threading (rayon; it releases the GIL).
+
+    Example:
+
+    ```python
+    import numpy as np
+    from warpsph.surface import reconstruct  # needs: pysplashsurf
+
+    r = 0.01  # particles 2r apart in a ball of radius 0.1 m
+    g = np.mgrid[-0.1:0.1:2 * r, -0.1:0.1:2 * r, -0.1:0.1:2 * r].reshape(3, -1).T
+    points = g[(g ** 2).sum(axis=1) < 0.1 ** 2].astype(np.float32)
+    mesh = reconstruct(points, r, velocities=np.zeros_like(points))
+    print(len(mesh.faces), mesh.velocities.shape)
+    ```
+    """
     ps = require_pysplashsurf()
     start = time.perf_counter()
     points = np.ascontiguousarray(points, np.float32)
@@ -270,7 +382,21 @@ PREVIEW_MAX_BLOCKS = 1 << 24  # the dense block-flag grid; coarser blocks beyond
 def reconstruct_preview(points, radius, velocities=None, vorticity=None, options=None, device="cpu"):
     """A surface with Warp's sparse marching cubes (``--surface-method preview``), on ``device``, from host
     arrays: ``points`` (N, 3), ``velocities`` (N, 3) interpolated to the vertices, ``vorticity`` (N, 3) or its
-    magnitude (N,) carried as the primvar ``vorticity_magnitude``. See :func:`preview_on_device`."""
+    magnitude (N,) carried as the primvar ``vorticity_magnitude``. See :func:`preview_on_device`.
+
+    Example:
+
+    ```python
+    import numpy as np
+    from warpsph.surface import reconstruct_preview
+
+    r = 0.01  # particles 2r apart in a ball of radius 0.1 m
+    g = np.mgrid[-0.1:0.1:2 * r, -0.1:0.1:2 * r, -0.1:0.1:2 * r].reshape(3, -1).T
+    points = g[(g ** 2).sum(axis=1) < 0.1 ** 2].astype(np.float32)
+    mesh = reconstruct_preview(points, r, device="cpu")  # "cuda": on the GPU
+    print(len(mesh.faces))
+    ```
+    """
     import warp as wp
 
     options = options if options is not None else SurfaceOptions(method="preview")
@@ -784,7 +910,22 @@ def mesher_for(options, radius, device="cpu", workers=None, clip=None):
 def mesh_frame(points, radius, velocities=None, vorticity=None, options=SurfaceOptions(), device="cpu", clip=None,
                poses=None):
     """One frame's mesh with ``options.method``, clipped to ``clip`` (a :class:`SurfaceClip`: the domain's
-    walls and the bodies, the moving ones at ``poses``; None: not clipped) by :func:`clip_mesh`."""
+    walls and the bodies, the moving ones at ``poses``; None: not clipped) by :func:`clip_mesh`.
+
+    Example:
+
+    ```python
+    import numpy as np
+    from warpsph.surface import SurfaceClip, SurfaceOptions, mesh_frame
+
+    r = 0.01  # particles 2r apart in a ball of radius 0.1 m
+    g = np.mgrid[-0.1:0.1:2 * r, -0.1:0.1:2 * r, -0.1:0.1:2 * r].reshape(3, -1).T
+    points = g[(g ** 2).sum(axis=1) < 0.1 ** 2].astype(np.float32)
+    floor = SurfaceClip(lo=(-np.inf, -0.05, -np.inf))  # a wall at y = -0.05
+    mesh = mesh_frame(points, r, options=SurfaceOptions(method="preview"), clip=floor)
+    assert mesh.points[:, 1].min() >= -0.05
+    ```
+    """
     if options.method == "preview":
         mesh = reconstruct_preview(points, radius, velocities, vorticity, options, device)
     else:
@@ -797,7 +938,19 @@ def mesh_frame(points, radius, velocities=None, vorticity=None, options=SurfaceO
 
 
 def mesh_volume(points, faces):
-    """The signed volume a closed, outward-oriented triangle mesh encloses (divergence theorem)."""
+    """The signed volume a closed, outward-oriented triangle mesh encloses (divergence theorem).
+
+    Example:
+
+    ```python
+    import numpy as np
+    from warpsph.surface import mesh_volume
+
+    corners = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.float32)
+    faces = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])  # outward
+    assert abs(mesh_volume(corners, faces) - 1 / 6) < 1e-6
+    ```
+    """
     p = np.asarray(points, np.float64)
     a, b, c = (p[faces[:, k]] for k in range(3))
     return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
@@ -829,7 +982,22 @@ def _sibling_usd(h5_path):
 
 
 class UsdFrames:
-    """The particle frames of a USD point cache (single file or the top-level file of --clips)."""
+    """The particle frames of a USD point cache (single file or the top-level file of --clips).
+
+    Example:
+
+    ```python
+    import warpsph
+    from warpsph.surface import UsdFrames
+
+    sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+    with warpsph.io.UsdWriter("out/dam_break.usdc", sim) as usd:
+        sim.run(frames=2, on_frame=usd)
+    frames = UsdFrames("out/dam_break.usdc")
+    print(frames.frames, frames.fps, frames.radius)
+    points, velocities, vorticity = frames.read(1)
+    ```
+    """
 
     def __init__(self, path):
         from pxr import Usd
@@ -868,7 +1036,22 @@ class UsdFrames:
 
 
 class H5Frames:
-    """The particle frames of a ``--particles-h5`` file (x, v and vorticity per frame)."""
+    """The particle frames of a ``--particles-h5`` file (x, v and vorticity per frame).
+
+    Example:
+
+    ```python
+    import warpsph
+    from warpsph.io.particles_h5 import ParticleFrames
+    from warpsph.surface import H5Frames
+
+    sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+    h5 = ParticleFrames("dam_break.particles.h5")
+    sim.run(frames=2, on_frame=h5)
+    h5.close()
+    x, v, vorticity = H5Frames("dam_break.particles.h5").read(2)
+    ```
+    """
 
     def __init__(self, path):
         import h5py
@@ -955,7 +1138,21 @@ def stage_poses(stage, clip, frame):
 
 
 def open_frames(path):
-    """The frames of a USD cache or of a ``--particles-h5`` file; :class:`SceneError` otherwise."""
+    """The frames of a USD cache or of a ``--particles-h5`` file; :class:`SceneError` otherwise.
+
+    Example:
+
+    ```python
+    import warpsph
+    from warpsph.surface import open_frames
+
+    sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+    with warpsph.io.UsdWriter("out/dam_break.usdc", sim) as usd:
+        sim.run(frames=2, on_frame=usd)
+    frames = open_frames("out/dam_break.usdc")  # or OUT.particles.h5
+    points, velocities, vorticity = frames.read(2)
+    ```
+    """
     from pathlib import Path
 
     from .io.particles_h5 import is_particles_h5
@@ -979,7 +1176,21 @@ def default_output(path):
 
 def plan_remesh(cache, frames=None, out=None, radius=None, overwrite=False, options=SurfaceOptions()):
     """Checks everything before anything is written: returns (source, frame list, output path,
-    radius). Raises :class:`SceneError` naming the option at fault."""
+    radius). Raises :class:`SceneError` naming the option at fault.
+
+    Example:
+
+    ```python
+    import warpsph
+    from warpsph.surface import plan_remesh
+
+    sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+    with warpsph.io.UsdWriter("out/dam_break.usdc", sim) as usd:
+        sim.run(frames=2, on_frame=usd)
+    source, frames, out, radius = plan_remesh("out/dam_break.usdc")  # all frames, beside the cache
+    print(frames, out, radius)  # [0, 1, 2] out/dam_break.surface.usdc ...
+    ```
+    """
     import os
     from pathlib import Path
 
@@ -1030,7 +1241,21 @@ def remesh(source, frames, out, radius, options=SurfaceOptions(), log=None, devi
     grows by crash-consistent saves (:class:`warpsph.io.usd.GrowingLayer`; a kill or a full disk leaves OUT.partial
     with the frames of the last save, and ``out`` as it was) after a frame while a save
     costs at most ``FLUSH_SHARE`` of the time since the last, and renamed to ``out`` at the end or when stopped.
-    Returns {"frames", "seconds" (meshing), "vertices", "triangles", "clipped" (what the meshes were clipped to)}."""
+    Returns {"frames", "seconds" (meshing), "vertices", "triangles", "clipped" (what the meshes were clipped to)}.
+
+    Example:
+
+    ```python
+    import warpsph
+    from warpsph.surface import SurfaceOptions, plan_remesh, remesh
+
+    sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05))
+    with warpsph.io.UsdWriter("out/dam_break.usdc", sim) as usd:
+        sim.run(frames=2, on_frame=usd)
+    source, frames, out, radius = plan_remesh("out/dam_break.usdc", frames=[1, 2])
+    print(remesh(source, frames, out, radius, options=SurfaceOptions(method="preview")))  # what `warpsph surface` runs
+    ```
+    """
     import os
     import time
 
@@ -1193,10 +1418,15 @@ def mesh_quality(mesh, reference=None, radius=1.0, clip=None, sliver_degrees=SLI
     largest depth of a vertex inside a closed body or into an open one's shell (``surface_clip.SHELL``
     ``radius`` either side of its mesh: give the particle radius), the moving ones at ``poses``.
 
-    >>> import trimesh
-    >>> q = mesh_quality(trimesh.creation.icosphere(subdivisions=3, radius=1.0))
-    >>> q["watertight"], q["sliver_fraction"], round(q["area"], 2)
-    (True, 0.0, 12.51)
+    Example:
+
+    ```python
+    import trimesh
+    from warpsph.surface import mesh_quality
+
+    q = mesh_quality(trimesh.creation.icosphere(subdivisions=3, radius=1.0))
+    assert q["watertight"] and q["sliver_fraction"] == 0.0 and round(q["area"], 2) == 12.51
+    ```
     """
     import trimesh
 
