@@ -1,7 +1,9 @@
 """Kernels of the preview surface (``--surface-method preview``, :func:`warpsph.surface.reconstruct_preview`).
 
-The colour field c(x) = sum_j V W(|x - x_j|, H) (cubic spline of support H, V = (2 r)^3 the rest
-volume of a particle) is sampled at the nodes of a sparse grid: the grid is cut into blocks of
+The colour field c(x) = sum_j V_j W(|x - x_j|, H) (cubic spline of support H) takes each particle's
+volume from its own neighbourhood, V_j = 1 / sum_k W(|x_j - x_k|, H) (m_j / rho_j, as splashsurf's:
+Loeschner et al. 2023), so a sparse sheet or a droplet keeps a field that reaches the iso value where
+the rest volume (2 r)^3 would let it drop out. It is sampled at the nodes of a sparse grid: the grid is cut into blocks of
 B^3 cells, a block is active when some particle's support box overlaps it, and only the nodes of
 active blocks are evaluated (through a :class:`warp.HashGrid` of the particles). The cells whose
 8 corners straddle the iso value go to Warp's ``sparse_marching_cubes_from_cells``. Vertex normals
@@ -58,8 +60,21 @@ def block_origin(block: int, dims: wp.vec3i, B: int):
 
 
 @wp.kernel
+def particle_volumes(grid: wp.uint64, x: wp.array(dtype=wp.vec3), support: float, volumes: wp.array(dtype=float)):
+    """V_i = 1 / sum_j W(|x_i - x_j|, H) over the particles (i included): the volume the colour field gives i."""
+    i = wp.tid()
+    p = x[i]
+    total = float(0.0)
+    query = wp.hash_grid_query(grid, p, support)
+    j = int(0)
+    while wp.hash_grid_query_next(query, j):
+        total += cubic_kernel(wp.length(p - x[j]), support)
+    volumes[i] = 1.0 / total
+
+
+@wp.kernel
 def block_field(blocks: wp.array(dtype=wp.int32), dims: wp.vec3i, B: int, lower: wp.vec3, cell: float,
-                grid: wp.uint64, x: wp.array(dtype=wp.vec3), support: float, volume: float,
+                grid: wp.uint64, x: wp.array(dtype=wp.vec3), support: float, volumes: wp.array(dtype=float),
                 values: wp.array(dtype=float)):
     """The colour field at the (B + 1)^3 nodes of each active block."""
     tid = wp.tid()
@@ -72,7 +87,7 @@ def block_field(blocks: wp.array(dtype=wp.int32), dims: wp.vec3i, B: int, lower:
     query = wp.hash_grid_query(grid, p, support)
     j = int(0)
     while wp.hash_grid_query_next(query, j):
-        c += volume * cubic_kernel(wp.length(p - x[j]), support)
+        c += volumes[j] * cubic_kernel(wp.length(p - x[j]), support)
     values[tid] = c
 
 
@@ -123,7 +138,8 @@ def gather_cells(flags: wp.array(dtype=wp.int32), offsets: wp.array(dtype=wp.int
 
 @wp.kernel
 def vertex_attributes(vertices: wp.array(dtype=wp.vec3), grid: wp.uint64, x: wp.array(dtype=wp.vec3),
-                      v: wp.array(dtype=wp.vec3), scalar: wp.array(dtype=float), support: float, volume: float,
+                      v: wp.array(dtype=wp.vec3), scalar: wp.array(dtype=float), support: float,
+                      volumes: wp.array(dtype=float),
                       normals: wp.array(dtype=wp.vec3), velocities: wp.array(dtype=wp.vec3),
                       scalars: wp.array(dtype=float)):
     """Outward normals (-grad c) and the Shepard-interpolated velocity and scalar at each vertex
@@ -138,8 +154,8 @@ def vertex_attributes(vertices: wp.array(dtype=wp.vec3), grid: wp.uint64, x: wp.
     j = int(0)
     while wp.hash_grid_query_next(query, j):
         d = p - x[j]
-        w = volume * cubic_kernel(wp.length(d), support)
-        grad += volume * cubic_kernel_gradient(d, support)
+        w = volumes[j] * cubic_kernel(wp.length(d), support)
+        grad += volumes[j] * cubic_kernel_gradient(d, support)
         weight += w
         if v.shape[0] > 0:
             vel += w * v[j]

@@ -6,10 +6,12 @@ tests that mesh need pysplashsurf (``warpsph[surface]``); the refusals run witho
 import json
 import os
 import sys
+import importlib.util
 import time
 
 import numpy as np
 import pytest
+import trimesh
 from pxr import Usd
 
 from conftest import interrupt_a_long_run, tank_scene
@@ -531,7 +533,6 @@ def test_mesh_quality_of_boxes_is_exact():
     """mesh_quality (#42) on shapes whose numbers are known: a unit box's 12 right triangles (area 6, volume 1,
     smallest angles 45 degrees, closed); its distance to a box 1.2 across is 0.1 from every vertex, 0.1 sqrt(3)
     from the big box's corners back; a walled face at x = 0.3 leaves the box 0.2 outside; a needle is a sliver."""
-    import trimesh
 
     from warpsph.surface import SurfaceClip, mesh_quality
 
@@ -553,7 +554,6 @@ def test_mesh_quality_of_boxes_is_exact():
 
 def sphere_quality(mesh, points, r):
     """mesh_quality of a lattice sphere's mesh against the sphere of the particles' volume N (2r)^3."""
-    import trimesh
 
     from warpsph.surface import SurfaceClip, mesh_quality
 
@@ -567,21 +567,57 @@ def sphere_quality(mesh, points, r):
 
 def test_mesh_quality_of_the_preview_of_a_sphere_of_particles():
     """The preview (marching cubes, cube 0.75 r, 25 steps of Taubin smoothing) of 4163 particles in a ball 20 r
-    across: closed, the sphere's area and volume (measured +1.5 % / -1.0 %), no slivers (smallest angle < 10
-    degrees; 21 % unsmoothed: marching cubes cuts cells near their corners), 0.20 r from the sphere on average
-    (0.21 unsmoothed) and 0.72 r at most."""
+    across: closed, the sphere's area and volume (measured +4.2 % / +0.9 %), no slivers (smallest angle < 10
+    degrees; 12 % unsmoothed: marching cubes cuts cells near their corners), 0.25 r from the sphere on average
+    and 0.77 r at most."""
     from warpsph.surface import reconstruct_preview
 
     r, sphere = 0.01, 0.2
     points = lattice_sphere(r, sphere)
     mesh = reconstruct_preview(points, r, options=SurfaceOptions(method="preview"), device="cpu")
     q, area, volume = sphere_quality(mesh, points, r)
-    assert q["area"] == pytest.approx(area, rel=0.025) and q["volume"] == pytest.approx(volume, rel=0.015)
+    assert q["area"] == pytest.approx(area, rel=0.063) and q["volume"] == pytest.approx(volume, rel=0.015)
     assert q["sliver_fraction"] < 0.005
-    assert q["distance_mean"] < 0.25 and q["distance_max"] < 1.0 and q["reverse_max"] < 1.0
+    assert q["distance_mean"] < 0.37 and q["distance_max"] < 1.15 and q["reverse_max"] < 1.15
     assert q["distance_over_1r"] == 0.0 and q["reverse_over_1r"] == 0.0
     raw = reconstruct_preview(points, r, options=SurfaceOptions(method="preview", smoothing_iters=0), device="cpu")
-    assert 0.14 < sphere_quality(raw, points, r)[0]["sliver_fraction"] < 0.32
+    assert 0.08 < sphere_quality(raw, points, r)[0]["sliver_fraction"] < 0.32  # 0.12 measured
+
+
+def sparse_particles(r):
+    """A slab of fluid 8 layers deep, a sheet of 400 particles 3 r apart above it and 60 droplets of one particle."""
+    slab = np.mgrid[0:30, 0:8, 0:30].reshape(3, -1).T * 2 * r
+    sheet = np.mgrid[0:20, 0:20].reshape(2, -1).T * 3 * r
+    sheet = np.c_[sheet[:, 0], np.full(len(sheet), 30 * r), sheet[:, 1]]
+    drops = np.random.default_rng(1).uniform([0, 40 * r, 0], [60 * r, 60 * r, 60 * r], (60, 3))
+    return np.concatenate([slab, sheet, drops]).astype(np.float32), len(slab), len(sheet)
+
+
+def test_the_preview_wraps_sparse_fluid_as_splashsurf_does():
+    """Each particle's volume comes from its neighbours (1 / sum_k W_jk, splashsurf's m / rho_j): the sheet and every
+    droplet get a closed mesh around them. With the rest volume (2 r)^3 a lone particle's field peaks at 1/pi, under
+    any iso value, and the sheet's at about 0.4: both were left out (43 % of splashsurf's vertices more than 1 r from
+    the preview's mesh)."""
+    from warpsph.surface import reconstruct_preview
+
+    r = 0.01
+    points, slab, sheet = sparse_particles(r)
+    mesh = reconstruct_preview(points, r, options=SurfaceOptions(method="preview"), device="cpu")
+    pieces = trimesh.Trimesh(mesh.points, mesh.faces, process=False).split(only_watertight=True)
+    assert len(pieces) >= 1 + 50  # the slab, the sheet (one or more pieces) and the droplets (some touch)
+    tops = sorted(p.bounds[1][1] for p in pieces)
+    assert tops[-1] > points[:, 1].max()  # the highest droplet has its mesh
+    inside = np.zeros(len(points), bool)
+    for piece in pieces:
+        lo, hi = piece.bounds
+        inside |= np.all((points >= lo) & (points <= hi), axis=1)
+    assert inside.all()  # every particle within some piece's bounds: none dropped
+    if importlib.util.find_spec("pysplashsurf"):
+        from warpsph.surface import mesh_quality, reconstruct
+
+        reference = reconstruct(points, r)
+        q = mesh_quality(mesh, trimesh.Trimesh(reference.points, reference.faces), radius=r)
+        assert q["reverse_over_1r"] < 0.003 and q["distance_mean"] < 0.15  # measured 0.000 and 0.10 r
 
 
 def test_mesh_quality_of_splashsurf_s_sphere_of_particles():
@@ -620,7 +656,8 @@ def test_the_device_mesher_meshes_the_simulation_s_own_arrays_between_steps(tmp_
                                sim.field_values("vorticity"), options, device)
     assert frame == 2 and len(mesh.faces) > 100 and boundary_edges(mesh.faces) == 0
     assert len(mesh.points) == len(host.points) and len(mesh.faces) == len(host.faces)
-    assert mesh_volume(mesh.points, mesh.faces) == pytest.approx(mesh_volume(host.points, host.faces), rel=0.02)
+    clamped = np.clip(host.points, np.array(clip.lo)[None], np.array(clip.hi)[None])  # the host's, clipped
+    assert mesh_volume(mesh.points, mesh.faces) == pytest.approx(mesh_volume(clamped, host.faces), rel=1e-4)
     lo, hi = np.array(clip.lo), np.array(clip.hi)
     assert (mesh.points >= lo[None] - 1e-6).all() and (mesh.points <= hi[None] + 1e-6).all()
     assert host.points.max(axis=0)[0] > hi[0] or host.points.min(axis=0)[1] < lo[1]  # the host's is unclipped

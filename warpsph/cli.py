@@ -839,7 +839,7 @@ def _surface_parser(sub):
     mesh.add_argument("--frames", type=int, nargs=2, metavar=("A", "B"), help="mesh frames A..B only (default all)")
     mesh.add_argument("--cube", type=float, default=0.75, help="marching-cubes cell in particle radii (default 0.75)")
     mesh.add_argument("--smoothing", type=float, default=2.0, help="smoothing length in particle radii (default 2.0)")
-    mesh.add_argument("--iso", type=float, help="iso threshold of the colour field (default 0.6, preview 0.5)")
+    mesh.add_argument("--iso", type=float, help="iso threshold of the colour field (default 0.6)")
     mesh.add_argument("--method", choices=["splashsurf", "preview"], default="splashsurf",
                       help="splashsurf (default) or preview (Warp's sparse marching cubes, see run --surface-method)")
     mesh.add_argument("--device", default="cpu", help="device of --method preview: cpu (default), cuda, cuda:N or auto")

@@ -59,7 +59,7 @@ __all__ = ["SurfaceOptions", "SurfaceMesh", "reconstruct", "reconstruct_preview"
 PYSPLASHSURF = "0.14.1.0"
 INSTALL_HINT = f"pip install 'warpsph[surface]' (pysplashsurf=={PYSPLASHSURF})"
 METHODS = ("splashsurf", "preview")
-ISO_DEFAULTS = {"splashsurf": 0.6, "preview": 0.5}
+ISO_DEFAULTS = {"splashsurf": 0.6, "preview": 0.6}
 
 
 @dataclass(frozen=True)
@@ -72,13 +72,13 @@ class SurfaceOptions:
     from warpsph.surface import SurfaceOptions
 
     fine = SurfaceOptions(cube=0.5, smoothing=2.0).check()  # SceneError naming an out-of-range option
-    print(fine.threshold, SurfaceOptions(method="preview").threshold)  # the iso values: 0.6, 0.5
+    print(fine.threshold, SurfaceOptions(method="preview").threshold)  # the iso values: 0.6, 0.6
     ```
     """
 
     cube: float = 0.75
     smoothing: float = 2.0
-    iso: float | None = None  # None: the method's default (splashsurf 0.6, preview 0.5)
+    iso: float | None = None  # None: the method's default (0.6, splashsurf's, for both)
     smoothing_iters: int = 25
     normals_iters: int = 10
     cleanup: bool = True
@@ -435,9 +435,10 @@ def preview_on_device(x, radius, velocities=None, scalar=None, options=None, wal
     into pinned host memory without waiting: call :meth:`SurfaceMesh.wait` before reading them. ``walls``:
     (lo, hi) of :func:`wall_bounds`, the box the vertices are clamped into (the domain's walled faces), or None.
 
-    The colour field c(x) = sum_j (2 r)^3 W(|x - x_j|) (cubic spline, support ``2 * smoothing`` r) is sampled at
-    the nodes of the blocks of 8^3 cells of ``cube`` r that some particle's support overlaps, and the cells that
-    straddle ``iso`` (default 0.5) are meshed by ``warp.geometry.sparse_marching_cubes_from_cells`` (shared
+    The colour field c(x) = sum_j V_j W(|x - x_j|) (cubic spline, support ``2 * smoothing`` r; V_j = 1 / sum_k
+    W(|x_j - x_k|), each particle's volume from its neighbours, as splashsurf's) is sampled at the nodes of the
+    blocks of 8^3 cells of ``cube`` r that some particle's support overlaps, and the cells that straddle ``iso``
+    (default 0.6, splashsurf's) are meshed by ``warp.geometry.sparse_marching_cubes_from_cells`` (shared
     vertices: watertight). ``options.smoothing_iters`` steps of Taubin's smoothing (lambda 0.5, mu -0.53,
     alternating; Taubin 1995) take off the marching cubes' staircase without shrinking the mesh. Normals are
     -grad c at the smoothed vertices; velocities and the scalar are interpolated with the kernel (Shepard)."""
@@ -453,7 +454,6 @@ def preview_on_device(x, radius, velocities=None, scalar=None, options=None, wal
     device = x.device
     support = 2.0 * float(options.smoothing) * float(radius)
     cell = float(options.cube) * float(radius)
-    volume = (2.0 * float(radius)) ** 3
     iso = float(options.threshold)
     with wp.ScopedDevice(device):  # every allocation names the device too: the current device is process-wide
         bounds = wp.array([np.inf] * 3 + [-np.inf] * 3, dtype=float, device=device)
@@ -472,6 +472,8 @@ def preview_on_device(x, radius, velocities=None, scalar=None, options=None, wal
         lower_v = wp.vec3(*map(float, lower))
         grid = wp.HashGrid(*[int(max(1, min(128, d))) for d in np.ceil((hi - lo) / support + 1)], device=device)
         grid.build(x, support)
+        volumes = wp.empty(n, dtype=float, device=device)
+        wp.launch(K.particle_volumes, n, inputs=[grid.id, x, support, volumes], device=device)
         flags = wp.zeros(int(np.prod(dims)), dtype=wp.int32, device=device)
         wp.launch(K.mark_blocks, n, device=device, inputs=[x, lower_v, float(block), support, dims_v, flags])
         offsets = wp.empty_like(flags)
@@ -482,7 +484,7 @@ def preview_on_device(x, radius, velocities=None, scalar=None, options=None, wal
         nodes = (B + 1) ** 3
         values = wp.empty(count * nodes, dtype=float, device=device)
         wp.launch(K.block_field, count * nodes, device=device,
-                  inputs=[blocks, dims_v, B, lower_v, cell, grid.id, x, support, volume, values])
+                  inputs=[blocks, dims_v, B, lower_v, cell, grid.id, x, support, volumes, values])
         cell_flags = wp.empty(count * B ** 3, dtype=wp.int32, device=device)
         wp.launch(K.mark_cells, len(cell_flags), device=device, inputs=[values, B, iso, cell_flags])
         cell_offsets = wp.empty_like(cell_flags)
@@ -513,7 +515,7 @@ def preview_on_device(x, radius, velocities=None, scalar=None, options=None, wal
         vertex_v = wp.zeros(nv if velocities is not None else 0, dtype=wp.vec3, device=device)
         vertex_s = wp.zeros(nv if scalar is not None else 0, dtype=float, device=device)
         wp.launch(K.vertex_attributes, nv, device=device,
-                  inputs=[vertices, grid.id, x, v, s, support, volume, normals, vertex_v, vertex_s])
+                  inputs=[vertices, grid.id, x, v, s, support, volumes, normals, vertex_v, vertex_s])
         signed = wp.zeros(1, dtype=float, device=device)
         wp.launch(K.signed_volume, nf, inputs=[vertices, indices, signed], device=device)
         if signed.numpy()[0] < 0:  # outward: counter-clockwise seen from outside
