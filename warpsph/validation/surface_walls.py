@@ -32,7 +32,8 @@ from pathlib import Path
 import numpy as np
 from warpsph.scene import Scene
 from warpsph.surface import stage_clip, stage_poses
-from warpsph.surface_clip import SHELL
+from warpsph.surface_clip import SHELL, depths_in_bodies
+from warpsph.validation.cases import commit_info
 
 
 def outside(points, lo, hi):
@@ -60,8 +61,6 @@ def measure(cache, scene, radius=None, log=print):
     max_in_body_r (with bodies)], "max_outside_r", "max_in_body_r"} of the surface meshes in ``cache``
     (a USD file) of the run of ``scene`` (a scene file; its domain's walled faces), distances in radii."""
     from pxr import Usd
-
-    from warpsph.surface_clip import depths_in_bodies
 
     domain = Scene.load(scene).domain
     walled = [domain.walls and "xyz"[k] not in domain.periodic for k in range(3)]
@@ -182,8 +181,6 @@ def main(argv=None):
     args = parser.parse_args(argv)
 
     if args.study:
-        from warpsph.validation.cases import commit_info
-
         result = study(args.work, args.scenes.split(",") if args.scenes else None, tuple(args.methods.split(",")),
                        not args.runs_only)
         if args.runs_only:
