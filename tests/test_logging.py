@@ -192,8 +192,9 @@ def test_the_library_prints_no_warp_banner_unless_asked(tmp_path, device, setup,
     stay off unless the program shows warpsph's debug records or set Warp's level itself."""
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     script = QUIET_LIBRARY.format(scene=tank_scene(radius=0.05, output={"fps": 20, "frames": 1}))
+    path = os.pathsep.join(filter(None, [root, os.environ.get("PYTHONPATH")]))  # the caller's paths kept after it
     done = subprocess.run([sys.executable, "-c", script, setup, device], capture_output=True, text=True, cwd=tmp_path,
-                          env={**os.environ, "PYTHONPATH": root}, timeout=300)
+                          env={**os.environ, "PYTHONPATH": path}, timeout=300)
     assert done.returncode == 0, done.stderr
     assert f"level {level}\n" in done.stderr
     assert ("Warp " in done.stdout and "initialized" in done.stdout) == banner, done.stdout
