@@ -695,6 +695,32 @@ def test_the_device_mesher_writes_a_clips_frame_s_mesh_into_its_layer_from_a_pro
     assert len(stage.GetPrimAtPath("/World/Fluid").GetAttribute("points").Get(1)) == len(x)
 
 
+def test_the_device_mesher_meshes_the_frame_s_particles_while_the_simulation_steps_on(tmp_path, device):
+    """The device mesher copies the frame's particles and runs its stages between the following steps (on a GPU on
+    a stream of its own, each stage launched once the numbers it reads back are there: advance() never waits): the
+    mesh is the preview of the particles at the frame, not of where they are when it is done."""
+    from warpsph.scene import load_scene
+    from warpsph.simulation import Simulation
+    from warpsph.surface import DeviceMesher, reconstruct_preview
+
+    scene = load_scene(small_scene(tmp_path))
+    sim = Simulation(scene, device=device)
+    sim.run(frames=2)
+    options = SurfaceOptions(method="preview")
+    at_frame = (sim.positions(), sim.velocities())
+    mesher = DeviceMesher(options, scene.particle_radius)
+    mesher.mesh_now(sim, 2)
+    for _ in range(5):
+        sim.step()
+        mesher.advance(sim)
+    assert np.abs(sim.positions() - at_frame[0]).max() > 1e-4  # the particles moved on
+    assert mesher.submit(2, {})
+    [(frame, mesh)] = mesher.ready()
+    host = reconstruct_preview(at_frame[0], scene.particle_radius, at_frame[1], None, options, device)
+    assert frame == 2 and len(mesh.faces) == len(host.faces) > 100
+    np.testing.assert_allclose(mesh.points, host.points, atol=1e-6)
+
+
 @pytest.mark.skipif(not __import__("warp").is_cuda_available(), reason="needs a CUDA device (the GPU's default mesher)")
 def test_a_run_on_the_gpu_meshes_with_the_preview_on_its_device_by_default(tmp_path, monkeypatch):
     monkeypatch.setitem(sys.modules, "pysplashsurf", None)

@@ -268,7 +268,7 @@ def _simulate(sim, outputs, frames, args, options, append):
     steps0 = sim.step_count
     outcome = stepped = None
     try:
-        sim.run(frames=frames, on_frame=on_frame)
+        sim.run(frames=frames, on_frame=on_frame, on_step=recorder.on_step)
         stepped = time.perf_counter() - start  # to the last step; then the writer and mesher finish
         recorder.drain()
     except (StopRequest, WriteError) as exc:

@@ -431,7 +431,8 @@ def preview_on_device(x, radius, velocities=None, scalar=None, options=None, wal
     """The preview surface of the particles ``x`` (a Warp array of vec3 on its device: the simulation's own, no
     copy to the host), the host arrays of a :class:`SurfaceMesh` back. ``velocities`` (vec3) and ``scalar``
     (float, the vorticity magnitude) are Warp arrays of the same rows, or None. Every launch goes to the device's
-    current stream: on a simulation's device, called between its steps. On a GPU the mesh's arrays are copied
+    current stream: on a simulation's device, called between its steps (:class:`DeviceMesher` runs the same
+    stages, :func:`preview_stages`, on a stream of its own without waiting). On a GPU the mesh's arrays are copied
     into pinned host memory without waiting: call :meth:`SurfaceMesh.wait` before reading them. ``walls``:
     (lo, hi) of :func:`wall_bounds`, the box the vertices are clamped into (the domain's walled faces), or None.
 
@@ -443,6 +444,25 @@ def preview_on_device(x, radius, velocities=None, scalar=None, options=None, wal
     alternating; Taubin 1995) take off the marching cubes' staircase without shrinking the mesh. Normals are
     -grad c at the smoothed vertices; velocities and the scalar are interpolated with the kernel (Shepard)."""
     import warp as wp
+
+    stages = preview_stages(x, radius, velocities, scalar, options, walls)
+    try:
+        event = next(stages)
+        while True:  # each stage waits for the small values it reads from the device
+            if event is not None:
+                wp.synchronize_event(event)
+            event = stages.send(None)
+    except StopIteration as done:
+        return done.value
+
+
+def preview_stages(x, radius, velocities=None, scalar=None, options=None, walls=None):
+    """:func:`preview_on_device` as a generator: it launches a stage's work and yields a ``wp.Event`` (None on the
+    CPU) where it must read a few numbers back from the device (the particles' bounds, the count of active blocks,
+    of straddling cells, the mesh's orientation) through pinned memory; resumed once the event is complete, it
+    reads them without waiting and goes on; it returns the :class:`SurfaceMesh`. Each resumption launches on the
+    device's current stream. Every device array lives in the generator until it returns."""
+    import warp as wp
     from warp.geometry import IsoSurfaceMarchingCubes, sparse_marching_cubes_from_cells
 
     from .kernels import surface_preview as K
@@ -452,13 +472,26 @@ def preview_on_device(x, radius, velocities=None, scalar=None, options=None, wal
     if n == 0:
         return _empty_preview(velocities is not None, scalar is not None)
     device = x.device
+    pinned = device.is_cuda
     support = 2.0 * float(options.smoothing) * float(radius)
     cell = float(options.cube) * float(radius)
     iso = float(options.threshold)
+
+    def read_back(*arrays):  # the arrays copied into pinned host memory, and the event that says they are there
+        copies = []
+        for a in arrays:
+            out = wp.empty(a.shape, dtype=a.dtype, device="cpu", pinned=pinned)
+            wp.copy(out, a)
+            copies.append(out)
+        return copies, (wp.record_event() if pinned else None)
+
     with wp.ScopedDevice(device):  # every allocation names the device too: the current device is process-wide
         bounds = wp.array([np.inf] * 3 + [-np.inf] * 3, dtype=float, device=device)
         wp.launch(K.bounds, n, inputs=[x, bounds[:3], bounds[3:]], device=device)
-        b = bounds.numpy().astype(np.float64)
+        (host_bounds,), event = read_back(bounds)
+    yield event
+    with wp.ScopedDevice(device):
+        b = host_bounds.numpy().astype(np.float64)
         lo, hi = b[:3], b[3:]
         lower = lo - support - cell
         B = PREVIEW_BLOCK
@@ -478,7 +511,10 @@ def preview_on_device(x, radius, velocities=None, scalar=None, options=None, wal
         wp.launch(K.mark_blocks, n, device=device, inputs=[x, lower_v, float(block), support, dims_v, flags])
         offsets = wp.empty_like(flags)
         wp.utils.array_scan(flags, offsets, inclusive=False)
-        count = int(offsets[-1:].numpy()[0] + flags[-1:].numpy()[0])
+        (last_offset, last_flag), event = read_back(offsets[-1:], flags[-1:])
+    yield event
+    with wp.ScopedDevice(device):
+        count = int(last_offset.numpy()[0] + last_flag.numpy()[0])
         blocks = wp.empty(max(count, 1), dtype=wp.int32, device=device)
         wp.launch(K.compact, len(flags), device=device, inputs=[flags, offsets, blocks])
         nodes = (B + 1) ** 3
@@ -489,7 +525,11 @@ def preview_on_device(x, radius, velocities=None, scalar=None, options=None, wal
         wp.launch(K.mark_cells, len(cell_flags), device=device, inputs=[values, B, iso, cell_flags])
         cell_offsets = wp.empty_like(cell_flags)
         wp.utils.array_scan(cell_flags, cell_offsets, inclusive=False)
-        ncells = int(cell_offsets[-1:].numpy()[0] + cell_flags[-1:].numpy()[0]) if len(cell_flags) else 0
+        (last_offset, last_flag), event = read_back(cell_offsets[-1:], cell_flags[-1:]) if len(cell_flags) else \
+            ((None, None), None)
+    yield event
+    with wp.ScopedDevice(device):
+        ncells = int(last_offset.numpy()[0] + last_flag.numpy()[0]) if len(cell_flags) else 0
         if ncells == 0:
             return _empty_preview(velocities is not None, scalar is not None)
         corner = wp.array(np.asarray(IsoSurfaceMarchingCubes.CUBE_CORNER_OFFSETS, np.int32).reshape(8, 3),
@@ -518,24 +558,22 @@ def preview_on_device(x, radius, velocities=None, scalar=None, options=None, wal
                   inputs=[vertices, grid.id, x, v, s, support, volumes, normals, vertex_v, vertex_s])
         signed = wp.zeros(1, dtype=float, device=device)
         wp.launch(K.signed_volume, nf, inputs=[vertices, indices, signed], device=device)
-        if signed.numpy()[0] < 0:  # outward: counter-clockwise seen from outside
+        (host_signed,), event = read_back(signed)
+    yield event
+    with wp.ScopedDevice(device):
+        if host_signed.numpy()[0] < 0:  # outward: counter-clockwise seen from outside
             wp.launch(K.reverse_faces, nf, inputs=[indices], device=device)
         if walls is not None:
             wp.launch(K.clamp_points, nv, inputs=[vertices, wp.vec3(*walls[0]), wp.vec3(*walls[1])], device=device)
-        pinned = device.is_cuda
-
-        def host(a):
-            out = wp.empty(a.shape, dtype=a.dtype, device="cpu", pinned=pinned)
-            wp.copy(out, a)
-            return out.numpy()
-
-        mesh = SurfaceMesh(host(vertices), host(indices).reshape(-1, 3), host(normals))
+        (points, faces, vertex_normals, *attributes), pending = read_back(
+            vertices, indices, normals, *([vertex_v] if velocities is not None else []),
+            *([vertex_s] if scalar is not None else []))
+        mesh = SurfaceMesh(points.numpy(), faces.numpy().reshape(-1, 3), vertex_normals.numpy())
         if velocities is not None:
-            mesh.velocities = host(vertex_v)
+            mesh.velocities = attributes.pop(0).numpy()
         if scalar is not None:
-            mesh.primvars["vorticity_magnitude"] = host(vertex_s)
-        if pinned:
-            mesh.pending = wp.record_event()
+            mesh.primvars["vorticity_magnitude"] = attributes.pop(0).numpy()
+        mesh.pending = pending
     return mesh
 
 
@@ -671,8 +709,10 @@ class BackgroundMesher:
 
 class DeviceMesher:
     """The preview meshes of a run on a GPU (``warpsph run --surface`` on cuda), made on the simulation's own
-    device, stream and thread between its steps (:meth:`mesh_now`, from the frame's device arrays: nothing goes
-    through the host but the mesh), clipped and written by the writer's thread. The interface of
+    device from a copy of the frame's device arrays (nothing goes through the host but the mesh), on a stream of
+    its own, its stages launched by the simulation's thread between the following steps as their numbers come back
+    (:meth:`mesh_now`, :meth:`advance`; it never waits but for the last frame's mesh at the next frame), clipped
+    and written by the writer's thread. The interface of
     :class:`BackgroundMesher`: the writer hands it each frame (:meth:`submit`) and writes the meshes that are
     done (:meth:`ready`). It is never behind: no frame waits or is skipped.
 
@@ -698,18 +738,28 @@ class DeviceMesher:
         self.skipped, self.meshed, self.seconds, self.waited = [], 0, 0.0, 0.0
         self.error = None  # (frame, exception)
         self._lock = threading.Lock()
+        self._made_changed = threading.Condition(self._lock)
         self._made = {}  # frame -> its mesh, made and not yet handed over by the writer
         self._done = []
+        self._stream = None  # the meshes' own stream (on a GPU)
+        self._job = None  # [frame, its stages (preview_stages), the event its next stage waits for, seconds so far]
+        self._owner = None  # the simulation's thread, which alone launches
 
     wants = BackgroundMesher.wants
     check = BackgroundMesher.check
     note = BackgroundMesher.note
 
     def mesh_now(self, sim, frame):
-        """Meshes frame ``frame`` of ``sim`` (one device) if it is one to mesh; a failure is raised on the
+        """Starts meshing frame ``frame`` of ``sim`` (one device) if it is one to mesh, after finishing the last
+        frame's mesh: a copy of the particles on the simulation's stream, then the stages of
+        :func:`preview_stages` on a stream of their own, each launched as soon as the numbers it reads back are
+        there (:meth:`advance`, after each step: the simulation never waits for them). A failure is raised on the
         writer's thread (:meth:`submit`), as a mesher thread's is."""
+        self.finish()
         if not self.wants(frame) or self.error is not None:
             return
+        import threading
+
         import warp as wp
 
         from .kernels import surface_preview as K
@@ -718,21 +768,76 @@ class DeviceMesher:
         try:
             n = sim.num_fluid
             fluid, fields = sim.fluid, sim.fields()
+            x, v = wp.clone(fluid.x[:n]), wp.clone(fluid.v[:n])  # the frame's particles, on the simulation's stream
             scalar = None
             if "vorticity" in fields:
                 scalar = wp.empty(n, dtype=float, device=sim.device)
                 wp.launch(K.magnitudes, n, inputs=[fields["vorticity"][:n], scalar], device=sim.device)
-            mesh = preview_on_device(fluid.x[:n], self.radius, fluid.v[:n], scalar, self.options, self._walls)
+            if self._stream is None:
+                self._stream = wp.Stream(sim.device) if sim.device.is_cuda else None
+            self._owner = threading.get_ident()
+            self._job = [frame, preview_stages(x, self.radius, v, scalar, self.options, self._walls), None,
+                         time.perf_counter() - start]
+            self._resume(first=True)
         except Exception as exc:
-            self.error = (frame, exc)
+            self._fail(frame, exc)
             return
-        mesh.seconds = time.perf_counter() - start
-        with self._lock:
-            self._made[frame] = mesh
+        self.advance()
+
+    def advance(self, sim=None):
+        """Launches the current mesh's next stages whose numbers are back (``on_step`` of a run; no waiting)."""
+        while self._job is not None and (self._job[2] is None or self._job[2].is_complete()):
+            self._resume()
+
+    def finish(self):
+        """Runs the current mesh's stages to the end, waiting for each (the next frame's mesh, the run's end)."""
+        import warp as wp
+
+        while self._job is not None:
+            if self._job[2] is not None:
+                wp.synchronize_event(self._job[2])
+            self._resume()
+
+    def _resume(self, first=False):
+        """The current mesh's next stage, on the mesher's stream (the first waits for the simulation's stream: the
+        copy of the particles)."""
+        import warp as wp
+
+        frame, stages, _, seconds = self._job
+        start = time.perf_counter()
+        try:
+            if self._stream is None:
+                self._job[2] = next(stages)
+            else:
+                with wp.ScopedStream(self._stream, sync_enter=first):
+                    self._job[2] = next(stages)
+            self._job[3] = seconds + time.perf_counter() - start
+        except StopIteration as done:
+            mesh = done.value
+            mesh.seconds = seconds + time.perf_counter() - start
+            self._job = None
+            with self._made_changed:
+                self._made[frame] = mesh
+                self._made_changed.notify_all()
+        except Exception as exc:
+            self._job = None
+            self._fail(frame, exc)
+
+    def _fail(self, frame, exc):
+        with self._made_changed:
+            self.error = (frame, exc)
+            self._made_changed.notify_all()
 
     def submit(self, frame, arrays):
-        """The mesh of frame ``frame`` (made by :meth:`mesh_now`), clipped to the moving bodies at the frame's
-        ``arrays["poses"]``, is done; False when it was not made."""
+        """The mesh of frame ``frame`` (started by :meth:`mesh_now`), clipped to the moving bodies at the frame's
+        ``arrays["poses"]``, is done, once the simulation's thread has made it; False when it was not made."""
+        import threading
+
+        if self._owner == threading.get_ident():
+            self.finish()  # called on the simulation's thread (the API's writer on the calling thread)
+        with self._made_changed:
+            while frame not in self._made and self.error is None and self._job is not None and self._job[0] == frame:
+                self._made_changed.wait(0.05)
         self.check()
         with self._lock:
             mesh = self._made.pop(frame, None)

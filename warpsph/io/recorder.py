@@ -167,6 +167,7 @@ class Recorder:
                                                           workers=workers, clip=clip),
                                                every=every, behind=str(options.get("surface_behind", "wait")))
         self._mesh_on_device = getattr(self.mesher, "mesh_now", None)
+        self._advance_mesh = getattr(self.mesher, "advance", None)  # the device mesher's stages between steps
         self._mesh_count = {"submitted": 0, "written": 0}  # frames handed to the mesher, and their meshes written
         self.writer = FrameWriter(sim, self._write, copy=copy, background=background)
 
@@ -211,8 +212,20 @@ class Recorder:
         except WriterFailed as failed:
             raise _write_error(failed) from failed.cause
 
+    def on_step(self, sim):
+        """After each step: launches the device mesh's stages whose numbers are back (never waits)."""
+        if self._advance_mesh is not None:
+            self._advance_mesh(sim)
+
+    def _finish_device_mesh(self):
+        """The device mesh in flight, finished on this thread (the writer may be waiting for it)."""
+        finish = getattr(self.mesher, "finish", None)
+        if finish is not None:
+            finish()
+
     def drain(self):
         """Waits until every frame handed over is written; :class:`WriteError` if one failed."""
+        self._finish_device_mesh()
         try:
             self.writer.flush()
         except WriterFailed as failed:
@@ -263,6 +276,7 @@ class Recorder:
         """Writes the frames still queued (a stopped or unstable run keeps them), then finishes the meshes, the CSV,
         the HDF5 file and the cache (renamed to its final name); returns the reasons that closing failed (None
         each that did not), the run's own error going first."""
+        _close(self._finish_device_mesh)
         self.writer.close()
         return [self.mesher is not None and _close(self._finish_meshes),
                 self.diagnostics is not None and _close(self.diagnostics.close),
