@@ -232,8 +232,9 @@ def check_model_over_subdomains(model, device):
     for step in range(30):
         for sim in (one, other_order, many):
             sim.step()
-        if step == 4:
-            assert np.abs(by_id(many) - by_id(one)).max() < 1e-6
+        if step == 4:  # rounding alone (a copy in another row order) or a missed exchange (2.7e-5 m after one step)
+            early = np.abs(by_id(other_order) - by_id(one)).max()
+            assert np.abs(by_id(many) - by_id(one)).max() < max(3 * early, 1e-6)
     # after 30 steps the subdomains are 1.3e-5 m (6e-4 r) from one domain with Rankine and micropolar, 2.6e-5 m
     # with VR, while a copy in another row order is 0.4-2.1e-5 m from it: rounding, grown by the stirred flow from
     # step 10 on. A model that forgets an exchange is 2.7e-5 m off after the first step, 6e-3 m after 30.

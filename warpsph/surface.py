@@ -786,7 +786,7 @@ class DeviceMesher:
 
     def advance(self, sim=None):
         """Launches the current mesh's next stages whose numbers are back (``on_step`` of a run; no waiting)."""
-        while self._job is not None and (self._job[2] is None or self._job[2].is_complete()):
+        while self._job is not None and (self._job[2] is None or self._job[2].is_complete):
             self._resume()
 
     def finish(self):
