@@ -34,23 +34,12 @@ from warpsph.models import REGISTRY, ModelContext, plugin_of
 from warpsph.models.vorticity import VorticityField
 from warpsph.neighbours import NeighbourSearch, sort_order
 from warpsph.resources import check_fits
-from warpsph.scene import MAX_VISCOSITY_SUBSTEPS, Scene, walled_faces
-from warpsph.state import FluidParticles, State  # noqa: F401 (FluidParticles: public here too)
+from warpsph.scene import Scene
+from warpsph.state import Constants, FluidParticles, State, viscous_substeps  # noqa: F401 (public here too)
 from warpsph.scene_setup import count_particles, remove_fluid_inside_bodies, sample_scene  # noqa: F401 (public here too)
 
 from warpsph.solvers import solver_class as registered_solver
 from warpsph.packing import packed_positions
-
-
-def viscous_substeps(scene: Scene, viscous_dt: float) -> int:
-    """The most sub-steps of the explicit viscosity in a step: ``solver.viscosity_substeps``, or where that is 0 as
-    many as let the longest step (``time.fixed_dt``, else dt_max) stay within the viscous limit ``viscous_dt`` [s], at
-    most MAX_VISCOSITY_SUBSTEPS: the step then follows the CFL rule alone, as SPlisHSPlasH's does."""
-    n = scene.solver.viscosity_substeps
-    if n == 0:
-        longest = scene.time.fixed_dt or scene.time_step_bounds[1]
-        n = min(MAX_VISCOSITY_SUBSTEPS, max(1, int(np.ceil(longest / viscous_dt * (1.0 - 1.0e-6)))))
-    return n
 
 
 @dataclass
@@ -125,18 +114,8 @@ class Simulation:
         self.device = wp.get_device(device)
         self.timer = StageTimer(profile)
         self.launches = Counter()  # kernel name -> launches (a graph's replay counts its captured launches)
-        r = scene.particle_radius
-        self.support_radius = 4.0 * r
-        self.fluid_volume = (2.0 * r) ** 3  # a lattice of spacing 2r sums to rho0 (see docs)
-        self.rest_density = scene.fluid.density
-        self.particle_mass = self.rest_density * self.fluid_volume
+        self.constants = Constants.from_scene(scene)  # radius, support, mass, rest density, domain: fixed
         self.gravity = scene.gravity  # (the setter also starts without a captured graph)
-        # explicit viscosity is stable for dt <= 0.125 h^2 / nu with h = H / 2 (Morris et al. 1997): at
-        # r = 2.9 mm and nu = 0.05 a 0.57 ms step flung dam-break particles out at 38 m/s
-        nu = max(scene.fluid.viscosity, scene.fluid.boundary_viscosity)
-        self.viscous_dt = 0.125 * (0.5 * self.support_radius) ** 2 / nu if nu > 0 else 1.0e30
-        # solver.viscosity_substeps > 1: the step may reach that many viscous limits; the viscosity sub-steps it
-        self.max_viscous_substeps = viscous_substeps(scene, self.viscous_dt) if nu > 0 else 1
 
         ids = None
         if particles is None:
@@ -185,10 +164,6 @@ class Simulation:
             self.moving_bodies = MovingBodies(self, moving, first_moving,
                                               [b for b in self.bodies if b.kind == "static"]) if moving else None
             self.neighbours = NeighbourSearch(self, self.boundary.x)
-            # the walled faces hold every fluid particle (periodic axes wrap; an open domain lets them leave)
-            lo, hi = walled_faces(scene.domain)
-            self.inside_lo = wp.vec3(*np.maximum(lo, -1e30))
-            self.inside_hi = wp.vec3(*np.minimum(hi, 1e30))
             if self.num_boundary:  # V_b once: static samples together, each moving body on its own
                 sample_body = wp.array(body, dtype=wp.int32, device=self.device)
                 first_moving_body = int(body[first_moving]) if moving else len(self.bodies) + 1
@@ -237,6 +212,17 @@ class Simulation:
             names = warmup.scene_modules(self.scene, bodies=self.bodies, fluid=fluid,
                                          decomposed=self.halo is not None)
             warmup.preload(names + extra, self.device)
+
+    # -- the constants live in self.constants; these read them ----------------------------------------------
+    support_radius = property(lambda self: self.constants.support_radius, doc="The kernel's support 4r [m].")
+    fluid_volume = property(lambda self: self.constants.fluid_volume, doc="A fluid particle's volume (2r)^3 [m^3].")
+    rest_density = property(lambda self: self.constants.rest_density, doc="The rest density rho0 [kg/m^3].")
+    particle_mass = property(lambda self: self.constants.particle_mass, doc="A fluid particle's mass [kg].")
+    viscous_dt = property(lambda self: self.constants.viscous_dt, doc="The explicit viscosity's stable dt [s].")
+    max_viscous_substeps = property(lambda self: self.constants.max_viscous_substeps,
+                                    doc="The most viscosity sub-steps in a step (1: none).")
+    inside_lo = property(lambda self: self.constants.inside_lo, doc="The walled faces' lower corner (advection).")
+    inside_hi = property(lambda self: self.constants.inside_hi, doc="The walled faces' upper corner (advection).")
 
     # -- the data lives in self.state; these read it ---------------------------------------------------
     fluid = property(lambda self: self.state.fluid, doc="The fluid's per-particle arrays (:class:`FluidParticles`).")
