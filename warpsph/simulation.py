@@ -13,9 +13,9 @@ import numpy as np
 import warp as wp
 
 from warpsph import health, warmup
-from warpsph.bodies import BODY_INSET, MovingBodies
+from warpsph.bodies import BODY_INSET, BodiesContext, MovingBodies
 from warpsph.health import InstabilityError  # noqa: F401 (public here too)
-from warpsph.inflow import Inflow
+from warpsph.inflow import Inflow, InflowContext
 from warpsph.kernels.boundary import compute_boundary_volume
 from warpsph.kernels.density import compute_density_and_factor
 from warpsph.kernels.integration import (
@@ -29,7 +29,6 @@ from warpsph.kernels.integration import (
 from warpsph.kernels.neighbours import gather
 from warpsph.kernels.pressure import REDUCE_THREADS
 from warpsph.kernels.particles import Boundary
-from warpsph.kernels.stability import check_particles
 from warpsph.models import REGISTRY, ModelContext, plugin_of
 from warpsph.models.vorticity import VorticityField
 from warpsph.neighbours import NeighbourSearch, sort_order
@@ -100,8 +99,12 @@ class Simulation:
     """
 
     def __init__(self, scene: Scene, device=None, profile=False, use_graph=None, particles=None, halo=None,
-                 preload=None):
-        """``particles`` (x, v, ids) and ``halo`` are for one subdomain of a
+                 preload=None, bodies_move=True, on_instability="stop", setup_timer=None):
+        """``bodies_move`` False: the moving bodies stay at their initial pose (sampled there, never placed,
+        integrated or coupled: :func:`~warpsph.packing.packed_positions` relaxes the fluid around them).
+        ``on_instability``: as the attribute. ``setup_timer``: a callable ``name -> context manager`` wrapped around
+        each stage of the set-up (``warpsph bench job`` times the time to the first step by it); None: untimed.
+        ``particles`` (x, v, ids) and ``halo`` are for one subdomain of a
         :class:`~warpsph.decomposition.DecomposedSimulation`: its fluid particles instead of the scene's
         sampled (and packed) ones, and the link to the other subdomains (ghost rows, exchanges, reductions).
         ``preload``: True compiles (or loads from Warp's kernel cache) the Warp modules the scene launches
@@ -117,13 +120,16 @@ class Simulation:
         self.constants = Constants.from_scene(scene)  # radius, support, mass, rest density, domain: fixed
         self.gravity = scene.gravity  # (the setter also starts without a captured graph)
 
+        stage = setup_timer or (lambda name: contextlib.nullcontext())
         ids = None
         if particles is None:
-            fluid_x, fluid_v, boundary_x, body, self.bodies = sample_scene(scene)
+            with stage("sample_scene (all host sampling)"):
+                fluid_x, fluid_v, boundary_x, body, self.bodies = sample_scene(scene)
             self._preload(preload, len(fluid_x))
             fluid_x, fluid_v = remove_fluid_inside_bodies(scene, self.bodies, fluid_x, fluid_v, self.device, self.launch)
         else:  # a subdomain: its own fluid, the scene's boundary
-            _, _, boundary_x, body, self.bodies = sample_scene(scene, limit_fluid=False, with_fluid=False)
+            with stage("sample_scene (all host sampling)"):
+                _, _, boundary_x, body, self.bodies = sample_scene(scene, limit_fluid=False, with_fluid=False)
             self._preload(preload, 0)  # (the decomposed simulation cleared the bodies' insides)
             fluid_x, fluid_v, ids = particles
         # moving bodies' samples follow the static ones: kinematic, then dynamic
@@ -161,16 +167,22 @@ class Simulation:
                 volume=z("boundary", self.num_boundary), body=body,
                 impulse=z("bodies", self.num_boundary if has_dynamic else 0, dtype=wp.vec3), first_moving=first_moving,
                 first_dynamic=first_dynamic if has_dynamic else self.num_boundary)
-            self.moving_bodies = MovingBodies(self, moving, first_moving,
+            bodies = BodiesContext(self.state, self.constants, self.boundary, self.launch, lambda: self.gravity,
+                                   lambda: self.neighbours.lists)  # what the bodies see
+            self.moving_bodies = MovingBodies(bodies, moving, first_moving,
                                               [b for b in self.bodies if b.kind == "static"]) if moving else None
-            self.neighbours = NeighbourSearch(self, self.boundary.x)
+            with stage("neighbour grids (boundary grid)"):
+                self.neighbours = NeighbourSearch(self, self.boundary.x)
             if self.num_boundary:  # V_b once: static samples together, each moving body on its own
                 sample_body = wp.array(body, dtype=wp.int32, device=self.device)
                 first_moving_body = int(body[first_moving]) if moving else len(self.bodies) + 1
-                self.launch(compute_boundary_volume, self.num_boundary,
-                            [self.neighbours.boundary_grid.grid, self.boundary.x, sample_body, first_moving_body,
-                             self.support_radius, self.neighbours.lower, self.neighbours.period, self.boundary.volume])
-            self.pressure_solver = solver_class(self)
+                with stage("boundary volumes (incl. kernel load)"):
+                    self.launch(compute_boundary_volume, self.num_boundary,
+                                [self.neighbours.boundary_grid.grid, self.boundary.x, sample_body, first_moving_body,
+                                 self.support_radius, self.neighbours.lower, self.neighbours.period,
+                                 self.boundary.volume])
+            with stage("pressure solver set-up"):
+                self.pressure_solver = solver_class(self)
             if self.moving_bodies is not None and solver_class.couples_bodies:
                 self.moving_bodies.start_coupling()  # dynamic bodies move inside the pressure iterations
             viscous = scene.fluid.viscous
@@ -186,16 +198,24 @@ class Simulation:
             if any(m.needs_vorticity for m in self.models):
                 self.vorticity_field = VorticityField(self)
             self.max_speed_sq = z("clock", 2)  # [max |v|^2 of the fluid, the CFL speed^2 (compute_max_speed)]
-            self.health_counts = z("health", 4, dtype=wp.int32)
-            self.health_first = z("health", 4, dtype=wp.int32)
+            self.health = health.HealthChecks(self.state, self.constants, self.launch,
+                                              self.pressure_solver.max_iteration_streak)
             if scene.initial_packing is not None and particles is None:  # the blocks' particles relaxed before t = 0
                 packed = packed_positions(scene, self.device, Simulation)
                 wp.copy(self.fluid.x, wp.array(packed, dtype=wp.vec3, device=self.device), count=len(packed))
+            # what the emitters and sinks see
+            self._inflow_context = InflowContext(self.state, self.device, self.launch, self.reorder_particles,
+                                                 self._emitted)
             if self.inflow is not None:  # the layers due at t = 0
-                self.inflow.emit(self, 0.0)
-            if halo is None:  # a subdomain's need its ghosts first (DecomposedSimulation)
-                self.update_densities()  # so that frame 0 has them
-        self.on_instability = "stop"  # or "reduce-dt": retry the step with a smaller dt
+                self.inflow.emit(self._inflow_context, 0.0)
+            if halo is None:  # a subdomain's need its ghosts first (DecomposedSimulation); so that frame 0 has them
+                with stage("initial neighbour lists"):
+                    self.neighbours.update(self.fluid.x)
+                with stage("initial densities"):
+                    self._compute_density()
+        if not bodies_move:  # they stay where they were sampled: no placing, integration or coupling
+            self.moving_bodies = None
+        self.on_instability = on_instability
         self._dt_scale = 1.0
         self.use_graph = self.device.is_cuda and wp.is_conditional_graph_supported() if use_graph is None else use_graph
         if halo is not None:
@@ -234,6 +254,29 @@ class Simulation:
     steps_device = property(lambda self: self.state.steps_device)
 
     @property
+    def on_instability(self) -> str:
+        """What :meth:`run` does when a step fails its health check: "stop" (raise the :class:`InstabilityError`)
+        or "reduce-dt" (redo the frame from its start with dt halved, up to ``health.RETRIES`` times); may be changed
+        between frames.
+
+        Example:
+
+        ```python
+        import warpsph
+
+        sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05), on_instability="reduce-dt")
+        sim.on_instability = "stop"
+        ```
+        """
+        return self._on_instability
+
+    @on_instability.setter
+    def on_instability(self, value):
+        if value not in ("stop", "reduce-dt"):
+            raise ValueError(f'on_instability is "stop" or "reduce-dt", not {value!r}')
+        self._on_instability = value
+
+    @property
     def num_fluid(self) -> int:
         """Fluid particles now (rows 0 .. num_fluid - 1 of every per-particle array).
 
@@ -247,10 +290,6 @@ class Simulation:
         ```
         """
         return self.state.num_fluid
-
-    @num_fluid.setter
-    def num_fluid(self, value):
-        self.state.num_fluid = value
 
     @property
     def global_count(self) -> int:
@@ -485,6 +524,11 @@ class Simulation:
         for m in self.models:
             m.reorder(self.model_context, order)
 
+    def _emitted(self, first, count):
+        """Rows ``first .. first + count - 1`` hold particles an emitter just added: the models mark them new."""
+        for m in getattr(self, "models", ()):
+            m.emitted(self.model_context, first, count)  # no history: skip their first correction
+
     # -- the step --------------------------------------------------------------------------------------
     def step(self):
         """One step with its models (VR paper Algorithm 2; SPlisHSPlasH's step order).
@@ -510,7 +554,7 @@ class Simulation:
             now = self.time if self.inflow is not None or self.moving_bodies is not None else None
             if self.inflow is not None:
                 with self.timer("inflow"):  # sinks remove, emitters add: the count changes here only
-                    self.inflow.update(self, now)
+                    self.inflow.update(self._inflow_context, now)
             interval = self.scene.solver.sort_interval
             if interval and self.step_count % interval == 0:
                 with self.timer("sort"):
@@ -588,15 +632,7 @@ class Simulation:
             self.pressure_solver.shift_particles()  # particle shifting (no-op when off)
             self.launch(advance_clock, 1, [self.dt, self.time_device, self.steps_device])
         with t("health"):  # NaN/inf, escaped particles, runaway density: counted on the device
-            self.health_counts.zero_()
-            self.health_first.fill_(2**31 - 1)
-            lo = np.asarray(self.scene.domain.min) - health.ESCAPE_MARGIN * self.scene.particle_radius
-            hi = np.asarray(self.scene.domain.max) + health.ESCAPE_MARGIN * self.scene.particle_radius
-            if not self.scene.domain.walls:  # an open domain: particles may leave (the next step removes them)
-                lo, hi = np.full(3, -1e30), np.full(3, 1e30)
-            self.launch(check_particles, n, [f.x, f.v, f.density, wp.vec3(*lo), wp.vec3(*hi),
-                                             health.DENSITY_HARD_LIMIT * self.rest_density, self.health_counts,
-                                             self.health_first])
+            self.health.check()
 
     def update_densities(self):
         """Neighbour lists, densities (and DFSPH factors) for the current positions (the initial state, a
@@ -642,7 +678,7 @@ class Simulation:
         assert sim.check_health() is None  # healthy (run() raises it after a step)
         ```
         """
-        return health.first_failure(self)
+        return self.health.first_failure()
 
     # -- state: what a checkpoint keeps and a retried step restores -----------------------------------------
     def state_arrays(self):
