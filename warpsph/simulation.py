@@ -13,6 +13,7 @@ import numpy as np
 import warp as wp
 
 from warpsph import health, warmup
+from warpsph.diagnostics import DiagnosticsContext
 from warpsph.bodies import BODY_INSET, BodiesContext, MovingBodies
 from warpsph.health import InstabilityError  # noqa: F401 (public here too)
 from warpsph.inflow import Inflow, InflowContext
@@ -30,7 +31,7 @@ from warpsph.kernels.neighbours import gather
 from warpsph.kernels.pressure import REDUCE_THREADS
 from warpsph.kernels.particles import Boundary
 from warpsph.models import REGISTRY, ModelContext, plugin_of
-from warpsph.models.vorticity import VorticityField
+from warpsph.models.vorticity import VorticityField, curl_of
 from warpsph.neighbours import NeighbourSearch, sort_order
 from warpsph.resources import check_fits
 from warpsph.scene import Scene
@@ -197,6 +198,11 @@ class Simulation:
             self.vorticity_field = None
             if any(m.needs_vorticity for m in self.models):
                 self.vorticity_field = VorticityField(self)
+            self.diagnostics_context = DiagnosticsContext(  # what the frame diagnostics see
+                self.state, self.constants, self.device, self.launch, scene.gravity,
+                None if self.vorticity_field is None else self.vorticity_field.vorticity,
+                lambda v, out: curl_of(self, v, out), self._spin, bool(self.turbulence_models),
+                self.pressure_solver.iteration_totals, self._removed)
             self.max_speed_sq = z("clock", 2)  # [max |v|^2 of the fluid, the CFL speed^2 (compute_max_speed)]
             self.health = health.HealthChecks(self.state, self.constants, self.launch,
                                               self.pressure_solver.max_iteration_streak)
@@ -523,6 +529,14 @@ class Simulation:
         self.pressure_solver.reorder(self, order)
         for m in self.models:
             m.reorder(self.model_context, order)
+
+    def _spin(self):
+        """(angular velocity array, micro-inertia) of the first model that carries its own spin, or None."""
+        return next((m.spin() for m in self.turbulence_models if m.spin() is not None), None)
+
+    def _removed(self):
+        """The particles removed so far, inside sinks and outside an open domain."""
+        return self.inflow.removed_in_sinks + self.inflow.removed_outside if self.inflow is not None else 0
 
     def _emitted(self, first, count):
         """Rows ``first .. first + count - 1`` hold particles an emitter just added: the models mark them new."""
