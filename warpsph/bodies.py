@@ -388,12 +388,27 @@ def kinematic_pose(m: Motion, reference, t):
     return reference + offset, sampling.rotation_matrix(axis, angle), velocity, axis * rate
 
 
+@dataclass
+class BodiesContext:
+    """What the moving bodies see of the simulation, and nothing else (no solver, no models, no writers): the state
+    (the fluid's arrays and count, dt, the allocation and ``carry`` calls), the constants, the boundary samples
+    (which they place and whose impulses they read), the launch call, and two values read when used: the gravity
+    (which may change between steps) and the neighbour lists (built after the bodies)."""
+
+    state: object  # warpsph.state.State
+    constants: object  # warpsph.state.Constants
+    boundary: object  # warpsph.simulation.BoundaryParticles
+    launch: object  # (kernel, dim, inputs): on the simulation's device, counted
+    gravity: object  # () -> wp.vec3 [m/s^2]: the simulation's gravity now
+    neighbour_lists: object  # () -> the kernels' Neighbours struct of this step
+
+
 class MovingBodies:
     """The moving bodies' samples on the device and their poses; boundary samples from
-    ``first_sample`` on are theirs, kinematic bodies first, then dynamic ones."""
+    ``first_sample`` on are theirs, kinematic bodies first, then dynamic ones. ``ctx``: a :class:`BodiesContext`."""
 
-    def __init__(self, sim, bodies, first_sample, obstacles=()):
-        self.sim = sim
+    def __init__(self, ctx, bodies, first_sample, obstacles=()):
+        self.ctx = ctx  # what the bodies see of the simulation (:class:`BodiesContext`)
         self.bodies = bodies
         self.first_sample = first_sample
         counts = [len(b.samples) for b in bodies]
@@ -404,24 +419,24 @@ class MovingBodies:
         dynamic_local = sum(counts[: self.num_kinematic])
         self.first_dynamic = first_sample + dynamic_local
         n = len(bodies)
-        self.local = sim.array("bodies", np.concatenate([b.samples for b in bodies]).astype(np.float32), wp.vec3)
-        self.sample_body = sim.array("bodies", np.repeat(np.arange(n, dtype=np.int32), counts), wp.int32)
+        self.local = ctx.state.array("bodies", np.concatenate([b.samples for b in bodies]).astype(np.float32), wp.vec3)
+        self.sample_body = ctx.state.array("bodies", np.repeat(np.arange(n, dtype=np.int32), counts), wp.int32)
         self._dynamic_sample_body = self.sample_body[dynamic_local:] if self.dynamic else None
-        self.rotation = sim.zeros("bodies", n, dtype=wp.mat33)
-        self.position = sim.zeros("bodies", n, dtype=wp.vec3)
-        self.velocity = sim.zeros("bodies", n, dtype=wp.vec3)
-        self.angular_velocity = sim.zeros("bodies", n, dtype=wp.vec3)
-        self.totals = sim.zeros("bodies", 3 * n, dtype=wp.vec3)
+        self.rotation = ctx.state.zeros("bodies", n, dtype=wp.mat33)
+        self.position = ctx.state.zeros("bodies", n, dtype=wp.vec3)
+        self.velocity = ctx.state.zeros("bodies", n, dtype=wp.vec3)
+        self.angular_velocity = ctx.state.zeros("bodies", n, dtype=wp.vec3)
+        self.totals = ctx.state.zeros("bodies", 3 * n, dtype=wp.vec3)
         self.sample_counts = np.asarray(counts, np.float64)
         # dynamic state for checkpoints and retried frames: position, rotation, velocity, angular velocity,
         # and the last step's accelerations
-        self.state = sim.zeros("bodies", (max(len(self.dynamic), 1), STATE_COLUMNS), dtype=wp.float64)
-        self.contact_memory = sim.array("bodies", np.full((CONTACT_MEMORY_ROWS if self.dynamic else 1,
+        self.state = ctx.state.zeros("bodies", (max(len(self.dynamic), 1), STATE_COLUMNS), dtype=wp.float64)
+        self.contact_memory = ctx.state.array("bodies", np.full((CONTACT_MEMORY_ROWS if self.dynamic else 1,
                                                            CONTACT_MEMORY_COLUMNS), -1.0), wp.float64)
         self._memory_rows = 0  # rows of contact_memory the last store wrote
         if self.dynamic:
-            sim.state.carry("bodies/state", self.state)
-            sim.state.carry("bodies/contacts", self.contact_memory, optional=True)
+            ctx.state.carry("bodies/state", self.state)
+            ctx.state.carry("bodies/contacts", self.contact_memory, optional=True)
         # the last step's contacts' impulses, for the warm start (:meth:`PointContact.warm_start`); checkpointed
         # through ``contact_memory``
         self._warm = {}
@@ -441,22 +456,22 @@ class MovingBodies:
         dynamic bodies, whose solver iterates its pressure (``PressureSolver.couples_bodies``)."""
         if not self.dynamic:
             return
-        sim, n = self.sim, len(self.bodies)
+        ctx, n = self.ctx, len(self.bodies)
         dynamic = [b.kind == "dynamic" for b in self.bodies]
         self.coupling = {
-            "start_velocity": sim.zeros("bodies", n, dtype=wp.vec3),
-            "start_angular_velocity": sim.zeros("bodies", n, dtype=wp.vec3),
-            "inverse_mass": sim.array("bodies", np.array([1.0 / b.mass if d else 0.0 for b, d in zip(self.bodies, dynamic)],
+            "start_velocity": ctx.state.zeros("bodies", n, dtype=wp.vec3),
+            "start_angular_velocity": ctx.state.zeros("bodies", n, dtype=wp.vec3),
+            "inverse_mass": ctx.state.array("bodies", np.array([1.0 / b.mass if d else 0.0 for b, d in zip(self.bodies, dynamic)],
                                                          np.float32), float),
-            "inertia": sim.zeros("bodies", n, dtype=wp.mat33),
-            "inverse_inertia": sim.zeros("bodies", n, dtype=wp.mat33),
-            "reach": sim.array("bodies", np.array([np.linalg.norm(b.samples, axis=1).max() if d else 0.0
+            "inertia": ctx.state.zeros("bodies", n, dtype=wp.mat33),
+            "inverse_inertia": ctx.state.zeros("bodies", n, dtype=wp.mat33),
+            "reach": ctx.state.array("bodies", np.array([np.linalg.norm(b.samples, axis=1).max() if d else 0.0
                                                    for b, d in zip(self.bodies, dynamic)], np.float32), float),
-            "trial": sim.zeros("bodies", 2 * n, dtype=wp.vec3),
-            "response": sim.zeros("bodies", 3 * n, dtype=wp.mat33),
-            "delta": sim.zeros("bodies", 2 * n, dtype=wp.vec3),
-            "lag": sim.zeros("bodies", 2 * n, dtype=wp.vec3),
-            "residual": sim.zeros("bodies", 1),  # the largest velocity change of the last update (the loop reads it)
+            "trial": ctx.state.zeros("bodies", 2 * n, dtype=wp.vec3),
+            "response": ctx.state.zeros("bodies", 3 * n, dtype=wp.mat33),
+            "delta": ctx.state.zeros("bodies", 2 * n, dtype=wp.vec3),
+            "lag": ctx.state.zeros("bodies", 2 * n, dtype=wp.vec3),
+            "residual": ctx.state.zeros("bodies", 1),  # the largest velocity change of the last update (the loop reads it)
         }
         self.lag_mismatch = 0.0  # the last step's largest |J / M - lag| [m/s] (:meth:`integrate`)
 
@@ -466,57 +481,57 @@ class MovingBodies:
         diagonal, :func:`~warpsph.kernels.bodies.solve_body_response`), and the stiffness of the particles beside it
         corrected by it (:func:`~warpsph.kernels.bodies.correct_body_stiffness`). ``factor``, ``surface``,
         ``free_surface``, ``correction``: the solve's. All on the device."""
-        c, sim = self.coupling, self.sim
+        c, ctx = self.coupling, self.ctx
         n = len(self.bodies)
-        nb, boundary = sim.neighbours.lists, sim.boundary.samples
-        sim.launch(measure_body_response, sim.num_fluid,
-                   [sim.fluid.x, nb, boundary, correction, stiffness, factor, surface, free_surface,
-                    self._dynamic_sample_body, self.position, sim.support_radius, sim.dt, n, c["trial"], c["response"]])
-        sim.launch(solve_body_response, n - self.num_kinematic,
-                   [c["trial"], c["response"], c["inverse_mass"], c["inertia"], sim.particle_mass, self.num_kinematic, n,
+        nb, boundary = ctx.neighbour_lists(), ctx.boundary.samples
+        ctx.launch(measure_body_response, ctx.state.num_fluid,
+                   [ctx.state.fluid.x, nb, boundary, correction, stiffness, factor, surface, free_surface,
+                    self._dynamic_sample_body, self.position, ctx.constants.support_radius, ctx.state.dt, n, c["trial"], c["response"]])
+        ctx.launch(solve_body_response, n - self.num_kinematic,
+                   [c["trial"], c["response"], c["inverse_mass"], c["inertia"], ctx.constants.particle_mass, self.num_kinematic, n,
                     c["delta"]])
-        sim.launch(correct_body_stiffness, sim.num_fluid,
-                   [sim.fluid.x, nb, boundary, correction, factor, surface, free_surface, self._dynamic_sample_body,
-                    self.position, c["delta"], sim.support_radius, sim.dt, n, stiffness])
+        ctx.launch(correct_body_stiffness, ctx.state.num_fluid,
+                   [ctx.state.fluid.x, nb, boundary, correction, factor, surface, free_surface, self._dynamic_sample_body,
+                    self.position, c["delta"], ctx.constants.support_radius, ctx.state.dt, n, stiffness])
 
     def couple(self, gravity_weight):
         """Strong coupling, after a pressure apply (and at a solve's start): the dynamic bodies' velocities under the
         fluid's reactions so far this step (:func:`~warpsph.kernels.bodies.update_body_velocities`; ``gravity_weight``
         1 in the density solve: the step's g dt is in) and their samples' velocities from those, for the next source.
         All on the device, no host read."""
-        c, sim = self.coupling, self.sim
+        c, ctx = self.coupling, self.ctx
         n = len(self.bodies)
         dynamic_local = self.first_dynamic - self.first_sample
         count = self.num_samples - dynamic_local
-        sim.launch(sum_coupling_impulses, count,
-                   [sim.boundary.impulse, sim.boundary.x, self._dynamic_sample_body, self.position, self.first_dynamic,
+        ctx.launch(sum_coupling_impulses, count,
+                   [ctx.boundary.impulse, ctx.boundary.x, self._dynamic_sample_body, self.position, self.first_dynamic,
                     n, self.totals])
-        sim.launch(update_body_velocities, n - self.num_kinematic,
+        ctx.launch(update_body_velocities, n - self.num_kinematic,
                    [self.totals, c["start_velocity"], c["start_angular_velocity"], c["inverse_mass"],
-                    c["inverse_inertia"], c["reach"], sim.particle_mass, sim.gravity, float(gravity_weight), sim.dt,
+                    c["inverse_inertia"], c["reach"], ctx.constants.particle_mass, ctx.gravity(), float(gravity_weight), ctx.state.dt,
                     self.num_kinematic, n, c["lag"], self.velocity, self.angular_velocity, c["residual"]])
-        sim.launch(place_body_velocities, count,
+        ctx.launch(place_body_velocities, count,
                    [self.local[dynamic_local:], self._dynamic_sample_body, self.rotation, self.velocity,
-                    self.angular_velocity, dynamic_local, sim.boundary.v])
+                    self.angular_velocity, dynamic_local, ctx.boundary.v])
 
     def _contact_arrays(self, obstacles):
         """Body-space meshes and poses of every body a dynamic one can touch: the moving bodies (their own
         order), then the static ``obstacles`` (placed once)."""
-        sim, bodies = self.sim, self.bodies + obstacles
-        meshes = [wp.Mesh(points=sim.array("bodies", b.vertices.astype(np.float32), wp.vec3),
-                          indices=sim.array("bodies", b.faces.ravel().astype(np.int32), wp.int32)) for b in bodies]
+        ctx, bodies = self.ctx, self.bodies + obstacles
+        meshes = [wp.Mesh(points=ctx.state.array("bodies", b.vertices.astype(np.float32), wp.vec3),
+                          indices=ctx.state.array("bodies", b.faces.ravel().astype(np.int32), wp.int32)) for b in bodies]
         m = len(bodies)
         return {"bodies": bodies, "meshes": meshes, "count": m,
-                "ids": sim.array("bodies", np.array([mesh.id for mesh in meshes], np.uint64), wp.uint64),
-                "closed": sim.array("bodies", np.array([int(b.closed) for b in bodies], np.int32), wp.int32),
-                "band": sim.array("bodies", np.array([KINEMATIC_CONTACT_BAND * sim.scene.particle_radius
+                "ids": ctx.state.array("bodies", np.array([mesh.id for mesh in meshes], np.uint64), wp.uint64),
+                "closed": ctx.state.array("bodies", np.array([int(b.closed) for b in bodies], np.int32), wp.int32),
+                "band": ctx.state.array("bodies", np.array([KINEMATIC_CONTACT_BAND * ctx.constants.particle_radius
                                                       if b.kind == "kinematic" else 0.0 for b in bodies], np.float32),
                                   wp.float32),
                 "kinematic": np.array([b.kind == "kinematic" for b in bodies]),
-                "rotation": sim.array("bodies", np.stack([b.rotation for b in bodies]).astype(np.float32), wp.mat33),
-                "position": sim.array("bodies", np.stack([b.position for b in bodies]).astype(np.float32), wp.vec3),
-                "depth": sim.zeros("bodies", m * m), "push": sim.zeros("bodies", m * m, dtype=wp.vec3),
-                "touch": sim.zeros("bodies", (self.num_samples - (self.first_dynamic - self.first_sample)) * m)}
+                "rotation": ctx.state.array("bodies", np.stack([b.rotation for b in bodies]).astype(np.float32), wp.mat33),
+                "position": ctx.state.array("bodies", np.stack([b.position for b in bodies]).astype(np.float32), wp.vec3),
+                "depth": ctx.state.zeros("bodies", m * m), "push": ctx.state.zeros("bodies", m * m, dtype=wp.vec3),
+                "touch": ctx.state.zeros("bodies", (self.num_samples - (self.first_dynamic - self.first_sample)) * m)}
 
     # -- poses -------------------------------------------------------------------------------------------
     def place(self, time):
@@ -525,14 +540,14 @@ class MovingBodies:
             if body.kind == "kinematic":
                 body.position, body.rotation, body.velocity, body.angular_velocity = kinematic_pose(
                     body.obstacle.motion, body.reference, time)
-        sim = self.sim
+        ctx = self.ctx
         self.rotation.assign(np.stack([b.rotation for b in self.bodies]).astype(np.float32))
         self.position.assign(np.stack([b.position for b in self.bodies]).astype(np.float32))
         self.velocity.assign(np.stack([b.velocity for b in self.bodies]).astype(np.float32))
         self.angular_velocity.assign(np.stack([b.angular_velocity for b in self.bodies]).astype(np.float32))
-        sim.launch(place_body_samples, self.num_samples,
+        ctx.launch(place_body_samples, self.num_samples,
                    [self.local, self.sample_body, self.rotation, self.position, self.velocity, self.angular_velocity,
-                    self.first_sample, sim.boundary.x, sim.boundary.v])
+                    self.first_sample, ctx.boundary.x, ctx.boundary.v])
         c = self.coupling
         if c is not None:  # the step's start for the strong coupling (:meth:`couple`)
             c["start_velocity"].assign(self.velocity)
@@ -555,15 +570,15 @@ class MovingBodies:
         and bodies, are solved together (:func:`solve_contacts`), each starting from its last step's impulses."""
         if not self.dynamic:
             return
-        sim = self.sim
+        ctx = self.ctx
         n = len(self.bodies)
         rest_speed = REST_SPEED * float(np.linalg.norm(gravity)) * dt
         walls = []  # the touched walls' contacts, solved with the bodies' (:func:`solve_contacts`)
         self.totals.zero_()
-        sim.launch(sum_body_impulses, self.num_samples - (self.first_dynamic - self.first_sample),
-                   [sim.boundary.impulse, sim.boundary.x, self._dynamic_sample_body, self.position, self.first_dynamic, n,
+        ctx.launch(sum_body_impulses, self.num_samples - (self.first_dynamic - self.first_sample),
+                   [ctx.boundary.impulse, ctx.boundary.x, self._dynamic_sample_body, self.position, self.first_dynamic, n,
                     self.totals])
-        totals = self.totals.numpy().astype(np.float64) * sim.particle_mass
+        totals = self.totals.numpy().astype(np.float64) * ctx.constants.particle_mass
         lag = self.coupling["lag"].numpy() if self.coupling is not None else None
         self.lag_mismatch = 0.0
         for k, body in enumerate(self.bodies):
@@ -576,7 +591,7 @@ class MovingBodies:
                 body.angular_acceleration = np.linalg.solve(inertia_world, angular / dt)
                 self.lag_mismatch = max(self.lag_mismatch, float(np.linalg.norm(linear / body.mass - lag[k])))
             else:
-                wetted = totals[2 * n + k][0] / sim.particle_mass / self.sample_counts[k]
+                wetted = totals[2 * n + k][0] / ctx.constants.particle_mass / self.sample_counts[k]
                 relax = body.mass / (body.mass + wetted * body.added_mass)  # see ADDED_MASS
                 body.acceleration = (relax * (linear / (dt * body.mass) + np.asarray(gravity))
                                      + (1.0 - relax) * body.acceleration)
@@ -594,7 +609,7 @@ class MovingBodies:
                                         rest_speed, own, dt)
         contacts = walls + self._body_contact(rest_speed)
         for c in contacts:
-            c.warm_start(self._warm.get(c.key), sim.scene.particle_radius)
+            c.warm_start(self._warm.get(c.key), ctx.constants.particle_radius)
         self.sweeps = solve_contacts(contacts)
         self._warm = {c.key: c.remember() for c in contacts}
         self._store_state()
@@ -610,7 +625,7 @@ class MovingBodies:
         c = self._contacts
         if c is None:
             return []
-        sim, m = self.sim, c["count"]
+        ctx, m = self.ctx, c["count"]
         n = len(self.bodies)
         c["rotation"][:n].assign(np.stack([b.rotation for b in self.bodies]).astype(np.float32))
         c["position"][:n].assign(np.stack([b.position for b in self.bodies]).astype(np.float32))
@@ -618,8 +633,8 @@ class MovingBodies:
         c["push"].zero_()
         c["touch"].zero_()
         dynamic_local = self.first_dynamic - self.first_sample
-        reach = BODY_INSET * sim.scene.particle_radius
-        sim.launch(measure_body_contacts, (self.num_samples - dynamic_local, m),
+        reach = BODY_INSET * ctx.constants.particle_radius
+        ctx.launch(measure_body_contacts, (self.num_samples - dynamic_local, m),
                    [self.local[dynamic_local:], self._dynamic_sample_body, c["rotation"], c["position"], c["ids"],
                     c["closed"], c["band"], reach, m, c["depth"], c["push"], c["touch"]])
         depth = c["depth"].numpy().reshape(m, m).astype(np.float64)
@@ -662,7 +677,7 @@ class MovingBodies:
                     points = [touched(a, o) - reach * normal]
                     if both:
                         points.append(touched(o, a) + reach * normal)
-                    points = contact_points(np.concatenate(points), normal, sim.scene.particle_radius)
+                    points = contact_points(np.concatenate(points), normal, ctx.constants.particle_radius)
                     restitution, friction = contact_coefficients(body, bodies[o], both)
                     self._separate(body, bodies[o], normal, d, both, friction, points.mean(axis=0))
                     contacts.append(PointContact(body, bodies[o], both, normal, points, restitution, friction,
@@ -711,7 +726,7 @@ class MovingBodies:
         coefficient the contact acted at the centre of mass until session 21: a box dropped on its edge stayed on
         it. Returns the contacts, solved with the bodies' by :func:`solve_contacts`."""
         restitution, friction = contact_coefficients(body, None, False)
-        band = self.sim.scene.particle_radius
+        band = self.ctx.constants.particle_radius
         contacts, touched = [], set()
         for k in range(3):
             if "xyz"[k] in periodic:

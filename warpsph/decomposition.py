@@ -290,7 +290,7 @@ class Subdomain:
         if moved:
             for a in rows:
                 wp.copy(a, a, dest_offset=stay, src_offset=n + total_in - moved, count=moved)
-        sim.num_fluid = stay + total_in
+        sim.state.num_fluid = stay + total_in
         self.arrived += total_in
 
     def _gather(self, src, index, first, dst, count):
@@ -610,7 +610,7 @@ class DecomposedSimulation:
     @frame.setter
     def frame(self, value):
         for s in self.sims:
-            s.frame = value
+            s.state.frame = value
 
     def check_health(self):
         for s in self.sims:

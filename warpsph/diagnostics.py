@@ -10,16 +10,36 @@ from __future__ import annotations
 
 import csv
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import warp as wp
 
-from warpsph.models.vorticity import curl_of
 from warpsph.kernels import diagnostics as dk
 
 COLUMNS = ["frame", "time", "steps", "particles", "dt", "kinetic_energy", "potential_energy", "rotational_energy", "enstrophy",
            "density_error_mean", "density_error_max", "divergence_iterations", "density_iterations", "removed"]
+
+
+@dataclass
+class DiagnosticsContext:
+    """What the frame diagnostics see of one simulation (a decomposed one: of each subdomain), and nothing else (no
+    solver, no bodies, no neighbour search): the state (the fluid's arrays and count, dt, the allocation call), the
+    constants, the device and the launch call, the scene's gravity, and what the solver and the models publish for a
+    frame. ``Simulation.diagnostics_context`` is one."""
+
+    state: object  # warpsph.state.State
+    constants: object  # warpsph.state.Constants
+    device: object  # the simulation's Warp device
+    launch: object  # (kernel, dim, inputs): on the simulation's device, counted
+    gravity: tuple  # the scene's gravity [m/s^2] (the potential energy's)
+    vorticity: object  # the shared vorticity of v~ this step (a device array), or None where no model keeps one
+    curl: object  # (v, out) -> the SPH curl of v over the last step's lists, into out (eq 6)
+    spin: object  # () -> (angular velocity array, micro-inertia) of the model that carries a spin, or None
+    turbulence: bool  # whether a turbulence model runs (its particles spin at zeta / 2)
+    iteration_totals: object  # () -> the pressure solver's (divergence iterations, solves, density iterations, solves)
+    removed: object  # () -> the particles removed so far (inside sinks and outside an open domain)
 
 
 class Diagnostics:
@@ -46,45 +66,51 @@ class Diagnostics:
         out[dk.ERROR_MAX] = max(s[dk.ERROR_MAX] for s in sums)
         return out
 
-    def _reduce_part(self, sim):
-        n = sim.num_fluid
+    def _reduce_part(self, part):
+        ctx = part.diagnostics_context
+        state, c = ctx.state, ctx.constants
+        n = state.num_fluid
         if n == 0:
             return np.zeros(dk.SLOTS, np.float64)
-        a = self._arrays.get(id(sim))
+        a = self._arrays.get(id(ctx))
         if a is None:
-            a = self._arrays[id(sim)] = {"out": sim.zeros("diagnostics", dk.SLOTS, dtype=wp.float64),
-                                         "empty": wp.empty(0, dtype=wp.vec3, device=sim.device), "vorticity": None}
+            a = self._arrays[id(ctx)] = {"out": state.zeros("diagnostics", dk.SLOTS, dtype=wp.float64),
+                                         "empty": wp.empty(0, dtype=wp.vec3, device=ctx.device), "vorticity": None}
         init = np.zeros(dk.SLOTS, np.float64)
         init[dk.ERROR_MAX] = -np.inf
-        f = sim.fluid
-        with wp.ScopedDevice(sim.device):
-            if sim.vorticity_field is not None:
-                zeta = sim.vorticity_field.vorticity
+        f = state.fluid
+        with wp.ScopedDevice(ctx.device):
+            if ctx.vorticity is not None:
+                zeta = ctx.vorticity
             else:  # plain DFSPH: a scratch array owned by the diagnostics
                 if a["vorticity"] is None:
-                    a["vorticity"] = sim.zeros("diagnostics", sim.capacity, dtype=wp.vec3)
-                zeta = curl_of(sim, sim.fluid.v, a["vorticity"])
-            spinning = [m.spin() for m in sim.turbulence_models if m.spin() is not None]
-            spin = spinning[0][0] if spinning else a["empty"]
+                    a["vorticity"] = state.zeros("diagnostics", state.capacity, dtype=wp.vec3)
+                zeta = ctx.curl(f.v, a["vorticity"])
+            spinning = ctx.spin()
+            spin = spinning[0] if spinning is not None else a["empty"]
             a["out"].assign(init)
-            sim.launch(dk.reduce_frame_diagnostics, min(n, int(dk.REDUCE_THREADS)),
-                       [f.x, f.v, f.density, zeta, spin, n, wp.vec3d(*sim.scene.domain.min), wp.vec3d(*sim.scene.gravity),
-                        wp.float64(sim.particle_mass), wp.float64(sim.rest_density),
+            ctx.launch(dk.reduce_frame_diagnostics, min(n, int(dk.REDUCE_THREADS)),
+                       [f.x, f.v, f.density, zeta, spin, n, wp.vec3d(*c.domain_min), wp.vec3d(*ctx.gravity),
+                        wp.float64(c.particle_mass), wp.float64(c.rest_density),
                         wp.vec3(*(self.region[0] if self.region else (1.0, 1.0, 1.0))),
                         wp.vec3(*(self.region[1] if self.region else (0.0, 0.0, 0.0))), a["out"]])
             return a["out"].numpy()
 
     def measure(self, sim, frame):
-        m = sim.particle_mass
+        """One row for ``sim`` (a simulation, or a decomposed one: its parts summed) at ``frame``: the public counts
+        and clock of ``sim``, the rest through its first part's :class:`DiagnosticsContext` (the models and the solver
+        are the same in every part)."""
+        ctx = sim.parts()[0].diagnostics_context
+        m = ctx.constants.particle_mass
         sums = self.reduce(sim)
         rotational = 0.0
-        spinning = [model.spin() for model in sim.turbulence_models if model.spin() is not None]
-        if spinning:  # sum_i 1/2 m I |omega_i|^2 with the model's micro-inertia I (micropolar: 1 / Theta^-1)
-            rotational = 0.5 * m * spinning[0][1] * float(sums[dk.SPIN_SQ])
-        elif sim.turbulence_models:  # VR / Rankine: particle spin zeta/2, inertia of a sphere 2/5 m r^2
-            inertia = 0.4 * m * sim.scene.particle_radius ** 2
+        spinning = ctx.spin()
+        if spinning is not None:  # sum_i 1/2 m I |omega_i|^2 with the model's micro-inertia I (micropolar: 1 / Theta^-1)
+            rotational = 0.5 * m * spinning[1] * float(sums[dk.SPIN_SQ])
+        elif ctx.turbulence:  # VR / Rankine: particle spin zeta/2, inertia of a sphere 2/5 m r^2
+            inertia = 0.4 * m * ctx.constants.particle_radius ** 2
             rotational = 0.5 * inertia * 0.25 * float(sums[dk.VORTICITY_SQ])
-        totals = sim.pressure_solver.iteration_totals()
+        totals = ctx.iteration_totals()
         d = [a - b for a, b in zip(totals, self._totals)]
         self._totals = totals
         n = sim.num_fluid
@@ -93,7 +119,7 @@ class Diagnostics:
             "time": sim.time,
             "steps": sim.step_count,
             "particles": n,
-            "dt": float(sim.dt.numpy()[0]),
+            "dt": float(ctx.state.dt.numpy()[0]),
             "kinetic_energy": 0.5 * m * float(sums[dk.KINETIC]),
             "potential_energy": -m * float(sums[dk.POTENTIAL]),
             "rotational_energy": rotational,
@@ -103,7 +129,7 @@ class Diagnostics:
             "divergence_iterations": d[0] / d[1] if d[1] else 0.0,
             "density_iterations": d[2] / d[3] if d[3] else 0.0,
             # particles removed since the start: inside sinks and outside an open domain
-            "removed": sim.inflow.removed_in_sinks + sim.inflow.removed_outside if sim.inflow is not None else 0,
+            "removed": ctx.removed(),
         }
         if self.region is not None:
             row["region_enstrophy"] = 0.5 * float(sums[dk.REGION_ENSTROPHY])
@@ -117,14 +143,15 @@ def vorticity_now(sim):
     field (the curl of v~ inside the step). The next step rebuilds the lists and densities itself, so the run
     goes on as it would have. Returns host float64 arrays (x, zeta, volume m / max(rho, 1e-9)) of the fluid
     particles, as :class:`Diagnostics` weighs the enstrophy."""
-    n = sim.num_fluid
-    with wp.ScopedDevice(sim.device):
+    ctx = sim.diagnostics_context
+    f, n = ctx.state.fluid, ctx.state.num_fluid
+    with wp.ScopedDevice(ctx.device):
         sim.update_densities()
-        zeta = curl_of(sim, sim.fluid.v, wp.zeros(max(n, 1), dtype=wp.vec3, device=sim.device))
-        x = sim.fluid.x.numpy()[:n].astype(np.float64)
-        rho = sim.fluid.density.numpy()[:n].astype(np.float64)
+        zeta = ctx.curl(f.v, wp.zeros(max(n, 1), dtype=wp.vec3, device=ctx.device))
+        x = f.x.numpy()[:n].astype(np.float64)
+        rho = f.density.numpy()[:n].astype(np.float64)
         zeta = zeta.numpy()[:n].astype(np.float64)
-    return x, zeta, sim.particle_mass / np.maximum(rho, 1e-9)
+    return x, zeta, ctx.constants.particle_mass / np.maximum(rho, 1e-9)
 
 
 class DiagnosticsWriter:

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import dataclass
 
 import numpy as np
 import warp as wp
@@ -36,6 +37,20 @@ def layer_points(emitter, spacing):
     face = hi[k] - 0.5 * spacing if emitter.velocity[k] < 0 else lo[k] + 0.5 * spacing
     lo[k], hi[k] = face - 0.5 * spacing, face + 0.5 * spacing  # a slab one spacing thick: one layer
     return sampling.fill_block(lo, hi, spacing)
+
+
+@dataclass
+class InflowContext:
+    """What the emitters and sinks see of the simulation, and nothing else: the state (the fluid's arrays, its
+    count, which only they change, between steps, and ``zero_rows``), the device, the launch call, and two calls
+    back: ``reorder(order)`` permutes every per-particle array that a step carries (a sink's compaction: the
+    solver's and the models' state too) and ``emitted(first, count)`` tells the models which rows are new."""
+
+    state: object  # warpsph.state.State
+    device: object  # the simulation's Warp device
+    launch: object  # (kernel, dim, inputs): on the simulation's device, counted
+    reorder: object  # (order): array[:] = array[order] for every carried per-particle array
+    emitted: object  # (first, count): rows first .. first + count - 1 hold particles just added
 
 
 class Inflow:
@@ -64,7 +79,7 @@ class Inflow:
         self.removed_outside = 0  # and outside an open domain
 
     # -- inflow -------------------------------------------------------------------------------------------
-    def emit(self, sim, time):
+    def emit(self, ctx, time):
         """Adds every layer due by ``time``: layer m leaves at start + m d / |v| and has travelled
         |v| (time - its departure) since, so the layers stay one spacing apart whatever dt is."""
         d = self.scene.particle_diameter
@@ -78,37 +93,37 @@ class Inflow:
                 travelled = speed * (time - (e.start + m * d / speed))
                 shift = np.zeros(3)
                 shift[e.axis] = math.copysign(travelled, e.velocity[e.axis])
-                if not self._append(sim, points + shift.astype(np.float32), np.asarray(e.velocity, np.float32)):
+                if not self._append(ctx, points + shift.astype(np.float32), np.asarray(e.velocity, np.float32)):
                     return
                 self.emitted_layers[n] = m + 1
 
-    def _append(self, sim, x, velocity):
-        n, k = sim.num_fluid, len(x)
-        if n + k > sim.capacity:
+    def _append(self, ctx, x, velocity):
+        state = ctx.state
+        n, k = state.num_fluid, len(x)
+        if n + k > state.capacity:
             if not self._warned:
-                logger.warning(f"emitters: the fluid is at its capacity of {sim.capacity:,} particles (sized for "
+                logger.warning(f"emitters: the fluid is at its capacity of {state.capacity:,} particles (sized for "
                                f"output.frames / output.fps); emission pauses until sinks free room")
                 self._warned = True
             return False
         if self.next_id + k > np.iinfo(np.int32).max:
-            raise SceneError(sim.scene.source, "emitters",
+            raise SceneError(self.scene.source, "emitters",
                              f"particle ids would pass {np.iinfo(np.int32).max} (int32): fewer or larger particles")
-        sim.state.zero_rows(n, k)
-        sim.fluid.x[n: n + k].assign(x)
-        sim.fluid.v[n: n + k].assign(np.tile(velocity, (k, 1)))
-        sim.fluid.ids[n: n + k].assign(np.arange(self.next_id, self.next_id + k, dtype=np.int32))
-        for model in getattr(sim, "models", ()):
-            model.emitted(sim.model_context, n, k)  # no history: skip their first correction
+        state.zero_rows(n, k)
+        state.fluid.x[n: n + k].assign(x)
+        state.fluid.v[n: n + k].assign(np.tile(velocity, (k, 1)))
+        state.fluid.ids[n: n + k].assign(np.arange(self.next_id, self.next_id + k, dtype=np.int32))
+        ctx.emitted(n, k)  # the models: no history, skip their first correction
         self.next_id += k
-        sim.num_fluid = n + k
+        state.num_fluid = n + k
         return True
 
     # -- outflow -------------------------------------------------------------------------------------------
-    def drain(self, sim):
+    def drain(self, ctx):
         """Removes the particles inside the sinks, and outside an open domain (one host read of
         their counts per step)."""
         domain = self.scene.domain
-        if not (self.scene.sinks or domain.is_open) or sim.num_fluid == 0:
+        if not (self.scene.sinks or domain.is_open) or ctx.state.num_fluid == 0:
             return
         if self._sinks is None:
             sinks = self.scene.sinks
@@ -116,26 +131,26 @@ class Inflow:
             lo = [-1e30 if "xyz"[k] in domain.periodic else v for k, v in enumerate(domain.min)]
             hi = [1e30 if "xyz"[k] in domain.periodic else v for k, v in enumerate(domain.max)]
             box = lambda key: np.asarray([getattr(s, key) for s in sinks], np.float32).reshape(-1, 3)
-            self._sinks = (wp.array(box("min"), dtype=wp.vec3, device=sim.device),
-                           wp.array(box("max"), dtype=wp.vec3, device=sim.device),
-                           wp.zeros(2, dtype=wp.int32, device=sim.device), wp.vec3(*lo), wp.vec3(*hi))
+            self._sinks = (wp.array(box("min"), dtype=wp.vec3, device=ctx.device),
+                           wp.array(box("max"), dtype=wp.vec3, device=ctx.device),
+                           wp.zeros(2, dtype=wp.int32, device=ctx.device), wp.vec3(*lo), wp.vec3(*hi))
         lo, hi, removed, domain_lo, domain_hi = self._sinks
-        n = sim.num_fluid
-        keys = wp.empty(2 * n, dtype=wp.int32, device=sim.device)  # radix sort needs 2n
-        order = wp.empty(2 * n, dtype=wp.int32, device=sim.device)
+        n = ctx.state.num_fluid
+        keys = wp.empty(2 * n, dtype=wp.int32, device=ctx.device)  # radix sort needs 2n
+        order = wp.empty(2 * n, dtype=wp.int32, device=ctx.device)
         removed.zero_()
-        sim.launch(mark_particles_in_sinks, n,
-                   [sim.fluid.x, lo, hi, int(domain.is_open), domain_lo, domain_hi, keys, order, removed])
+        ctx.launch(mark_particles_in_sinks, n,
+                   [ctx.state.fluid.x, lo, hi, int(domain.is_open), domain_lo, domain_hi, keys, order, removed])
         in_sinks, outside = (int(c) for c in removed.numpy())
         count = in_sinks + outside
         if count:
             wp.utils.radix_sort_pairs(keys, order, n)
-            sim.reorder_particles(order)
-            sim.num_fluid = n - count
+            ctx.reorder(order)
+            ctx.state.num_fluid = n - count
             self.removed_in_sinks += in_sinks
             self.removed_outside += outside
 
-    def drive(self, sim, time):
+    def drive(self, ctx, time):
         """Particles in an active emitter's box, extended to DRIVE_LENGTH spacings downstream of its
         face, take the emitter's velocity."""
         d = self.scene.particle_diameter
@@ -148,14 +163,14 @@ class Inflow:
                 hi[k] = max(hi[k], lo[k] + DRIVE_LENGTH * d)
             else:
                 lo[k] = min(lo[k], hi[k] - DRIVE_LENGTH * d)
-            sim.launch(drive_inflow_particles, sim.num_fluid,
-                       [sim.fluid.x, wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*e.velocity), sim.fluid.v])
+            ctx.launch(drive_inflow_particles, ctx.state.num_fluid,
+                       [ctx.state.fluid.x, wp.vec3(*lo), wp.vec3(*hi), wp.vec3(*e.velocity), ctx.state.fluid.v])
 
-    def update(self, sim, time):
-        """Drains the sinks, then emits and drives the layers due at ``time``."""
-        self.drain(sim)
-        self.emit(sim, time)
-        self.drive(sim, time)
+    def update(self, ctx, time):
+        """Drains the sinks, then emits and drives the layers due at ``time`` (``ctx``: an :class:`InflowContext`)."""
+        self.drain(ctx)
+        self.emit(ctx, time)
+        self.drive(ctx, time)
 
     # -- state ---------------------------------------------------------------------------------------------
     def state(self):

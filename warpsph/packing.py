@@ -13,8 +13,7 @@ def packed_positions(scene, device, simulation):
     ``simulation`` (the :class:`~warpsph.simulation.Simulation` class, which calls this: passed, not imported)."""
     packing = scene.initial_packing
     at_rest = dataclasses.replace(scene, initial_packing=None, models=(), gravity=(0.0, 0.0, 0.0), emitters=(), sinks=())
-    sim = simulation(at_rest, device=device)
-    sim.moving_bodies = None  # the bodies stay at their initial pose
+    sim = simulation(at_rest, device=device, bodies_move=False)  # the bodies stay at their initial pose
     spacing = scene.particle_diameter
     x = sim.host(sim.fluid.x).astype(np.float64)
     x += np.random.default_rng(packing.seed).uniform(-packing.jitter * spacing, packing.jitter * spacing, x.shape)

@@ -36,7 +36,7 @@ def estimate_bytes(scene, num_fluid, num_boundary):
     per_fluid += sum(p.bytes_per_particle for p in plugins)  # each model's own arrays
     per_fluid += SHARED_VORTICITY if any(p.needs_vorticity for p in plugins) else 0
     per_fluid += 4 * max(scratch)  # the scratch pool (DFSPH: if wider than its own, counted in SOLVER)
-    _, dims = grid_geometry(scene.domain, 4.0 * scene.particle_radius, num_fluid + num_boundary)
+    _, dims = grid_geometry(scene.domain, scene.support_radius, num_fluid + num_boundary)
     cell_tables = 2 * 4 * int(np.prod(dims))  # the fluid's and the boundary's
     return num_fluid * per_fluid + num_boundary * BOUNDARY + cell_tables
 

@@ -13,9 +13,10 @@ import numpy as np
 import warp as wp
 
 from warpsph import health, warmup
-from warpsph.bodies import BODY_INSET, MovingBodies
+from warpsph.diagnostics import DiagnosticsContext
+from warpsph.bodies import BODY_INSET, BodiesContext, MovingBodies
 from warpsph.health import InstabilityError  # noqa: F401 (public here too)
-from warpsph.inflow import Inflow
+from warpsph.inflow import Inflow, InflowContext
 from warpsph.kernels.boundary import compute_boundary_volume
 from warpsph.kernels.density import compute_density_and_factor
 from warpsph.kernels.integration import (
@@ -29,28 +30,16 @@ from warpsph.kernels.integration import (
 from warpsph.kernels.neighbours import gather
 from warpsph.kernels.pressure import REDUCE_THREADS
 from warpsph.kernels.particles import Boundary
-from warpsph.kernels.stability import check_particles
 from warpsph.models import REGISTRY, ModelContext, plugin_of
-from warpsph.models.vorticity import VorticityField
+from warpsph.models.vorticity import VorticityField, curl_of
 from warpsph.neighbours import NeighbourSearch, sort_order
 from warpsph.resources import check_fits
-from warpsph.scene import MAX_VISCOSITY_SUBSTEPS, Scene, walled_faces
-from warpsph.state import FluidParticles, State  # noqa: F401 (FluidParticles: public here too)
+from warpsph.scene import Scene
+from warpsph.state import Constants, FluidParticles, State, viscous_substeps  # noqa: F401 (public here too)
 from warpsph.scene_setup import count_particles, remove_fluid_inside_bodies, sample_scene  # noqa: F401 (public here too)
 
 from warpsph.solvers import solver_class as registered_solver
 from warpsph.packing import packed_positions
-
-
-def viscous_substeps(scene: Scene, viscous_dt: float) -> int:
-    """The most sub-steps of the explicit viscosity in a step: ``solver.viscosity_substeps``, or where that is 0 as
-    many as let the longest step (``time.fixed_dt``, else dt_max) stay within the viscous limit ``viscous_dt`` [s], at
-    most MAX_VISCOSITY_SUBSTEPS: the step then follows the CFL rule alone, as SPlisHSPlasH's does."""
-    n = scene.solver.viscosity_substeps
-    if n == 0:
-        longest = scene.time.fixed_dt or scene.time_step_bounds[1]
-        n = min(MAX_VISCOSITY_SUBSTEPS, max(1, int(np.ceil(longest / viscous_dt * (1.0 - 1.0e-6)))))
-    return n
 
 
 @dataclass
@@ -111,8 +100,12 @@ class Simulation:
     """
 
     def __init__(self, scene: Scene, device=None, profile=False, use_graph=None, particles=None, halo=None,
-                 preload=None):
-        """``particles`` (x, v, ids) and ``halo`` are for one subdomain of a
+                 preload=None, bodies_move=True, on_instability="stop", setup_timer=None):
+        """``bodies_move`` False: the moving bodies stay at their initial pose (sampled there, never placed,
+        integrated or coupled: :func:`~warpsph.packing.packed_positions` relaxes the fluid around them).
+        ``on_instability``: as the attribute. ``setup_timer``: a callable ``name -> context manager`` wrapped around
+        each stage of the set-up (``warpsph bench job`` times the time to the first step by it); None: untimed.
+        ``particles`` (x, v, ids) and ``halo`` are for one subdomain of a
         :class:`~warpsph.decomposition.DecomposedSimulation`: its fluid particles instead of the scene's
         sampled (and packed) ones, and the link to the other subdomains (ghost rows, exchanges, reductions).
         ``preload``: True compiles (or loads from Warp's kernel cache) the Warp modules the scene launches
@@ -125,26 +118,19 @@ class Simulation:
         self.device = wp.get_device(device)
         self.timer = StageTimer(profile)
         self.launches = Counter()  # kernel name -> launches (a graph's replay counts its captured launches)
-        r = scene.particle_radius
-        self.support_radius = 4.0 * r
-        self.fluid_volume = (2.0 * r) ** 3  # a lattice of spacing 2r sums to rho0 (see docs)
-        self.rest_density = scene.fluid.density
-        self.particle_mass = self.rest_density * self.fluid_volume
+        self.constants = Constants.from_scene(scene)  # radius, support, mass, rest density, domain: fixed
         self.gravity = scene.gravity  # (the setter also starts without a captured graph)
-        # explicit viscosity is stable for dt <= 0.125 h^2 / nu with h = H / 2 (Morris et al. 1997): at
-        # r = 2.9 mm and nu = 0.05 a 0.57 ms step flung dam-break particles out at 38 m/s
-        nu = max(scene.fluid.viscosity, scene.fluid.boundary_viscosity)
-        self.viscous_dt = 0.125 * (0.5 * self.support_radius) ** 2 / nu if nu > 0 else 1.0e30
-        # solver.viscosity_substeps > 1: the step may reach that many viscous limits; the viscosity sub-steps it
-        self.max_viscous_substeps = viscous_substeps(scene, self.viscous_dt) if nu > 0 else 1
 
+        stage = setup_timer or (lambda name: contextlib.nullcontext())
         ids = None
         if particles is None:
-            fluid_x, fluid_v, boundary_x, body, self.bodies = sample_scene(scene)
+            with stage("sample_scene (all host sampling)"):
+                fluid_x, fluid_v, boundary_x, body, self.bodies = sample_scene(scene)
             self._preload(preload, len(fluid_x))
             fluid_x, fluid_v = remove_fluid_inside_bodies(scene, self.bodies, fluid_x, fluid_v, self.device, self.launch)
         else:  # a subdomain: its own fluid, the scene's boundary
-            _, _, boundary_x, body, self.bodies = sample_scene(scene, limit_fluid=False, with_fluid=False)
+            with stage("sample_scene (all host sampling)"):
+                _, _, boundary_x, body, self.bodies = sample_scene(scene, limit_fluid=False, with_fluid=False)
             self._preload(preload, 0)  # (the decomposed simulation cleared the bodies' insides)
             fluid_x, fluid_v, ids = particles
         # moving bodies' samples follow the static ones: kinematic, then dynamic
@@ -182,20 +168,22 @@ class Simulation:
                 volume=z("boundary", self.num_boundary), body=body,
                 impulse=z("bodies", self.num_boundary if has_dynamic else 0, dtype=wp.vec3), first_moving=first_moving,
                 first_dynamic=first_dynamic if has_dynamic else self.num_boundary)
-            self.moving_bodies = MovingBodies(self, moving, first_moving,
+            bodies = BodiesContext(self.state, self.constants, self.boundary, self.launch, lambda: self.gravity,
+                                   lambda: self.neighbours.lists)  # what the bodies see
+            self.moving_bodies = MovingBodies(bodies, moving, first_moving,
                                               [b for b in self.bodies if b.kind == "static"]) if moving else None
-            self.neighbours = NeighbourSearch(self, self.boundary.x)
-            # the walled faces hold every fluid particle (periodic axes wrap; an open domain lets them leave)
-            lo, hi = walled_faces(scene.domain)
-            self.inside_lo = wp.vec3(*np.maximum(lo, -1e30))
-            self.inside_hi = wp.vec3(*np.minimum(hi, 1e30))
+            with stage("neighbour grids (boundary grid)"):
+                self.neighbours = NeighbourSearch(self, self.boundary.x)
             if self.num_boundary:  # V_b once: static samples together, each moving body on its own
                 sample_body = wp.array(body, dtype=wp.int32, device=self.device)
                 first_moving_body = int(body[first_moving]) if moving else len(self.bodies) + 1
-                self.launch(compute_boundary_volume, self.num_boundary,
-                            [self.neighbours.boundary_grid.grid, self.boundary.x, sample_body, first_moving_body,
-                             self.support_radius, self.neighbours.lower, self.neighbours.period, self.boundary.volume])
-            self.pressure_solver = solver_class(self)
+                with stage("boundary volumes (incl. kernel load)"):
+                    self.launch(compute_boundary_volume, self.num_boundary,
+                                [self.neighbours.boundary_grid.grid, self.boundary.x, sample_body, first_moving_body,
+                                 self.support_radius, self.neighbours.lower, self.neighbours.period,
+                                 self.boundary.volume])
+            with stage("pressure solver set-up"):
+                self.pressure_solver = solver_class(self)
             if self.moving_bodies is not None and solver_class.couples_bodies:
                 self.moving_bodies.start_coupling()  # dynamic bodies move inside the pressure iterations
             viscous = scene.fluid.viscous
@@ -210,17 +198,30 @@ class Simulation:
             self.vorticity_field = None
             if any(m.needs_vorticity for m in self.models):
                 self.vorticity_field = VorticityField(self)
+            self.diagnostics_context = DiagnosticsContext(  # what the frame diagnostics see
+                self.state, self.constants, self.device, self.launch, scene.gravity,
+                None if self.vorticity_field is None else self.vorticity_field.vorticity,
+                lambda v, out: curl_of(self, v, out), self._spin, bool(self.turbulence_models),
+                self.pressure_solver.iteration_totals, self._removed)
             self.max_speed_sq = z("clock", 2)  # [max |v|^2 of the fluid, the CFL speed^2 (compute_max_speed)]
-            self.health_counts = z("health", 4, dtype=wp.int32)
-            self.health_first = z("health", 4, dtype=wp.int32)
+            self.health = health.HealthChecks(self.state, self.constants, self.launch,
+                                              self.pressure_solver.max_iteration_streak)
             if scene.initial_packing is not None and particles is None:  # the blocks' particles relaxed before t = 0
                 packed = packed_positions(scene, self.device, Simulation)
                 wp.copy(self.fluid.x, wp.array(packed, dtype=wp.vec3, device=self.device), count=len(packed))
+            # what the emitters and sinks see
+            self._inflow_context = InflowContext(self.state, self.device, self.launch, self.reorder_particles,
+                                                 self._emitted)
             if self.inflow is not None:  # the layers due at t = 0
-                self.inflow.emit(self, 0.0)
-            if halo is None:  # a subdomain's need its ghosts first (DecomposedSimulation)
-                self.update_densities()  # so that frame 0 has them
-        self.on_instability = "stop"  # or "reduce-dt": retry the step with a smaller dt
+                self.inflow.emit(self._inflow_context, 0.0)
+            if halo is None:  # a subdomain's need its ghosts first (DecomposedSimulation); so that frame 0 has them
+                with stage("initial neighbour lists"):
+                    self.neighbours.update(self.fluid.x)
+                with stage("initial densities"):
+                    self._compute_density()
+        if not bodies_move:  # they stay where they were sampled: no placing, integration or coupling
+            self.moving_bodies = None
+        self.on_instability = on_instability
         self._dt_scale = 1.0
         self.use_graph = self.device.is_cuda and wp.is_conditional_graph_supported() if use_graph is None else use_graph
         if halo is not None:
@@ -238,6 +239,17 @@ class Simulation:
                                          decomposed=self.halo is not None)
             warmup.preload(names + extra, self.device)
 
+    # -- the constants live in self.constants; these read them ----------------------------------------------
+    support_radius = property(lambda self: self.constants.support_radius, doc="The kernel's support 4r [m].")
+    fluid_volume = property(lambda self: self.constants.fluid_volume, doc="A fluid particle's volume (2r)^3 [m^3].")
+    rest_density = property(lambda self: self.constants.rest_density, doc="The rest density rho0 [kg/m^3].")
+    particle_mass = property(lambda self: self.constants.particle_mass, doc="A fluid particle's mass [kg].")
+    viscous_dt = property(lambda self: self.constants.viscous_dt, doc="The explicit viscosity's stable dt [s].")
+    max_viscous_substeps = property(lambda self: self.constants.max_viscous_substeps,
+                                    doc="The most viscosity sub-steps in a step (1: none).")
+    inside_lo = property(lambda self: self.constants.inside_lo, doc="The walled faces' lower corner (advection).")
+    inside_hi = property(lambda self: self.constants.inside_hi, doc="The walled faces' upper corner (advection).")
+
     # -- the data lives in self.state; these read it ---------------------------------------------------
     fluid = property(lambda self: self.state.fluid, doc="The fluid's per-particle arrays (:class:`FluidParticles`).")
     capacity = property(lambda self: self.state.capacity, doc="Rows of every per-particle array.")
@@ -246,6 +258,29 @@ class Simulation:
     dt_previous = property(lambda self: self.state.dt_previous)
     time_device = property(lambda self: self.state.time_device, doc="Simulated time [s] (a float64 device array of one).")
     steps_device = property(lambda self: self.state.steps_device)
+
+    @property
+    def on_instability(self) -> str:
+        """What :meth:`run` does when a step fails its health check: "stop" (raise the :class:`InstabilityError`)
+        or "reduce-dt" (redo the frame from its start with dt halved, up to ``health.RETRIES`` times); may be changed
+        between frames.
+
+        Example:
+
+        ```python
+        import warpsph
+
+        sim = warpsph.Simulation(warpsph.load_scene("scenes/dam_break.json", scale=0.05), on_instability="reduce-dt")
+        sim.on_instability = "stop"
+        ```
+        """
+        return self._on_instability
+
+    @on_instability.setter
+    def on_instability(self, value):
+        if value not in ("stop", "reduce-dt"):
+            raise ValueError(f'on_instability is "stop" or "reduce-dt", not {value!r}')
+        self._on_instability = value
 
     @property
     def num_fluid(self) -> int:
@@ -261,10 +296,6 @@ class Simulation:
         ```
         """
         return self.state.num_fluid
-
-    @num_fluid.setter
-    def num_fluid(self, value):
-        self.state.num_fluid = value
 
     @property
     def global_count(self) -> int:
@@ -499,6 +530,19 @@ class Simulation:
         for m in self.models:
             m.reorder(self.model_context, order)
 
+    def _spin(self):
+        """(angular velocity array, micro-inertia) of the first model that carries its own spin, or None."""
+        return next((m.spin() for m in self.turbulence_models if m.spin() is not None), None)
+
+    def _removed(self):
+        """The particles removed so far, inside sinks and outside an open domain."""
+        return self.inflow.removed_in_sinks + self.inflow.removed_outside if self.inflow is not None else 0
+
+    def _emitted(self, first, count):
+        """Rows ``first .. first + count - 1`` hold particles an emitter just added: the models mark them new."""
+        for m in getattr(self, "models", ()):
+            m.emitted(self.model_context, first, count)  # no history: skip their first correction
+
     # -- the step --------------------------------------------------------------------------------------
     def step(self):
         """One step with its models (VR paper Algorithm 2; SPlisHSPlasH's step order).
@@ -524,7 +568,7 @@ class Simulation:
             now = self.time if self.inflow is not None or self.moving_bodies is not None else None
             if self.inflow is not None:
                 with self.timer("inflow"):  # sinks remove, emitters add: the count changes here only
-                    self.inflow.update(self, now)
+                    self.inflow.update(self._inflow_context, now)
             interval = self.scene.solver.sort_interval
             if interval and self.step_count % interval == 0:
                 with self.timer("sort"):
@@ -602,15 +646,7 @@ class Simulation:
             self.pressure_solver.shift_particles()  # particle shifting (no-op when off)
             self.launch(advance_clock, 1, [self.dt, self.time_device, self.steps_device])
         with t("health"):  # NaN/inf, escaped particles, runaway density: counted on the device
-            self.health_counts.zero_()
-            self.health_first.fill_(2**31 - 1)
-            lo = np.asarray(self.scene.domain.min) - health.ESCAPE_MARGIN * self.scene.particle_radius
-            hi = np.asarray(self.scene.domain.max) + health.ESCAPE_MARGIN * self.scene.particle_radius
-            if not self.scene.domain.walls:  # an open domain: particles may leave (the next step removes them)
-                lo, hi = np.full(3, -1e30), np.full(3, 1e30)
-            self.launch(check_particles, n, [f.x, f.v, f.density, wp.vec3(*lo), wp.vec3(*hi),
-                                             health.DENSITY_HARD_LIMIT * self.rest_density, self.health_counts,
-                                             self.health_first])
+            self.health.check()
 
     def update_densities(self):
         """Neighbour lists, densities (and DFSPH factors) for the current positions (the initial state, a
@@ -656,7 +692,7 @@ class Simulation:
         assert sim.check_health() is None  # healthy (run() raises it after a step)
         ```
         """
-        return health.first_failure(self)
+        return self.health.first_failure()
 
     # -- state: what a checkpoint keeps and a retried step restores -----------------------------------------
     def state_arrays(self):

@@ -603,25 +603,22 @@ def scene_row(cell, device):
     sim = Simulation(scene_of(cell), device=device)
     row = {"particles": sim.num_fluid, "setup_s": time.perf_counter() - start}
     diagnostics, frames, dts = Diagnostics(region=cell.get("region")), [], []
-    if cell.get("track_dt"):  # every step's dt (a read-back per step)
-        step = sim.step
-
-        def tracked():
-            step()
-            dts.append(float(sim.dt.numpy()[0]))
-        sim.step = tracked
+    # every step's dt (a read-back per step): after each step that passed its health check, and the failed one's
+    tracked = (lambda s: dts.append(float(s.dt.numpy()[0]))) if cell.get("track_dt") else None
 
     def run(callback):
         if cell.get("seconds") is not None:
-            sim.run(until_time=cell["seconds"], on_frame=callback)
+            sim.run(until_time=cell["seconds"], on_frame=callback, on_step=tracked)
         else:
-            sim.run(frames=cell.get("frames"), on_frame=callback)
+            sim.run(frames=cell.get("frames"), on_frame=callback, on_step=tracked)
 
     status, t0 = "done", time.perf_counter()
     try:
         row["wall_s"], row["measure_s"] = timed_run(sim, run, lambda s, f: frames.append(diagnostics.measure(s, f)))
     except InstabilityError as exc:
         status = "unstable"
+        if tracked is not None:  # the step that failed (on_step runs after the steps that passed)
+            tracked(sim)
         row.update(wall_s=time.perf_counter() - t0, unstable=str(exc), blow_up_step=exc.step, blow_up_time=exc.time,
                    instability={"step": exc.step, "time": exc.time, "check": exc.check, "particle_id": exc.particle_id,
                                 "position": None if exc.position is None else [float(c) for c in exc.position]})

@@ -97,8 +97,9 @@ def bytecode_cached(packages):
 
 
 def startup(args, t0=None):
-    """The time to the first step (from ``t0``, default this module's import), by stage (functions wrapped from
-    the outside: no source edits); returns the result and the --scale that gives ~args.particles."""
+    """The time to the first step (from ``t0``, default this module's import), by stage (the simulation's set-up
+    through its ``setup_timer``, the host sampling's functions wrapped from the outside); returns the result and the
+    --scale that gives ~args.particles."""
     t0 = T0 if t0 is None else t0
     bytecode = bytecode_cached((("warp", "_src/context.py"), ("warpsph", "simulation.py"), ("pxr", "__init__.py")))
     t_import = time.perf_counter()
@@ -111,9 +112,7 @@ def startup(args, t0=None):
                                          "use --device cpu")
     t_init = time.perf_counter()
     from warpsph import sampling, simulation
-    from warpsph.neighbours import NeighbourSearch
     from warpsph.scene import load_scene
-    from warpsph.solver import DFSPHSolver
 
     t_warpsph = time.perf_counter()
     stages = Stages(wp)
@@ -123,31 +122,17 @@ def startup(args, t0=None):
     scale = args.particles / base
     scene = load_scene(args.scene, scale=scale)
     t_scene = time.perf_counter()
+    # the host sampling's parts: functions of warpsph.sampling, wrapped for the set-up only; the simulation's
+    # own stages through its setup_timer hook
     restore = [(sampling, "fill_block", stages.wrap(sampling, "fill_block", "sampling: fluid blocks")),
                (sampling, "sample_box_walls", stages.wrap(sampling, "sample_box_walls", "sampling: box walls")),
-               (sampling, "morton_order", stages.wrap(sampling, "morton_order", "sampling: Z-order of the walls")),
-               (simulation, "sample_scene", stages.wrap(simulation, "sample_scene", "sample_scene (all host sampling)")),
-               (NeighbourSearch, "__init__", stages.wrap(NeighbourSearch, "__init__", "neighbour grids (boundary grid)")),
-               (NeighbourSearch, "update", stages.wrap(NeighbourSearch, "update", "initial neighbour lists")),
-               (DFSPHSolver, "__init__", stages.wrap(DFSPHSolver, "__init__", "pressure solver set-up")),
-               (simulation.Simulation, "_compute_density",
-                stages.wrap(simulation.Simulation, "_compute_density", "initial densities"))]
-    launch = simulation.Simulation.launch
-
-    def timed_launch(self, kernel, dim, inputs):
-        if kernel.key.endswith("compute_boundary_volume"):
-            with stages("boundary volumes (incl. kernel load)"):
-                return launch(self, kernel, dim, inputs)
-        return launch(self, kernel, dim, inputs)
-
-    simulation.Simulation.launch = timed_launch
+               (sampling, "morton_order", stages.wrap(sampling, "morton_order", "sampling: Z-order of the walls"))]
     try:
         start = time.perf_counter()
-        sim = simulation.Simulation(scene, device=args.device)
+        sim = simulation.Simulation(scene, device=args.device, setup_timer=stages)
         wp.synchronize()
         t_sim = time.perf_counter()
     finally:
-        simulation.Simulation.launch = launch
         for owner, attribute, original in restore:
             setattr(owner, attribute, original)
     with stages("first step (kernel loading)"):
