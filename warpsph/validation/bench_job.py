@@ -113,7 +113,7 @@ def startup(args, t0=None):
     from warpsph import sampling, simulation
     from warpsph.neighbours import NeighbourSearch
     from warpsph.scene import load_scene
-    from warpsph.solver import DFSPHSolver
+    from warpsph.solvers.dfsph import DFSPHSolver
 
     t_warpsph = time.perf_counter()
     stages = Stages(wp)
