@@ -30,7 +30,7 @@ def _density_source_kernel(corrected: bool):
     ):
         """Predicted density rho*_i/rho0 = rho_i/rho0 + dt D(rho_i/rho0)/Dt (Bender & Koschier 2017, eq 11), with the
         step's starting error rho_i/rho0 - 1 weighted by ``drift_weight`` (1; 0 and 1 in the two halves of the
-        split solve of a periodic box, warpsph/solver.py). Every solve but the periodic box's drift half uses
+        split solve of a periodic box, warpsph/solvers/dfsph.py). Every solve but the periodic box's drift half uses
         :data:`compute_corrected_density_source`, which takes the rate with the corrected gradient ``correction``
         (the identity outside the bulk), L_i of :func:`compute_gradient_correction` (the plain kernel does not
         read it). Source s_i = rho*_i/rho0 - 1, clamped at >= 0 at the free surface and signed in the bulk

@@ -22,8 +22,6 @@ from .sph_kernel import cubic_kernel_gradient
 
 wp.set_module_options({"enable_backward": False})
 
-# relaxation of the Jacobi step (Ihmsen et al. 2014, section 3.2; SPlisHSPlasH's omega)
-OMEGA = wp.constant(0.5)
 # |a_ii| below this x 1/H^2 (a particle with almost no neighbours): p_i = 0. The DFSPH factor's threshold.
 MIN_DIAGONAL = wp.constant(1.0e-6)
 
@@ -121,6 +119,7 @@ def update_iisph_pressure(
     support_radius: float,
     support_floor: float,
     dt: wp.array(dtype=float),
+    omega: float,
     d_ii: wp.array(dtype=wp.vec3),
     a_ii: wp.array(dtype=float),
     source: wp.array(dtype=float),
@@ -129,7 +128,8 @@ def update_iisph_pressure(
     stiffness: wp.array(dtype=float),
     error: wp.array(dtype=float),
 ):
-    """Relaxed Jacobi step (eq 14) with p >= 0 (SPlisHSPlasH's clamp):
+    """Relaxed Jacobi step (eq 14) with p >= 0 (SPlisHSPlasH's clamp), ``omega`` the relaxation (Ihmsen et al.
+    2014, section 3.2; ``solver.relaxation``, SPlisHSPlasH's 0.5):
 
     p_i := max((1 - omega) p_i + omega (b_i - dt^2 s_i) / (dt^2 a_ii), 0),
     s_i = sum_f V_f (sum_k d_ik p_k - d_ff p_f - sum_{k != i} d_fk p_k) . grad W_if + sum_b V_b sum_k d_ik p_k
@@ -156,7 +156,7 @@ def update_iisph_pressure(
     b = source[i]
     p_new = float(0.0)
     if wp.abs(a) > support_floor:
-        p_new = wp.max((1.0 - OMEGA) * p + OMEGA * (b - h2 * s) / (a * h2), 0.0)
+        p_new = wp.max((1.0 - omega) * p + omega * (b - h2 * s) / (a * h2), 0.0)
     e = float(0.0)
     if p_new > 0.0:
         e = (a * p_new + s) * h2 - b

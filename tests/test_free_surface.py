@@ -73,7 +73,7 @@ def test_a_pool_whose_surface_is_no_longer_detected_stays_at_rest(device, monkey
     small falling-blocks scene lost all of them after ~3 s). Its one-sided grad C along gravity still finds them
     (kernels/free_surface.py). And with both tests off the pool stays at rest in the signed regime: under gravity
     the source's mean is not removed (removed, a settled tank went from 0.0025 J to 6.2 J in 0.1 s)."""
-    import warpsph.solver as solver
+    import warpsph.solvers.dfsph as solver
 
     sim = make_sim(tank_scene(radius=0.02, domain=(0.4, 0.6, 0.4), block=(0.4, 0.3, 0.4),
                               output={"fps": 10, "frames": 100}), device=device,

@@ -99,7 +99,7 @@ def test_every_scene_launches_the_corrected_operators_with_plain_ones_at_the_sur
     from warpsph.kernels.density_solver import compute_corrected_density_source
     from warpsph.kernels.free_surface import BAND, SURFACE
     from warpsph.kernels.particles import symmetric_matrices
-    from warpsph.solver import DENSITY
+    from warpsph.solvers.dfsph import DENSITY
 
     pool = make_sim(tank_scene(fluid={"viscosity": 0.01}), device=device)
     full, _ = _sealed_tank(device)

@@ -1,5 +1,5 @@
 """A box the fluid fills, with walls (a full tank): the corrected kernel gradient in its single density solve,
-the shift's particle-scale part and the corrected viscous operator (warpsph/solver.py, kernels/shifting.py,
+the shift's particle-scale part and the corrected viscous operator (warpsph/solvers/dfsph.py, kernels/shifting.py,
 kernels/viscosity.py), against the Lamb-Oseen vortex and analytic fields."""
 
 import numpy as np

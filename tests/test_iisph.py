@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from conftest import make_sim, tank_scene
-from warpsph.iisph import IISPHSolver
-from warpsph.solver import DFSPHSolver
+from warpsph.solvers.dfsph import DFSPHSolver
+from warpsph.solvers.iisph import IISPHSolver
 
 IISPH = {"method": "iisph"}
 
@@ -46,8 +46,8 @@ def test_one_jacobi_step_matches_splishsplash_formulation():
     sim.launch(compute_iisph_coefficients, n, [f.x, f.v, nb, bnd, f.density, V, rho0, H, sim.dt, 0.5, s.d_ii, s.a_ii,
                                                s.source, s.pressure, s.stiffness])
     sim.launch(compute_pressure_displacement, n, [f.x, nb, V, H, s.d_ii, s.pressure, s.stiffness, s.displacement])
-    sim.launch(update_iisph_pressure, n, [f.x, nb, f.density, V, rho0, H, MIN_DIAGONAL / H**2, sim.dt, s.d_ii, s.a_ii,
-                                          s.source, s.displacement, s.pressure, s.stiffness, s.error])
+    sim.launch(update_iisph_pressure, n, [f.x, nb, f.density, V, rho0, H, MIN_DIAGONAL / H**2, sim.dt, 0.5, s.d_ii,
+                                          s.a_ii, s.source, s.displacement, s.pressure, s.stiffness, s.error])
 
     x, v = f.x.numpy().astype(np.float64), f.v.numpy().astype(np.float64)
     rho = f.density.numpy().astype(np.float64) / rho0
@@ -155,6 +155,18 @@ def test_checkpoint_resume_is_bit_identical(tmp_path):
     for name in ("x", "v"):
         assert np.array_equal(getattr(resumed.fluid, name).numpy(), getattr(straight.fluid, name).numpy()), name
     assert np.array_equal(resumed.pressure_solver.pressure.numpy(), straight.pressure_solver.pressure.numpy())
+    # a checkpoint of an earlier version holds every solver's keys in its scene, DFSPH's too, and not IISPH's own
+    # relaxation: it resumes all the same, and the scene file is still its scene
+    import h5py
+
+    with h5py.File(tmp_path / "ckpt.h5", "r+") as f:
+        stored = json.loads(f.attrs["scene"])
+        assert stored["solver"].pop("relaxation") == 0.5 and "shifting" not in stored["solver"]
+        stored["solver"].update(divergence_solver=True, divergence_max_error=0.1, divergence_min_iterations=1,
+                                divergence_max_iterations=100, shifting=2.0)
+        f.attrs["scene"] = json.dumps(stored, sort_keys=True)
+    again = load_checkpoint(tmp_path / "ckpt.h5", scene=load_scene(path), device="cpu").run(frames=4)
+    assert np.array_equal(again.fluid.x.numpy(), straight.fluid.x.numpy())
 
 
 def test_validate_takes_the_solver(tmp_path):

@@ -24,9 +24,9 @@ PACKAGE_DIRS = {"warpsph": os.path.join(ROOT, "warpsph"), "warpsph.kernels": os.
 LAZY = {
     ("warpsph.scene", "warpsph.models"): "the models' Parameters live beside their kernels: `import warpsph` "
                                          "(which loads the scene schema) stays free of Warp",
-    ("warpsph.solvers", "warpsph.solver"): "the shipped pressure solvers register on first use of the registry: "
-                                           "`import warpsph` stays free of Warp",
-    ("warpsph.solvers", "warpsph.iisph"): "as warpsph.solver",
+    ("warpsph.solvers", "warpsph.solvers.dfsph"): "the shipped pressure solvers register on first use of the "
+                                                  "registry: `import warpsph` stays free of Warp",
+    ("warpsph.solvers", "warpsph.solvers.iisph"): "as warpsph.solvers.dfsph",
     ("warpsph.scene", "warpsph.io.splishsplash"): "a SPlisHSPlasH file's converter (numpy, sampling) loads when one "
                                                   "is read: `import warpsph` imports pydantic, not numpy",
     ("warpsph.io", "warpsph.io.recorder"): "`io.UsdWriter` on first use: `import warpsph.io` stays free of Warp and "
@@ -51,8 +51,9 @@ LAZY = {
 # Function-level imports that close a cycle by design, each with its reason: the plug-in registries load their
 # shipped plug-ins, which register themselves with them; bench job runs the CLI that lists it.
 BACK_EDGES = {
-    ("warpsph.solvers", "warpsph.solver"): "the registry loads the shipped solvers, which import it to register",
-    ("warpsph.solvers", "warpsph.iisph"): "as warpsph.solver",
+    ("warpsph.solvers", "warpsph.solvers.dfsph"): "the registry loads the shipped solvers, which import it to "
+                                                  "register",
+    ("warpsph.solvers", "warpsph.solvers.iisph"): "as warpsph.solvers.dfsph",
     ("warpsph.scene", "warpsph.models"): "the schema loads the models' registry (their Parameters), whose models "
                                          "read the scene's types",
     ("warpsph.validation.bench_job", "warpsph.cli"): "`warpsph bench job` is a verb of the CLI and times `warpsph "

@@ -506,7 +506,7 @@ def test_fluid_volume_is_splishsplash_219s(scenes):
 
 
 def test_density_error_is_splishsplashs_measure_and_max_error_maps_one_to_one(scenes):
-    from warpsph.solver import DENSITY
+    from warpsph.solvers.dfsph import DENSITY
 
     scene = load_quiet(write(scenes, DAM_BREAK))
     assert scene.solver.density_max_error == DAM_BREAK["Configuration"]["DFSPH"]["maxError"]  # factor 1, in %

@@ -178,7 +178,7 @@ and relax are gone with it): docs/notes/confined-mode.md ("Packed start").
 
 
 def scan_variant(v, device):
-    import warpsph.solver as S
+    import warpsph.solvers.dfsph as S
     from warpsph.scene import scene_from_dict
     from warpsph.simulation import Simulation, InstabilityError
     S.MAX_SHIFT = v.get("max_shift", 0.1)

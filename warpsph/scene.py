@@ -22,7 +22,7 @@ from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
 from pydantic.dataclasses import dataclass as pydantic_dataclass
 
 from .errors import SceneError
-from .solvers import solver_names
+from .solvers import DEFAULT_SOLVER, solver_class, solver_classes, solver_keys, solver_names
 
 Vec3 = Tuple[float, float, float]
 
@@ -269,21 +269,15 @@ class TimeStepping:
 
 @schema
 class Solver:
-    """Pressure solver controls; errors in percent, as in SPlisHSPlasH."""
+    """Pressure solver controls: the keys every pressure solver reads. The chosen solver's own keys (the
+    Parameters of its class in warpsph.solvers) sit beside them in the same block; a key of another solver is
+    refused. Errors in percent, as in SPlisHSPlasH."""
 
-    method: str = key(
-        "dfsph", doc="pressure solver, a registered one (warpsph.solvers): dfsph (Bender & Koschier 2017: a "
-                     "divergence and a density solve) or iisph (Ihmsen et al. 2014, as SPlisHSPlasH: one density "
-                     "solve, p >= 0 everywhere; it reads density_max_error, min/max_iterations and warm_start, and "
-                     "ignores the divergence keys and shifting)")
+    method: str = key(DEFAULT_SOLVER, doc="pressure solver, a registered one (warpsph.solvers; the default dfsph): its own "
+                                   "keys sit beside these")
     density_max_error: float = key(0.01, doc="average density error the density solve stops at", unit="% of rho0", gt=0)
-    divergence_max_error: float = key(0.1, doc="average divergence error the divergence solve stops at",
-                                      unit="% of rho0 per second", gt=0)
     min_iterations: int = key(2, doc="density solve: fewest iterations", ge=0)
     max_iterations: int = key(100, doc="density solve: most iterations", ge=1)
-    divergence_solver: bool = key(True, doc="run the divergence solve (DFSPH's velocity correction)")
-    divergence_min_iterations: int = key(1, doc="divergence solve: fewest iterations", ge=0)
-    divergence_max_iterations: int = key(100, doc="divergence solve: most iterations", ge=1)
     warm_start: bool = key(True, doc="start each solve from last step's pressure where it still acts (capped)")
     viscosity_substeps: int = key(
         1, doc="most sub-steps of the explicit viscosity in a step: the step is capped at this many times the explicit "
@@ -291,8 +285,6 @@ class Solver:
                "(1: the step keeps the limit; 0: as many as the longest step needs, at most 64, so that the step "
                "follows the CFL rule alone, as SPlisHSPlasH's, which has no viscous limit)",
         ge=0, le=MAX_VISCOSITY_SUBSTEPS)
-    shifting: float = key(2.0, doc="particle shifting coefficient (Lind et al. 2012): x += -D grad C in the bulk, "
-                                   "tangential near the free surface, off on it; D = shifting x h max|v| dt; 0: off", ge=0)
     sort_interval: int = key(16, doc="steps between re-sorting the particles by cell (0: never)", ge=0)
 
     # keys of earlier versions: a scene that has them loads with a warning naming the key
@@ -304,13 +296,108 @@ class Solver:
     }
 
     def validate(self, file, key):
-        known = solver_names()
-        if self.method not in known:
-            close = difflib.get_close_matches(self.method, known, n=1)
-            hint = f"; did you mean '{close[0]}'?" if close else f"; known: {', '.join(known)}"
-            raise SceneError(file, f"{key}.method", f"unknown pressure solver {json.dumps(self.method)}{hint}")
+        if self.method not in solver_names():
+            raise _unknown_solver(self.method, file, key)
         if self.min_iterations > self.max_iterations:
             raise SceneError(file, f"{key}.min_iterations", "must not exceed max_iterations")
+
+    def __reduce__(self):  # the class of a solver's block is made per solver (_solver_class): rebuilt by name
+        return _solver_from_values, (dataclasses.asdict(self),)
+
+
+def _unknown_solver(method, file, key):
+    known = solver_names()
+    close = difflib.get_close_matches(method, known, n=1)
+    hint = f"; did you mean '{close[0]}'?" if close else f"; known: {', '.join(known)}"
+    return SceneError(file, f"{key}.method", f"unknown pressure solver {json.dumps(method)}{hint}")
+
+
+@functools.lru_cache(maxsize=None)
+def _solver_class(params):
+    """The class of a scene's solver block with the solver's ``Parameters`` ``params``: :class:`Solver`'s keys
+    and then its own, one flat frozen dataclass (``scene.solver.shifting``; :func:`dataclasses.asdict` gives the
+    block as a scene file has it). :class:`Solver` itself for a solver without parameters."""
+    if params is None:
+        return Solver
+
+    def validate(self, file, key):
+        Solver.validate(self, file, key)
+        if hasattr(params, "validate"):
+            params.validate(self, file, key)
+
+    clash = set(_hints(params)) & set(_hints(Solver))
+    if clash:
+        raise TypeError(f"{params.__qualname__}: {', '.join(sorted(clash))} is a key of every solver (scene.Solver)")
+    return schema(type("Solver", (params, Solver), {"__doc__": Solver.__doc__, "__module__": __name__,
+                                                    "__qualname__": "Solver", "validate": validate}))
+
+
+def _split_solver(block, file, key="solver"):
+    """(the keys of ``block``, a scene's solver block, that every solver reads, the chosen solver's own keys): a
+    key of another registered solver, or of none, is a SceneError naming it. A block that is not an object, or
+    whose method is not a string, is left whole to the schema's errors."""
+    if not isinstance(block, dict):
+        return block, {}
+    method = block.get("method", DEFAULT_SOLVER)
+    owners = solver_keys()
+    if not isinstance(method, str):
+        return {k: v for k, v in block.items() if k not in owners}, {}
+    classes = solver_classes()
+    if method not in classes:
+        raise _unknown_solver(method, file, key)
+    params = classes[method].Parameters
+    own_keys = list(_hints(params)) if params is not None else []
+    common_keys = list(_hints(Solver))
+    common, own = {}, {}
+    for name, value in block.items():
+        if name in own_keys:
+            own[name] = value
+        elif name in common_keys:
+            common[name] = value
+        elif name in owners:
+            theirs = owners[name]
+            raise SceneError(file, f"{key}.{name}",
+                             f"a key of the {' and '.join(theirs)} pressure solver{'s' if len(theirs) > 1 else ''}, "
+                             f"not of {json.dumps(method)} ({key}.method): remove it, or set {key}.method to "
+                             f"{json.dumps(theirs[0])}")
+        else:
+            known = common_keys + own_keys
+            close = difflib.get_close_matches(str(name), known, n=1)
+            raise SceneError(file, f"{key}.{name}", "unknown key" + (
+                f"; did you mean '{close[0]}'?" if close else f"; known keys: {', '.join(known)}"))
+    return common, own
+
+
+def _with_parameters(common, own, file, key="solver"):
+    """The solver block of :class:`Solver` ``common`` with the chosen solver's own keys ``own`` (validated
+    against its ``Parameters``)."""
+    params = solver_class(common.method).Parameters
+    if params is None:
+        return common
+    values = parse_dataclass(params, own, file, key)
+    return _solver_class(params)(**{f.name: getattr(common, f.name) for f in dataclasses.fields(Solver)},
+                                 **{f.name: getattr(values, f.name) for f in dataclasses.fields(params)})
+
+
+def parse_solver(block: dict, file=None, key="solver"):
+    """A scene's solver block (a dict of a scene file's ``"solver"``): what ``scene.solver`` is, the keys of
+    :class:`Solver` and the chosen solver's own as attributes; :class:`SceneError` naming a bad key."""
+    common, own = _split_solver(block, file, key)
+    return _with_parameters(parse_dataclass(Solver, common, file, key), own, file, key)
+
+
+def _solver_from_values(values):
+    return parse_solver(values)
+
+
+def replace_solver(solver, **changes):
+    """``solver`` (a scene's ``solver``) with the keys of ``changes`` set. A change of ``method`` keeps the keys
+    every solver reads and drops the old solver's own (the new solver's own keys take their defaults, or
+    ``changes``')."""
+    values = {**dataclasses.asdict(solver), **changes}
+    if values["method"] != solver.method:
+        values = {k: v for k, v in values.items() if k in _hints(Solver) or k in changes}
+    return parse_solver(values)
 
 
 MAX_FRAMES = 10_000_000  # output.frames: 4.6 days of simulated time at 25 frames a second
@@ -695,6 +782,10 @@ def parse_dataclass(cls, data, file=None, key=""):
     data = _drop_obsolete(cls, data, file, key)
     if cls is Scene and "source" in data:
         raise SceneError(file, "source", "unknown key (it is set on load)")
+    own = {}
+    if cls is Scene and "solver" in data:  # the chosen solver's own keys apart (_with_parameters)
+        common, own = _split_solver(data["solver"], file)
+        data = {**data, "solver": common}
     try:
         text = json.dumps(data, default=_plain)
     except (TypeError, ValueError) as exc:
@@ -705,7 +796,8 @@ def parse_dataclass(cls, data, file=None, key=""):
     except ValidationError as exc:
         raise _scene_error(cls, data, exc.errors()[0], file, key) from None
     if cls is Scene:
-        obj = dataclasses.replace(obj, models=tuple(parse_model(m, file, f"models[{n}]") for n, m in enumerate(obj.models)))
+        obj = dataclasses.replace(obj, models=tuple(parse_model(m, file, f"models[{n}]") for n, m in enumerate(obj.models)),
+                                  solver=_with_parameters(obj.solver, own, file))
     _check_tree(obj, file, key)
     return obj
 
@@ -732,6 +824,31 @@ def model_types():
     return {name: cls.Parameters for name, cls in scene_models().items()}
 
 
+def _solver_json_schema(block):
+    """Completes the JSON Schema of the solver block, ``block`` (:class:`Solver`'s keys): the registered solvers in
+    ``method``'s enum and description, their own keys (each description starts with the solvers that have it), and
+    per solver an if/then that refuses the keys of the others, as the loader does."""
+    classes, names, owners = solver_classes(), solver_names(), solver_keys()
+    method = block["properties"]["method"]
+    method["enum"] = names
+    method["description"] += "; " + "; ".join(f"{n}: {classes[n].summary}" if classes[n].summary else n for n in names)
+    for name in names:
+        params = classes[name].Parameters
+        for k, sub in (_adapter(params).json_schema()["properties"].items() if params is not None else ()):
+            if k not in block["properties"]:
+                block["properties"][k] = {**sub, "description": f"({', '.join(owners[k])}) {sub.get('description', '')}"}
+    rules = []
+    for name in names:
+        theirs = [k for k, owned in owners.items() if name not in owned]
+        if theirs:  # the default solver's rule applies where method is left out
+            condition = {"properties": {"method": {"const": name}}}
+            if name != DEFAULT_SOLVER:
+                condition["required"] = ["method"]
+            rules.append({"if": condition, "then": {"properties": {k: False for k in theirs}}})
+    if rules:
+        block["allOf"] = rules
+
+
 def scene_json_schema() -> dict:
     """The JSON Schema (draft 2020-12) of a scene file, models included (``warpsph schema``)."""
     out = _adapter(Scene).json_schema()
@@ -743,9 +860,7 @@ def scene_json_schema() -> dict:
         sub["required"] = ["type"] + sub.get("required", [])
         entries.append(sub)
     out["properties"]["models"]["items"] = {"oneOf": entries}
-    solver = out.get("$defs", {}).get("Solver", {}).get("properties", {}).get("method")
-    if solver is not None:
-        solver["enum"] = solver_names()  # the registered pressure solvers
+    _solver_json_schema(out["$defs"]["Solver"])
     out["properties"] = {SCHEMA_KEY: {"type": "string", "description": "the path or URL of this JSON Schema, for "
                                                                        "editors (warpsph ignores it)"},
                          **out["properties"]}
@@ -930,11 +1045,22 @@ def reference_markdown() -> str:
     scene reference; ``warpsph schema --markdown``). Generated from the schema classes."""
     sections = []
     _reference_rows(Scene, "", {Scene}, sections)
+    classes = solver_classes()
+    names = [json.dumps(n) for n in solver_names()]
+    for _, _, rows in sections:  # solver.method: the registered solvers
+        for n, row in enumerate(rows):
+            if row[0] == "`solver.method`":
+                rows[n] = (row[0], ", ".join(names[:-1]) + " or " + names[-1] if len(names) > 1 else names[0], *row[2:])
+    for name in solver_names():
+        params = classes[name].Parameters
+        if params is not None:
+            _reference_rows(params, "solver.", {params}, sections, title=f'solver: "method": "{name}"')
     for name, params in model_types().items():
         _reference_rows(params, "models[].", {params}, sections, title=f'models[]: "type": "{name}"')
     out = ["# Scene reference", "",
-           "Every key of a scene file (JSON; SI units). Generated from the schema in `warpsph/scene.py` and the "
-           "models' `Parameters`; `warpsph schema` prints the same as JSON Schema for editors (a scene file may name "
+           "Every key of a scene file (JSON; SI units). Generated from the schema in `warpsph/scene.py`, the "
+           "pressure solvers' and the models' `Parameters` (a solver's own keys sit in the `solver` block beside the "
+           "keys every solver reads, and only with that solver); `warpsph schema` prints the same as JSON Schema for editors (a scene file may name "
            'it in a top-level `"$schema"` key, which warpsph ignores: see the '
            "[user guide](guide.md#completion-and-checking-in-an-editor)).", ""]
     for title, doc, rows in sections:

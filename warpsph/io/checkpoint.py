@@ -23,6 +23,7 @@ from warpsph.errors import SceneError
 from warpsph.io.files import fsync
 from warpsph.scene import Scene, load_scene, model_types, parse_dataclass
 from warpsph.simulation import Simulation
+from warpsph.solvers import DEFAULT_SOLVER, solver_keys
 
 FORMAT = "warpsph-checkpoint-1"
 
@@ -97,7 +98,12 @@ def _stored_scene(f, path):
     stored.pop("source", None)
     names = {cls.__name__: key for key, cls in model_types().items()}
     data = {**stored, "models": [{**m, "type": names.get(m["type"], m["type"])} for m in stored["models"]]}
+    solver = stored.get("solver")
+    if isinstance(solver, dict):  # checkpoints before the solvers' own keys hold every solver's keys: the others go
+        owners, method = solver_keys(), solver.get("method", DEFAULT_SOLVER)
+        data["solver"] = {k: v for k, v in solver.items() if k not in owners or method in owners[k]}
     scene = parse_dataclass(Scene, data, source)
+    stored = {**stored, "solver": dataclasses.asdict(scene.solver)}
     return dataclasses.replace(scene, source=str(source)), stored
 
 

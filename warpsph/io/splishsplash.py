@@ -53,7 +53,7 @@ from warpsph import sampling
 from warpsph.errors import SceneError
 from ..sampling import rotation_matrix
 from warpsph.sampling import WALL_OFFSET
-from warpsph.solvers import solver_classes
+from warpsph.solvers import DEFAULT_SOLVER, solver_classes, solver_keys
 
 RUN_ANYWAY_ENV = "WARPSPH_SPLISHSPLASH_RUN_ANYWAY"
 REAL_MAX = 1e30  # SPlisHSPlasH's "never" (numeric_limits<Real>::max) for emitEndTime
@@ -67,7 +67,8 @@ def solver_methods():
     return {cls.splishsplash_method: name for name, cls in solver_classes().items()
             if cls.splishsplash_method is not None}
 
-# DFSPH parameter -> (warpsph solver key, SPlisHSPlasH default)
+# DFSPH parameter -> (warpsph solver key, SPlisHSPlasH default); the other solvers' blocks have those of these
+# whose warpsph key they read (a key of the solver block every solver reads, or one of its own Parameters)
 DFSPH_KEYS = {"minIterations": ("min_iterations", 2), "maxIterations": ("max_iterations", 100),
               "maxError": ("density_max_error", 0.01), "maxIterationsV": ("divergence_max_iterations", 100),
               "maxErrorV": ("divergence_max_error", 0.1), "enableDivergenceSolver": ("divergence_solver", True)}
@@ -412,11 +413,11 @@ class _Reader:
         name = METHODS.get(method) if supported else None
         block = config.get(name) if supported else None
         block = block if isinstance(block, dict) else {}
-        # IISPH reads minIterations, maxIterations and maxError (TimeStepIISPH); the divergence keys are DFSPH's
-        keys = DFSPH_KEYS if method == 4 else {k: v for k, v in DFSPH_KEYS.items() if not k.endswith("V")
-                                               and k != "enableDivergenceSolver"}
+        # IISPH reads minIterations, maxIterations and maxError (TimeStepIISPH); the divergence keys are DFSPH's own
+        ours, owners = runs[method] if supported else DEFAULT_SOLVER, solver_keys()
+        keys = {k: v for k, v in DFSPH_KEYS.items() if v[0] not in owners or ours in owners[v[0]]}
         solver = {}
-        if supported and runs[method] != "dfsph":
+        if supported and runs[method] != DEFAULT_SOLVER:
             solver["method"] = runs[method]
             self.mapped("Configuration.simulationMethod", "solver.method", runs[method])
         for theirs, (ours, default) in keys.items():

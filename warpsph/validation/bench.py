@@ -30,7 +30,7 @@ from warpsph.errors import SceneError
 from warpsph.validation.cases import commit_info
 from warpsph.decomposition import DecomposedSimulation, device_names
 from warpsph.plots import _pyplot
-from warpsph.scene import load_scene, model_types
+from warpsph.scene import load_scene, model_types, replace_solver
 from warpsph.simulation import Simulation, sample_scene
 from warpsph.solvers import solver_class, solver_names
 from warpsph.validation import study_main
@@ -157,14 +157,14 @@ def make_scene(args, particles):
 
     n_base = len(sample_scene(load_scene(args.scene))[0])
     scene = load_scene(args.scene, scale=particles / n_base)
-    solver = scene.solver
+    changes = {}
     if args.density_error:
-        solver = dataclasses.replace(solver, density_max_error=args.density_error)
+        changes["density_max_error"] = args.density_error
     if getattr(args, "sort_interval", None) is not None:
-        solver = dataclasses.replace(solver, sort_interval=args.sort_interval)
-    if getattr(args, "method", None):
-        solver = dataclasses.replace(solver, method=args.method)
-    scene = dataclasses.replace(scene, solver=solver)
+        changes["sort_interval"] = args.sort_interval
+    if getattr(args, "method", None):  # the scene's solver's own keys go, the new one's take their defaults
+        changes["method"] = args.method
+    scene = dataclasses.replace(scene, solver=replace_solver(scene.solver, **changes))
     if args.model is not None:
         types = model_types()
         names = [] if args.model == "none" else list(types) if args.model == "all" else [args.model]
@@ -220,7 +220,7 @@ def run(args, particles):
         "solver_method": scene.solver.method,
         "density_max_error_percent": scene.solver.density_max_error,
         "sort_interval": scene.solver.sort_interval,
-        "divergence_max_error_percent": scene.solver.divergence_max_error,
+        "divergence_max_error_percent": getattr(scene.solver, "divergence_max_error", None),  # DFSPH's
         "graph": bool(sim.use_graph),
         "simulated_time_s": sim.time,
         "steps_total": sim.step_count,

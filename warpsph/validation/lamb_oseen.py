@@ -58,7 +58,7 @@ from warpsph.models.vorticity import curl_of
 from warpsph.plots import write_report
 from warpsph.scene import scene_from_dict, with_overrides
 from warpsph.simulation import InstabilityError, Simulation
-from warpsph.solver import DENSITY, DIVERGENCE
+from warpsph.solvers.dfsph import DENSITY, DIVERGENCE
 
 R_PEAK = 1.1209  # u_theta peaks at r = 1.1209 r_c (root of 1 + 2 s = exp(s), s = r^2 / r_c^2)
 L = 1.0  # box side [m]

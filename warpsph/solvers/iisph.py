@@ -2,11 +2,12 @@
 
 One density solve a step, after the non-pressure forces (the stepper's order serves both solvers: it calls
 :meth:`IISPHSolver.correct_density` on v_adv). Its loop: the diagonal a_ii, d_ii and the source once, last
-step's pressure halved as the start, then relaxed Jacobi iterations (omega 0.5, p >= 0 everywhere) until the
+step's pressure halved as the start, then relaxed Jacobi iterations (omega ``solver.relaxation``, 0.5 as SPlisHSPlasH's; p >= 0
+everywhere) until the
 average |density error| of the rows with pressure is below ``solver.density_max_error`` (and the largest below
 ``PEAK_ERROR_RATIO`` times it, as the DFSPH solves), within ``solver.min_iterations .. max_iterations``; then
 the pressure acceleration. The decision is made on the device and the loop is a ``wp.capture_while``, as in
-:class:`warpsph.solver.DFSPHSolver`, whose interface this class has: the stepper, the health check and the
+:class:`warpsph.solvers.dfsph.DFSPHSolver`, whose interface this class has: the stepper, the health check and the
 statistics read either. No divergence solve, free-surface detection or shifting (SPlisHSPlasH's IISPH has
 none), no DFSPH factor.
 """
@@ -24,17 +25,27 @@ from warpsph.kernels.iisph import (
 )
 from warpsph.kernels.particles import SymmetricMatrix
 from warpsph.kernels.pressure import REDUCE_THREADS, apply_pressure_acceleration, reduce_error, update_solver_status
-from warpsph.solver import DENSITY, PEAK_ERROR_RATIO
-from warpsph.solvers import PressureSolver, register_solver
 from warpsph.resources import IISPH_FLUID_STATE, IISPH_SOLVER
+from warpsph.scene import key, schema
+from warpsph.solvers import PressureSolver, register_solver
+from warpsph.solvers.dfsph import DENSITY, PEAK_ERROR_RATIO
 
 WARM_START = 0.5  # SPlisHSPlasH: the first iterate is half of last step's pressure
 
 
+@schema
+class IISPHParameters:
+    """IISPH's own keys of the scene's solver block."""
+
+    relaxation: float = key(0.5, doc="relaxation omega of the Jacobi iterations (Ihmsen et al. 2014, section 3.2; "
+                                     "SPlisHSPlasH's 0.5)", gt=0, le=1)
+
+
 @register_solver("iisph")
 class IISPHSolver(PressureSolver):
-    summary = ("Ihmsen et al. 2014, as SPlisHSPlasH: one density solve, p >= 0 everywhere; it reads "
-               "density_max_error, min/max_iterations and warm_start, and ignores the divergence keys and shifting")
+    Parameters = IISPHParameters
+    summary = ("Ihmsen et al. 2014, as SPlisHSPlasH: one density solve, p >= 0 everywhere; no divergence solve, "
+               "free-surface detection or shifting")
     needs_factor = False  # the density pass writes no DFSPH factor
     # d_ii (3), the pressure displacement c (3), a_ii, the source, q = p / rho^2 and the error: all live within
     # the solve, in the scratch pool the models use before it
@@ -118,8 +129,8 @@ class IISPHSolver(PressureSolver):
             sim.launch(compute_pressure_displacement, n,
                        [f.x, nb, V, H, self.d_ii, self.pressure, self.stiffness, self.displacement])
             sim.launch(update_iisph_pressure, n,
-                       [f.x, nb, f.density, V, sim.rest_density, H, MIN_DIAGONAL / (H * H), sim.dt, self.d_ii, self.a_ii,
-                        self.source, self.displacement, self.pressure, self.stiffness, self.error])
+                       [f.x, nb, f.density, V, sim.rest_density, H, MIN_DIAGONAL / (H * H), sim.dt, s.relaxation,
+                        self.d_ii, self.a_ii, self.source, self.displacement, self.pressure, self.stiffness, self.error])
             sim.launch(reduce_error, REDUCE_THREADS, [self.error, n, self.error_stats])
             sim.launch(update_solver_status, 1,
                        [self.error_stats, n, max_error, max_error * PEAK_ERROR_RATIO, 0, 0.0, 0.0, sim.dt, s.min_iterations,

@@ -43,6 +43,7 @@ from warpsph.kernels.shifting import apply_shift, compute_shift
 from warpsph.solvers import PressureSolver, register_solver
 from warpsph.models.viscosity import Viscosity
 from warpsph.resources import CORRECTED, FLUID_STATE, SOLVER
+from warpsph.scene import key, schema
 
 DIVERGENCE, DENSITY, DRIFT = 0, 1, 2
 # In a periodic box the density solve is split (DFSPHSolver.correct_density). Its rate half's tolerance is per unit
@@ -76,11 +77,26 @@ def fully_periodic(scene):
     return len(scene.domain.periodic) == 3
 
 
+@schema
+class DFSPHParameters:
+    """DFSPH's own keys of the scene's solver block: the divergence solve's and particle shifting's."""
+
+    divergence_solver: bool = key(True, doc="run the divergence solve (DFSPH's velocity correction)")
+    divergence_max_error: float = key(0.1, doc="average divergence error the divergence solve stops at",
+                                      unit="% of rho0 per second", gt=0)
+    divergence_min_iterations: int = key(1, doc="divergence solve: fewest iterations", ge=0)
+    divergence_max_iterations: int = key(100, doc="divergence solve: most iterations", ge=1)
+    shifting: float = key(2.0, doc="particle shifting coefficient (Lind et al. 2012): x += -D grad C in the bulk, "
+                                   "tangential near the free surface, off on it; D = shifting x h max|v| dt; 0: off", ge=0)
+
+
 @register_solver("dfsph")
 class DFSPHSolver(PressureSolver):
+    Parameters = DFSPHParameters
     summary = ("Bender & Koschier 2017: a divergence and a density solve, the corrected operators in the bulk, "
                "shifting")
     needs_factor = True  # the density pass writes the DFSPH factor
+    detects_free_surface = True  # detect_free_surface: surface, band, wall-side bulk and bulk per particle
     scratch_columns = 2  # stiffness and error live within a solve: they share the models' scratch pool
     splishsplash_method = 4
     decomposable = True
