@@ -1,9 +1,15 @@
-"""Validation cases with known answers, run with the default solver (``warpsph validate``).
+"""Validation cases with known answers, run with the default solver (``warpsph validate``), and the studies.
+
+Each case is a package of its own, with its README and, where the reference is measured or tabulated, its
+``reference.json`` (README.md here lists them):
 
 - :mod:`.taylor_green`: the Taylor-Green vortex in a periodic box (analytic decay);
-- :mod:`.lamb_oseen`: the Lamb-Oseen vortex (analytic viscous spreading);
+- :mod:`.lamb_oseen`: the Lamb-Oseen vortex (analytic viscous spreading), in a box and below a free surface;
+- :mod:`.standing_wave`: the first sloshing mode of a tank (linear theory);
 - :mod:`.hydrostatic`: a tank at rest (density error, p = rho g h);
 - :mod:`.dam_front`: the Martin & Moyce (1952) dam-break front (experiment);
+- :mod:`.rest`: tanks at rest under gravity (the largest speed);
+- :mod:`.sinking`: a sphere sinking in a viscous fluid (Stokes-Oseen drag, Haberman & Sayre's wall factor);
 - :mod:`.cases`: the runner behind ``warpsph validate CASE --resolutions N ...``, one row per method and
   resolution with the error, particles, steps and wall time.
 
@@ -15,7 +21,7 @@ The studies, each with ``add_arguments``, ``command`` and ``main`` (``warpsph CO
 - :mod:`.bench_job`: the whole job with its output, and the time to the first step (``warpsph bench job``);
 - :mod:`.results`: the figures of result JSON files (``warpsph plot results``).
 
-Each case module runs alone too, e.g. ``python -m warpsph.validation.dam_front --help``.
+Some cases run alone too, e.g. ``python -m warpsph.validation.dam_front --help``.
 """
 
 from .cases import CASES, validate

@@ -52,7 +52,7 @@ import argparse
 
 import numpy as np
 
-from .taylor_green import METHODS  # the same four methods and parameters
+from warpsph.validation.taylor_green import METHODS  # the same four methods and parameters
 from warpsph.kernels.diagnostics import boundary_pressure_torque, gather_by_id, scatter_by_id
 from warpsph.models.vorticity import curl_of
 from warpsph.plots import write_report
@@ -363,7 +363,8 @@ def figures(report):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=f"python -m {__name__}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--resolution", type=int, default=24, help="particles across L = 1 m")
     parser.add_argument("--nu", type=float, default=0.01, help="kinematic viscosity [m^2/s]")
     parser.add_argument("--T", type=float, default=0.5, help="simulated time [s]")
@@ -399,7 +400,3 @@ def main(argv=None):
               f"nu_eff {s['nu_effective']:.4f}")
     if args.out:
         write_report(report, args.out, figures(report))
-
-
-if __name__ == "__main__":
-    main()

@@ -13,7 +13,9 @@ speed (the mean sinking speed while the sphere's centre is between ``WINDOW`` of
 from the surface and the floor) against that band; ``error_pct`` is its distance from the band's middle in %.
 """
 
+import json
 import math
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -30,15 +32,19 @@ SPHERE_DENSITY = 3000.0  # kg/m^3
 T_END = 2.5  # s
 G = 9.81
 EQUAL_AREA = 2.0 / math.sqrt(math.pi)  # the diameter of the tube with the square's area, in sides
-SCENES = Path(__file__).resolve().parents[2] / "scenes"  # meshes/unit_sphere.obj
+SCENES = Path(__file__).resolve().parents[3] / "scenes"  # meshes/unit_sphere.obj
+# Haberman & Sayre's wall factor, a rational function of D / W: its coefficients beside this module (reference.json)
+REFERENCE = json.loads(resources.files(__name__).joinpath("reference.json").read_text(encoding="utf-8"))
+WALL_FACTOR = REFERENCE["wall_factor"]
 
 
 def wall_factor(ratio):
     """Haberman & Sayre (1958): the terminal speed of a sphere on the axis of a tube, over the unbounded one, for
     sphere diameter / tube diameter ``ratio`` (< 0.6)."""
-    r = ratio
-    return ((1 - 2.105 * r + 2.0865 * r**3 - 1.7068 * r**5 + 0.72603 * r**6)
-            / (1 - 0.75857 * r**5))
+    def series(coefficients):  # {power: coefficient} in rising powers
+        return sum(c * ratio ** int(n) for n, c in sorted(coefficients.items(), key=lambda item: int(item[0])))
+
+    return series(WALL_FACTOR["numerator"]) / series(WALL_FACTOR["denominator"])
 
 
 def stokes_speed(volume, density, rho0, nu):

@@ -12,7 +12,7 @@ how many particles the solver took for the free surface at the end (none in the 
 
 import numpy as np
 
-from .hydrostatic import ramp_gravity
+from warpsph.validation.hydrostatic import ramp_gravity
 from warpsph.scene import scene_from_dict, with_overrides
 from warpsph.simulation import Simulation
 

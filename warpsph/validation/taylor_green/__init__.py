@@ -100,7 +100,8 @@ def figures(report):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=f"python -m {__name__}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--resolution", type=int, default=20, help="particles across L")
     parser.add_argument("--nu", type=float, default=0.01, help="kinematic viscosity [m^2/s]")
     parser.add_argument("--T", type=float, default=T_END, help="simulated time [s]")
@@ -134,6 +135,3 @@ def main(argv=None):
               f"error {100 * (last['ke_ratio'] / last['ke_ratio_exact'] - 1):+.1f} %), L1 |u| error {last['l1_speed_error']:.4f}")
     if args.out:
         write_report(report, args.out, figures(report))
-
-if __name__ == "__main__":
-    main()

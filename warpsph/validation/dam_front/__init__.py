@@ -14,18 +14,19 @@ Writes JSON and, with matplotlib, a PNG of Z/a against T.
 """
 
 import argparse
+import json
 import time
+from importlib import resources
 
 import numpy as np
 from warpsph.plots import write_report
 from warpsph.scene import scene_from_dict, with_overrides
 from warpsph.simulation import Simulation
 
-# (T, Z/a) for a = 2.25 in, from ../shared/reference/sph-facts.md
-MARTIN_MOYCE = np.array([(0.832, 1.217), (1.219, 1.474), (1.997, 2.292), (2.547, 2.995), (3.345, 4.134),
-                         (4.034, 4.944), (4.418, 5.881), (5.091, 6.980), (5.685, 7.945), (6.306, 8.966),
-                         (6.822, 9.986), (7.439, 10.963)])
-A = 0.05715  # m
+# the experiment's points beside this module (reference.json, shipped with the package): (T, Z/a) for a = 2.25 in
+REFERENCE = json.loads(resources.files(__name__).joinpath("reference.json").read_text(encoding="utf-8"))
+MARTIN_MOYCE = np.array(REFERENCE["series"]["a = 2.25 in"]["points"])
+A = REFERENCE["series"]["a = 2.25 in"]["a_m"]  # m: 2.25 in
 G = 9.81
 T_END = 6.0  # the run's end in T = t sqrt(2 g / a)
 DEPTH = 4  # tank depth in particles
@@ -100,7 +101,8 @@ def figures(report):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=f"python -m {__name__}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--resolution", type=int, default=10, help="particles across the column width a")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--T-end", type=float, default=T_END)
@@ -118,6 +120,3 @@ def main(argv=None):
           f"with time shift {result['time_shift_T']:+.3f}")
     if args.out:
         write_report(result, args.out, figures(result))
-
-if __name__ == "__main__":
-    main()

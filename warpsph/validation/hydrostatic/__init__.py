@@ -85,7 +85,8 @@ def figures(report):
 
 
 def main(argv=None):
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(prog=f"python -m {__name__}", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--radius", type=float, default=0.02)
     parser.add_argument("--T", type=float, default=T_END)
     parser.add_argument("--device", default="cpu")
@@ -101,6 +102,3 @@ def main(argv=None):
           f"probe RMS error {100 * result['probe_pressure_rms_error_relative']:.1f} % of rho g H; max |v| {result['max_speed']:.4f} m/s")
     if args.out:
         write_report(result, args.out, figures(result))
-
-if __name__ == "__main__":
-    main()
