@@ -7,21 +7,21 @@ resolution and solver tolerance, and the Pareto front of those points.
 
 The question it answers: for a given error budget, which method and resolution is cheapest?
 
-Error (``--case``): ``lamb-oseen`` (default), the Lamb-Oseen vortex of warpsph/validation/lamb_oseen.py (its set-up,
+Error (``--case``): ``lamb-oseen`` (default), the Lamb-Oseen vortex of warpsph/validation/lamb_oseen/ (its set-up,
 measurements and summary; the functions are imported, not copied). The physical problem is the same at every
 resolution: box L = 1 m, initial core radius sqrt(4 nu t0) = ``--core-radius`` metres (0.125 m, as
 ``warpsph validate lamb-oseen``: 3 spacings at 24 particles across), peak speed 0.5 m/s, nu = 0.01, T = 0.5 s. Only the box
 depth is counted in spacings (6, quasi-2D: the flow does not depend on z). The primary error is the L1
 error of u_theta at T, in % of the analytic peak speed at T; the peak-vorticity ratio (against the same
 fit of the analytic field), the effective viscosity and the kinetic energy ratio are recorded too.
-``taylor-green``: the Taylor-Green vortex of warpsph/validation/taylor_green.py (L = 1, U = 1, nu = 0.01, T = 0.3 s,
+``taylor-green``: the Taylor-Green vortex of warpsph/validation/taylor_green/ (L = 1, U = 1, nu = 0.01, T = 0.3 s,
 6 spacings deep, periodic) with the default solver, started from its particle packing (``--pack-steps``, set-up,
 not timed): the error
 is the L1 error of the velocity magnitude at T in % of the analytic peak speed at T; the kinetic energy error
 KE(T)/KE_exact(T) - 1 is recorded too.
 
 Optionally (``--dam-front R ...``, R in particles across the column width a) the Martin & Moyce dam-break
-front of warpsph/validation/dam_front.py per method and tolerance: the RMS of Z/a after the best time shift,
+front of warpsph/validation/dam_front/ per method and tolerance: the RMS of Z/a after the best time shift,
 with its own time per simulated second.
 
 Timing: ``wall_per_sim_s`` = seconds of wall time per simulated second, around ``Simulation.run`` with
@@ -474,13 +474,13 @@ def study(methods, resolutions, tolerances, device="cpu", out=None, core_radius=
         setup = {"L": L, "u_peak": 1.0, "nu": nu, "T": T, "depth_spacings": depth, "frames": frames,
                  "solver": taylor_green_solver("per point"),
                  "pack_steps": pack_steps, "pack_jitter_spacings": taylor_green.PACK_JITTER}
-        description = "Taylor-Green vortex, periodic box, quasi-2D, default solver (warpsph/validation/taylor_green.py)"
+        description = "Taylor-Green vortex, periodic box, quasi-2D, default solver (warpsph/validation/taylor_green/)"
         error = "L1 error of |u| at T, % of the analytic peak speed at T"
     else:
         T = 0.5 if T is None else T
         setup = {"L": L, "core_radius_m": core_radius, "nu": nu, "T": T, "u_peak": u_peak, "depth_spacings": depth,
                  "frames": frames}
-        description = "Lamb-Oseen vortex, box periodic in z, quasi-2D, no gravity (warpsph/validation/lamb_oseen.py)"
+        description = "Lamb-Oseen vortex, box periodic in z, quasi-2D, no gravity (warpsph/validation/lamb_oseen/)"
         error = "L1 error of u_theta at T, % of the analytic peak speed at T"
     setup.update(dam_resolutions=list(dam_resolutions), dam_T_end=dam_T_end, on_instability=on_instability)
     report = {"benchmark": "pareto", "case": description, "case_key": case,

@@ -36,7 +36,7 @@ Measured per output frame, from positions and velocities only:
   analytic peak itself: 0.90 at t = 0, the kernel's smoothing of the core);
 - the kinetic energy relative to frame 0.
 
-Methods as in taylor_green.py: plain DFSPH, VR alpha = 1, Rankine beta = 1, micropolar
+Methods as in the taylor_green case: plain DFSPH, VR alpha = 1, Rankine beta = 1, micropolar
 nu_t = 0.05. Writes JSON, a PNG of the final u_theta profiles (beside it) and ``*_vorticity.png``
 (peak vorticity over time).
 
