@@ -45,8 +45,7 @@ LAZY = {
     ("warpsph.surface", "warpsph.io.particles_h5"): "as warpsph.io.usd",
     ("warpsph.surface", "warpsph.surface_clip"): "as warpsph.io.usd (Warp)",
     ("warpsph.surface", "warpsph.kernels.surface_preview"): "as warpsph.io.usd (Warp)",
-    ("warpsph.validation.bench_job", "*"): "bench job times the start-up, its imports included, stage by stage; "
-                                           "it runs the CLI that lists it (BACK_EDGES)",
+    ("warpsph.validation.bench_job", "*"): "bench job times the start-up, its imports included, stage by stage",
 }
 # Function-level imports that close a cycle by design, each with its reason: the plug-in registries load their
 # shipped plug-ins, which register themselves with them; bench job runs the CLI that lists it.
@@ -54,10 +53,6 @@ BACK_EDGES = {
     ("warpsph.solvers", "warpsph.solvers.dfsph"): "the registry loads the shipped solvers, which import it to "
                                                   "register",
     ("warpsph.solvers", "warpsph.solvers.iisph"): "as warpsph.solvers.dfsph",
-    ("warpsph.scene", "warpsph.models"): "the schema loads the models' registry (their Parameters), whose models "
-                                         "read the scene's types",
-    ("warpsph.validation.bench_job", "warpsph.cli"): "`warpsph bench job` is a verb of the CLI and times `warpsph "
-                                                     "run` through cli.main, in-process",
 }
 
 

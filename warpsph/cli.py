@@ -716,6 +716,7 @@ def study_command(module, device=True):
     def command(args):
         if device and not getattr(args, "plot_only", None):
             args.device = _pick_device(args.device)
+        args.run_cli, args.last_run = main, last_run  # bench job runs `warpsph run` in this process
         return module.command(args)
     return command
 

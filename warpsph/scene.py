@@ -18,28 +18,13 @@ import warnings
 from pathlib import Path
 from typing import Any, Literal, Optional, Tuple
 
-from pydantic import ConfigDict, Field, TypeAdapter, ValidationError
-from pydantic.dataclasses import dataclass as pydantic_dataclass
+from pydantic import TypeAdapter, ValidationError
 
 from .errors import SceneError
+from .keys import CONFIG, MAX_MODEL_VISCOSITY, key, schema  # noqa: F401  (the schema's building blocks, re-exported)
 from .solvers import DEFAULT_SOLVER, solver_class, solver_classes, solver_keys, solver_names
 
 Vec3 = Tuple[float, float, float]
-
-# strict: no coercion ("3" is not a number, 2.0 not an integer, true not 1); an unknown key is an error
-CONFIG = ConfigDict(strict=True, extra="forbid", allow_inf_nan=False)
-
-
-def schema(cls):
-    """Class decorator: a frozen, strictly validated pydantic dataclass of the scene schema."""
-    return pydantic_dataclass(frozen=True, config=CONFIG)(cls)
-
-
-def key(default: Any = ..., doc: str = "", unit: typing.Optional[str] = None, **limits):
-    """A schema field: its default (``...``: required), what it means, its unit and its range
-    (pydantic's gt / ge / lt / le). They go into the JSON Schema (``warpsph schema``) and the docs."""
-    return Field(default, description=doc or None, json_schema_extra={"unit": unit} if unit else None, **limits)
-
 
 def walled_faces(domain):
     """(lo, hi) per axis: the faces that hold the particles in ``domain`` (a :class:`Box`, or anything with ``min``,
@@ -412,7 +397,6 @@ class Output:
     up_axis: Literal["Y", "Z"] = key("Y", doc="the USD stage's up axis")
 
 
-MAX_MODEL_VISCOSITY = 1.0  # [m^2/s], 20x the fluid's default: the models' viscosity keys stop there
 
 
 @schema

@@ -171,6 +171,11 @@ class ModelContext:
         return getattr(self._sim.pressure_solver, "surface", None)
 
     @property
+    def detects_free_surface(self) -> bool:
+        """Whether the pressure solver classifies the free surface (DFSPH; IISPH does not): :attr:`surface_flags`."""
+        return bool(type(self._sim.pressure_solver).detects_free_surface)
+
+    @property
     def vorticity(self):
         """The shared vorticity of v~ (eq 6) this step, or None when no model asked for it."""
         field = self._sim.vorticity_field

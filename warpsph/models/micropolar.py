@@ -3,7 +3,7 @@
 import warp as wp
 
 from warpsph.kernels.micropolar import micropolar_step
-from warpsph.scene import MAX_MODEL_VISCOSITY, key, schema
+from warpsph.keys import MAX_MODEL_VISCOSITY, key, schema
 
 from .base import Model, register
 

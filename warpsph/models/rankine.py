@@ -5,7 +5,7 @@ from typing import Optional
 import warp as wp
 
 from warpsph.kernels.rankine import apply_rankine_feedback, compute_vorticity_change
-from warpsph.scene import MAX_MODEL_VISCOSITY, key, schema
+from warpsph.keys import MAX_MODEL_VISCOSITY, key, schema
 
 from .base import NO_HISTORY, Model, register
 

@@ -11,8 +11,6 @@ from warpsph.kernels.viscosity import (
     compute_strain_rate,
 )
 
-from warpsph.solvers import solver_class
-
 from .base import Model, register
 
 
@@ -44,18 +42,18 @@ class Viscosity(Model):
     corrected_bytes_per_particle = 24  # the strain rate, where the operator is the corrected one
 
     @staticmethod
-    def takes_corrected_operator(scene):
+    def takes_corrected_operator(scene, detects_free_surface):
         """Whether ``scene`` runs the corrected operator away from the free surface: with a pressure solver that
-        detects the surface (DFSPH; IISPH does not), a viscosity, and walls (the periodic box keeps eq 4: there the
+        detects the surface (``detects_free_surface``: DFSPH; IISPH does not), a viscosity, and walls (the periodic box keeps eq 4: there the
         corrected operator did not fall from 128 to 256 across, Taylor-Green 0.33 / 0.34 % against eq 4's 0.33 /
         0.26 %)."""
-        return (solver_class(scene.solver.method).detects_free_surface and scene.fluid.viscosity > 0.0
+        return (detects_free_surface and scene.fluid.viscosity > 0.0
                 and len(scene.domain.periodic) < 3)
 
     def __init__(self, ctx, params=None):
         super().__init__(ctx, params)
         self._empty_vec3 = wp.empty(0, dtype=wp.vec3, device=ctx.device)
-        self.corrected = self.takes_corrected_operator(ctx.scene)
+        self.corrected = self.takes_corrected_operator(ctx.scene, ctx.detects_free_surface)
         self._empty_flags = wp.empty(0, dtype=wp.int32, device=ctx.device)
         self.strain_rate = (ctx.per_particle("viscosity", SymmetricMatrix) if self.corrected
                             else wp.empty(0, dtype=SymmetricMatrix, device=ctx.device))

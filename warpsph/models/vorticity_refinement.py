@@ -10,7 +10,7 @@ from warpsph.kernels.vorticity_refinement import (
     compute_target_vorticity,
     compute_vorticity_loss,
 )
-from warpsph.scene import MAX_MODEL_VISCOSITY, key, schema
+from warpsph.keys import MAX_MODEL_VISCOSITY, key, schema
 
 from .base import NO_HISTORY, Model, register
 

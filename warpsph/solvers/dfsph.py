@@ -43,7 +43,7 @@ from warpsph.kernels.shifting import apply_shift, compute_shift
 from warpsph.solvers import PressureSolver, register_solver
 from warpsph.models.viscosity import Viscosity
 from warpsph.resources import CORRECTED, FLUID_STATE, SOLVER
-from warpsph.scene import key, schema
+from warpsph.keys import key, schema
 
 DIVERGENCE, DENSITY, DRIFT = 0, 1, 2
 # In a periodic box the density solve is split (DFSPHSolver.correct_density). Its rate half's tolerance is per unit
@@ -127,7 +127,8 @@ class DFSPHSolver(PressureSolver):
 
     @staticmethod
     def bytes_per_particle(scene):
-        corrected_viscosity = Viscosity.takes_corrected_operator(scene)  # the corrected viscosity's strain rate
+        # the corrected viscosity's strain rate
+        corrected_viscosity = Viscosity.takes_corrected_operator(scene, DFSPHSolver.detects_free_surface)
         return FLUID_STATE + SOLVER + CORRECTED + (Viscosity.corrected_bytes_per_particle if corrected_viscosity else 0)
 
     def __init__(self, sim):

@@ -26,7 +26,7 @@ from warpsph.kernels.iisph import (
 from warpsph.kernels.particles import SymmetricMatrix
 from warpsph.kernels.pressure import REDUCE_THREADS, apply_pressure_acceleration, reduce_error, update_solver_status
 from warpsph.resources import IISPH_FLUID_STATE, IISPH_SOLVER
-from warpsph.scene import key, schema
+from warpsph.keys import key, schema
 from warpsph.solvers import PressureSolver, register_solver
 from warpsph.solvers.dfsph import DENSITY, PEAK_ERROR_RATIO
 

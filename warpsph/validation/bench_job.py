@@ -169,8 +169,6 @@ def solver_only(args, scale):
 
 
 def job(args, scale, mode, folder):
-    from warpsph import cli
-
     out = Path(folder) / f"job_{mode}.usdc"
     argv = ["run", args.scene, "--device", args.device, "--scale", repr(scale), "--frames", str(args.frames),
             "--out", str(out), "--overwrite", "--quiet"]
@@ -178,11 +176,11 @@ def job(args, scale, mode, folder):
     argv += ["--clips"] if args.clips else []
     argv += ["--fields", args.fields] if args.fields else []
     start = time.perf_counter()
-    code = cli.main(argv)
+    code = args.run_cli(argv)  # the CLI's main, handed over by it (warpsph bench job): no import of the CLI here
     process = time.perf_counter() - start
     if code != 0:
         raise SystemExit(f"warpsph run failed ({code}): {' '.join(argv)}")
-    r = dict(cli.last_run)
+    r = dict(args.last_run)
     gc.collect()
     return {"mode": mode, "loop_wall_s": r["wall"], "run_command_s": process, "steps": r["steps"], "frames": r["frames"],
             "writer_busy_s": r["writer_seconds"], "simulation_waited_for_writer_s": r["writer_waited"],
