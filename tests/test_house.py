@@ -110,3 +110,29 @@ def test_allowed_settings_are_checked_property_setters():
     setters = {n.name for n in cls.body if isinstance(n, ast.FunctionDef)
                for d in n.decorator_list if isinstance(d, ast.Attribute) and d.attr == "setter"}
     assert set(ALLOWED) <= setters, set(ALLOWED) - setters
+
+
+def sim_names(source):
+    """[(line, text)] of the places ``source`` names a simulation: ``sim``, ``self.sim``, ``_sim``, a parameter
+    called so (what a pressure solver must not see: it has its ``SolverContext``)."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        name = (node.id if isinstance(node, ast.Name) else node.attr if isinstance(node, ast.Attribute)
+                else node.arg if isinstance(node, ast.arg) else None)
+        if name is not None and SIM.match(name):
+            found.append((node.lineno, ast.unparse(node)))
+    return found
+
+
+def test_the_pressure_solvers_see_their_context_not_the_simulation():
+    """The solvers (warpsph/solvers/) are built with a ``SolverContext`` and read everything through it: no name of a
+    simulation appears in their source (docs/notes/house.md "Who may touch what")."""
+    folder = os.path.join(PACKAGE, "solvers")
+    bad = []
+    for name in sorted(os.listdir(folder)):
+        if name.endswith(".py"):
+            with open(os.path.join(folder, name)) as f:
+                bad += [f"warpsph/solvers/{name}:{line}: {text}" for line, text in sim_names(f.read())]
+    assert not bad, "the pressure solvers read the simulation (add what they need to SolverContext):\n" + "\n".join(bad)
+    assert sim_names("def __init__(self, sim):\n    self.sim = sim\n    n = self.sim.num_fluid")
+    assert not sim_names("def __init__(self, ctx):\n    self.ctx = ctx\n    n = ctx.num_fluid")

@@ -35,7 +35,7 @@ class DensityOnly(DFSPHSolver):
     splishsplash_method = None
 
     def correct_divergence(self):
-        if self.sim.scene.solver.with_divergence:
+        if self.ctx.parameters.with_divergence:
             super().correct_divergence()
 
     @staticmethod

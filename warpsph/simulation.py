@@ -38,7 +38,7 @@ from warpsph.scene import Scene
 from warpsph.state import Constants, FluidParticles, State, viscous_substeps  # noqa: F401 (public here too)
 from warpsph.scene_setup import count_particles, remove_fluid_inside_bodies, sample_scene  # noqa: F401 (public here too)
 
-from warpsph.solvers import solver_class as registered_solver
+from warpsph.solvers import SolverContext, solver_class as registered_solver
 from warpsph.packing import packed_positions
 
 
@@ -161,6 +161,7 @@ class Simulation:
             sub = self.max_viscous_substeps > 1
             self.viscous_substeps = (z("clock", int(sub), dtype=wp.int32), z("clock", int(sub)))
             self.substeps_left = z("clock", int(sub), dtype=wp.int32)
+            self.max_speed_sq = z("clock", 2)  # [max |v|^2 of the fluid, the CFL speed^2 (compute_max_speed)]
             has_dynamic = any(b.kind == "dynamic" for b in moving)
             first_dynamic = first_moving + sum(len(b.samples) for b in moving if b.kind == "kinematic")
             self.boundary = BoundaryParticles(
@@ -182,8 +183,16 @@ class Simulation:
                                 [self.neighbours.boundary_grid.grid, self.boundary.x, sample_body, first_moving_body,
                                  self.support_radius, self.neighbours.lower, self.neighbours.period,
                                  self.boundary.volume])
+            self._solver_context = SolverContext(  # what the pressure solver sees
+                state=self.state, constants=self.constants, parameters=scene.solver, boundary=self.boundary,
+                neighbour_lists=lambda: self.neighbours.lists, lower=self.neighbours.lower,
+                period=self.neighbours.period, launch=self.launch, scratch=self.scratch, permute=self.permute,
+                exchange=self.exchange, allreduce=self.allreduce, global_count=lambda: self.global_count,
+                gravity=lambda: self.gravity, max_speed_sq=self.max_speed_sq,
+                # the dynamic bodies it moves inside its iterations (start_coupling below); not those that stay put
+                bodies=self.moving_bodies if bodies_move else None)
             with stage("pressure solver set-up"):
-                self.pressure_solver = solver_class(self)
+                self.pressure_solver = solver_class(self._solver_context)
             if self.moving_bodies is not None and solver_class.couples_bodies:
                 self.moving_bodies.start_coupling()  # dynamic bodies move inside the pressure iterations
             viscous = scene.fluid.viscous
@@ -203,7 +212,6 @@ class Simulation:
                 None if self.vorticity_field is None else self.vorticity_field.vorticity,
                 lambda v, out: curl_of(self, v, out), self._spin, bool(self.turbulence_models),
                 self.pressure_solver.iteration_totals, self._removed)
-            self.max_speed_sq = z("clock", 2)  # [max |v|^2 of the fluid, the CFL speed^2 (compute_max_speed)]
             self.health = health.HealthChecks(self.state, self.constants, self.launch,
                                               self.pressure_solver.max_iteration_streak)
             if scene.initial_packing is not None and particles is None:  # the blocks' particles relaxed before t = 0
@@ -526,7 +534,7 @@ class Simulation:
         recomputed each step) by ``order``: re-sorting and sink compaction."""
         for a in (self.fluid.x, self.fluid.v, self.fluid.ids):
             self.permute(a, order)
-        self.pressure_solver.reorder(self, order)
+        self.pressure_solver.reorder(order)
         for m in self.models:
             m.reorder(self.model_context, order)
 

@@ -25,17 +25,71 @@ of it, so that nothing else names a solver:
   (:meth:`~warpsph.bodies.MovingBodies.couple`, strong coupling); else they take the step's impulses after it;
 - ``solve_passes(divergence_iterations, density_iterations)``: its neighbour passes a step (the benchmark's k).
 
-What the stepper (:class:`~warpsph.simulation.Simulation`) calls on an instance, made with ``cls(sim)``:
+What the stepper (:class:`~warpsph.simulation.Simulation`) calls on an instance, made with ``cls(ctx)``:
 ``detect_free_surface()``, ``correct_divergence()``, ``correct_density()``, ``shift_particles()``,
-``reorder(sim, order)``, ``density_pass_outputs()``, and for the statistics and the health check
+``reorder(order)``, ``density_pass_outputs()``, and for the statistics and the health check
 ``iteration_totals()``, ``last_errors()``, ``pressure_field()``, ``free_surface_count()`` and
 ``max_iteration_streak``; :class:`PressureSolver` has the do-nothing parts.
+
+``ctx`` is a :class:`SolverContext`: what a solver sees of the simulation, and nothing else (no models, no
+inflow, no writers, not the simulation). A solver keeps it (``self.ctx``), allocates its arrays through
+``ctx.zeros`` / ``ctx.per_particle`` (owner "pressure") and ``ctx.scratch``, registers what a step carries to the
+next with ``ctx.state.carry``, and reads the rest through it when it runs: the fluid count, dt, the neighbour lists
+and the gravity change after it is built.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 SOLVERS = {}  # name -> class
 DEFAULT_SOLVER = "dfsph"  # a scene's solver.method when it names none
+
+
+@dataclass(frozen=True)
+class SolverContext:
+    """What a pressure solver sees of the simulation, built by it (``Simulation``) once: the state, the constants,
+    the scene's solver block, the boundary samples, the calls it launches and allocates with, the subdomains'
+    exchanges, and the dynamic bodies it couples. Values that change after it is built are read when used: the
+    fluid's arrays, count and clock through :attr:`state` (:attr:`fluid`, :attr:`num_fluid`, :attr:`dt`,
+    :attr:`dt_previous`), and the neighbour lists, the global count and the gravity through their calls."""
+
+    state: object  # warpsph.state.State: the fluid's arrays and count, the clock, ``carry`` and ``host``
+    constants: object  # warpsph.state.Constants: volume, rest density, support, spacing, the walled faces
+    parameters: object  # the scene's solver block (``scene.solver``: the common keys and the solver's own)
+    boundary: object  # warpsph.simulation.BoundaryParticles (``.samples``: the kernels' Boundary struct)
+    neighbour_lists: object  # () -> the kernels' Neighbours struct of this step (rebuilt as the lists grow)
+    lower: object  # wp.vec3: the domain's lower corner, where the positions' wrap starts
+    period: object  # wp.vec3: the domain's period per axis (0: none)
+    launch: object  # (kernel, dim, inputs): on the simulation's device, counted
+    scratch: object  # (dtype, column) -> a per-particle view of the scratch pool shared with the models
+    permute: object  # (array, order): array[:] = array[order] over the fluid's rows (re-sorting, sinks)
+    exchange: object  # (*arrays): the ghost rows' values from their owners (a no-op without subdomains)
+    allreduce: object  # (*pairs, read=False): small arrays combined over the subdomains (None without them)
+    global_count: object  # () -> fluid particles in the whole simulation (over every subdomain)
+    gravity: object  # () -> wp.vec3 [m/s^2]: the gravity now (it may change between steps)
+    max_speed_sq: object  # device array of two: this step's [max |v|^2, the CFL speed^2] (compute_max_speed)
+    bodies: object = None  # warpsph.bodies.MovingBodies whose dynamic bodies move inside the pressure
+    # iterations (``respond``, ``couple``, ``coupling["residual"]``), or None (none, or they do not move)
+
+    OWNER = "pressure"  # the allocation report's owner of what a solver allocates
+
+    fluid = property(lambda self: self.state.fluid, doc="The fluid's per-particle arrays (x, v, density, ...).")
+    num_fluid = property(lambda self: self.state.num_fluid, doc="Rows that hold particles now.")
+    dt = property(lambda self: self.state.dt, doc="This step's dt [s], a device array of one.")
+    dt_previous = property(lambda self: self.state.dt_previous, doc="The last step's dt [s], a device array of one.")
+
+    def zeros(self, shape, dtype=float):
+        """A zeroed device array of the solver's (owner "pressure")."""
+        return self.state.zeros(self.OWNER, shape, dtype)
+
+    def per_particle(self, dtype=float):
+        """A per-particle array of the solver's (owner "pressure"; zeroed where an emitter adds rows)."""
+        return self.state.per_particle(self.OWNER, dtype)
+
+    def host(self, array):
+        """The particles' rows of a per-particle array, copied to the host."""
+        return self.state.host(array)
 
 
 def register_solver(name):
@@ -97,8 +151,11 @@ class PressureSolver:
     def shift_particles(self):
         """Particle shifting after the solves; nothing by default."""
 
-    def reorder(self, sim, order):
-        """Permutes its per-particle state when the fluid is re-sorted; nothing by default."""
+    def __init__(self, ctx):
+        self.ctx = ctx  # what it sees of the simulation (:class:`SolverContext`)
+
+    def reorder(self, order):
+        """Permutes its per-particle state when the fluid is re-sorted (``self.ctx.permute``); nothing by default."""
 
 
 def solver_classes():

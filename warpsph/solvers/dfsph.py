@@ -70,11 +70,12 @@ FREE_SURFACE_GRADIENT = 0.25
 MAX_SHIFT = 0.1
 
 
-def fully_periodic(scene):
-    """Whether the domain is periodic along x, y and z (no walls): the only box whose pressure problem is singular
-    (pure Neumann: a constant pressure moves nothing): its density solve is split (:meth:`DFSPHSolver.correct_density`).
-    The scene rejects an axis named twice."""
-    return len(scene.domain.periodic) == 3
+def fully_periodic(periodic):
+    """Whether a domain periodic across the axes ``periodic`` (``Constants.periodic``, ``scene.domain.periodic``) is
+    periodic along x, y and z (no walls): the only box whose pressure problem is singular (pure Neumann: a constant
+    pressure moves nothing): its density solve is split (:meth:`DFSPHSolver.correct_density`). The scene rejects an
+    axis named twice."""
+    return len(periodic) == 3
 
 
 @schema
@@ -131,47 +132,47 @@ class DFSPHSolver(PressureSolver):
         corrected_viscosity = Viscosity.takes_corrected_operator(scene, DFSPHSolver.detects_free_surface)
         return FLUID_STATE + SOLVER + CORRECTED + (Viscosity.corrected_bytes_per_particle if corrected_viscosity else 0)
 
-    def __init__(self, sim):
-        self.sim = sim
-        z = sim.zeros
-        self.stiffness = sim.scratch(float, 0)
-        self.error = sim.scratch(float, 1)
+    def __init__(self, ctx):
+        super().__init__(ctx)
+        z = ctx.zeros
+        self.stiffness = ctx.scratch(float, 0)
+        self.error = ctx.scratch(float, 1)
         self.position_divergence = self.error  # written by the density pass, read before the solves
-        self.shifting = sim.scene.solver.shifting
+        self.shifting = ctx.parameters.shifting
         # the periodic box (no walls): its density drift is corrected through the positions (correct_density)
-        self.drift_by_positions = fully_periodic(sim.scene)
+        self.drift_by_positions = fully_periodic(ctx.constants.periodic)
         # grad C from the density pass: the free-surface test and the shift (after the solves)
-        self.concentration_gradient = sim.per_particle("pressure", wp.vec3)
+        self.concentration_gradient = ctx.per_particle(wp.vec3)
         if self.shifting > 0.0:
-            self.shift = sim.scratch(wp.vec3, 0)
-        self.surface = sim.per_particle("pressure", wp.int32)  # BULK / BAND / SURFACE / WALL
-        self.surface_count = z("pressure", 1, dtype=wp.int32)  # surface particles this step (statistics)
+            self.shift = ctx.scratch(wp.vec3, 0)
+        self.surface = ctx.per_particle(wp.int32)  # BULK / BAND / SURFACE / WALL
+        self.surface_count = z(1, dtype=wp.int32)  # surface particles this step (statistics)
         # this step: 1 = p >= 0 everywhere (under gravity, or a free surface exists); 0 = signed in the bulk (clamped())
-        self.free_surface = z("pressure", 1, dtype=wp.int32)
+        self.free_surface = z(1, dtype=wp.int32)
         self.free_surface_known = None
         # accumulated stiffness of the last solve of each kind, for the warm start
-        self.pressure_sum = [sim.per_particle("pressure"), sim.per_particle("pressure")]
-        self.error_stats = z("pressure", 3)  # sum |error|, max |error|, sum of the signed source
-        self.average_error = [z("pressure", 1), z("pressure", 1)]
-        self.condition = z("pressure", 1, dtype=wp.int32)  # read by wp.capture_while
-        self.iterations = z("pressure", 1, dtype=wp.int32)
+        self.pressure_sum = [ctx.per_particle(), ctx.per_particle()]
+        self.error_stats = z(3)  # sum |error|, max |error|, sum of the signed source
+        self.average_error = [z(1), z(1)]
+        self.condition = z(1, dtype=wp.int32)  # read by wp.capture_while
+        self.iterations = z(1, dtype=wp.int32)
         # per solver: [iterations summed over steps, solves]
-        self.totals = z("pressure", 4, dtype=wp.int64)
-        self.max_iteration_streak = z("pressure", 2, dtype=wp.int32)
+        self.totals = z(4, dtype=wp.int64)
+        self.max_iteration_streak = z(2, dtype=wp.int32)
         # the corrected kernel gradient of every bulk particle (:meth:`_corrected`), recomputed every step
-        self.gradient_correction = sim.per_particle("pressure", SymmetricMatrix)  # L_i
-        self.corrected_factor = sim.per_particle("pressure")  # ... and the factor of the corrected solves
-        self.no_gradient_correction = sim.zeros("pressure", 0, dtype=SymmetricMatrix)
-        self.no_coupling = sim.zeros("pressure", 0)  # no bodies' residual in the loop's decision (:meth:`_residual`)
+        self.gradient_correction = ctx.per_particle(SymmetricMatrix)  # L_i
+        self.corrected_factor = ctx.per_particle()  # ... and the factor of the corrected solves
+        self.no_gradient_correction = z(0, dtype=SymmetricMatrix)
+        self.no_coupling = z(0)  # no bodies' residual in the loop's decision (:meth:`_residual`)
         if self.drift_by_positions:  # the drift solve's velocity, and its stiffness for the warm start
-            self.drift_velocity = sim.per_particle("pressure", wp.vec3)
-            self.pressure_sum.append(sim.per_particle("pressure"))
-            self.average_error.append(z("pressure", 1))
+            self.drift_velocity = ctx.per_particle(wp.vec3)
+            self.pressure_sum.append(ctx.per_particle())
+            self.average_error.append(z(1))
             # its statistics apart: a drift solve that stops at its cap leaves the rest to the next step, so
             # it does not count towards the health check's streak of solves at max_iterations
-            self.drift_totals = z("pressure", 2, dtype=wp.int64)
-            self.drift_streak = z("pressure", 1, dtype=wp.int32)
-        carry = sim.state.carry  # what the next step reads: the warm start and the iteration statistics
+            self.drift_totals = z(2, dtype=wp.int64)
+            self.drift_streak = z(1, dtype=wp.int32)
+        carry = ctx.state.carry  # what the next step reads: the warm start and the iteration statistics
         carry("solver/totals", self.totals)
         carry("solver/max_iteration_streak", self.max_iteration_streak)
         # the drift half's warm start (a periodic box) is not kept: checkpoints stay as they were
@@ -182,14 +183,14 @@ class DFSPHSolver(PressureSolver):
         """What the density pass writes for the solver besides density and factor."""
         return [self.position_divergence, self.concentration_gradient]
 
-    def reorder(self, sim, order):
+    def reorder(self, order):
         for a in self.pressure_sum:
-            sim.permute(a, order)
+            self.ctx.permute(a, order)
 
     def detect_free_surface(self):
         """Flags the surface, its band, the wall-side bulk and the bulk, and counts the surface particles, from
         the density pass's divergence of position and density."""
-        sim = self.sim
+        ctx, c = self.ctx, self.ctx.constants
         self.surface_count.zero_()
         # under gravity the bulk is clamped whether or not a particle is on a free surface this step (kernels/
         # pressure.py clamped): no regime that a closing gap switches for the whole tank
@@ -197,27 +198,27 @@ class DFSPHSolver(PressureSolver):
             self.free_surface.zero_()
         else:
             self.free_surface.fill_(1)
-        sim.exchange(self.position_divergence, self.concentration_gradient)  # read at the neighbours (the band)
-        sim.launch(classify_free_surface, sim.num_fluid,
-                   [self.position_divergence, sim.fluid.density, self.concentration_gradient, self._down(),
-                    sim.neighbours.lists,
-                    FREE_SURFACE_THRESHOLD, FREE_SURFACE_DENSITY * sim.rest_density,
-                    FREE_SURFACE_GRADIENT / sim.scene.particle_diameter, self.surface, self.surface_count,
+        ctx.exchange(self.position_divergence, self.concentration_gradient)  # read at the neighbours (the band)
+        ctx.launch(classify_free_surface, ctx.num_fluid,
+                   [self.position_divergence, ctx.fluid.density, self.concentration_gradient, self._down(),
+                    ctx.neighbour_lists(),
+                    FREE_SURFACE_THRESHOLD, FREE_SURFACE_DENSITY * c.rest_density,
+                    FREE_SURFACE_GRADIENT / c.particle_diameter, self.surface, self.surface_count,
                     self.free_surface])
-        combined = sim.allreduce((self.surface_count, "s"), (self.free_surface, "m"), read=True)
+        combined = ctx.allreduce((self.surface_count, "s"), (self.free_surface, "m"), read=True)
         # on subdomains the regime is known on the host: a free-surface step skips the mean source's reduction
         self.free_surface_known = None if combined is None else int(combined[1][0])
-        sim.exchange(self.surface)  # read at the neighbours: L_i's blend, the viscous pairs, the shift
+        ctx.exchange(self.surface)  # read at the neighbours: L_i's blend, the viscous pairs, the shift
         # L_i of the corrected solves (:meth:`_corrected`): the identity on the surface and its band
-        sim.launch(compute_gradient_correction, sim.num_fluid,
-                   [sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, self.surface, sim.fluid_volume,
-                    sim.support_radius, self.gradient_correction, self.corrected_factor])
-        sim.exchange(self.gradient_correction)  # L_j of the pressure force
+        ctx.launch(compute_gradient_correction, ctx.num_fluid,
+                   [ctx.fluid.x, ctx.neighbour_lists(), ctx.boundary.samples, self.surface, c.fluid_volume,
+                    c.support_radius, self.gradient_correction, self.corrected_factor])
+        ctx.exchange(self.gradient_correction)  # L_j of the pressure force
 
     # -- Algorithm 1: the two projection loops -------------------------------------------
     def correct_divergence(self):
         """v~ := v~ + dt a_correct until D rho/Dt ~ 0 (divergence correction)."""
-        s = self.sim.scene.solver
+        s = self.ctx.parameters
         if not s.divergence_solver:
             return
         self._solve(DIVERGENCE, self._divergence_inputs(), s.divergence_max_error * 0.01, s.divergence_min_iterations,
@@ -246,7 +247,7 @@ class DFSPHSolver(PressureSolver):
         0.69 / 0.39 / 0.19 %), and below a free surface it lost 38 % of u_theta at every resolution (0.36 % at 256
         across corrected; docs/notes/solver.md).
         """
-        s = self.sim.scene.solver
+        s = self.ctx.parameters
         tolerance = s.density_max_error * 0.01
         if self.drift_by_positions:
             self._solve(DENSITY, self._density_inputs(DENSITY, drift_weight=0.0),
@@ -261,23 +262,23 @@ class DFSPHSolver(PressureSolver):
 
     # -------------------------------------------------------------------------------------
     def _common(self, velocity=None):
-        sim = self.sim
-        return [sim.fluid.x, sim.fluid.v if velocity is None else velocity, sim.neighbours.lists, sim.boundary.samples]
+        ctx = self.ctx
+        return [ctx.fluid.x, ctx.fluid.v if velocity is None else velocity, ctx.neighbour_lists(), ctx.boundary.samples]
 
     def _divergence_inputs(self):
-        sim = self.sim
-        return self._common() + [self._factor(DIVERGENCE), self.surface, self.free_surface, sim.fluid_volume,
-                                 sim.support_radius, sim.dt, self._correction(DIVERGENCE)]
+        ctx, c = self.ctx, self.ctx.constants
+        return self._common() + [self._factor(DIVERGENCE), self.surface, self.free_surface, c.fluid_volume,
+                                 c.support_radius, ctx.dt, self._correction(DIVERGENCE)]
 
     def _density_inputs(self, kind=DENSITY, velocity=None, drift_weight=1.0):
-        sim = self.sim
-        return self._common(velocity) + [sim.fluid.density, self._factor(kind), self.surface, self.free_surface,
-                                         sim.fluid_volume, sim.rest_density, sim.support_radius, sim.dt, drift_weight,
+        ctx, c = self.ctx, self.ctx.constants
+        return self._common(velocity) + [ctx.fluid.density, self._factor(kind), self.surface, self.free_surface,
+                                         c.fluid_volume, c.rest_density, c.support_radius, ctx.dt, drift_weight,
                                          self._correction(kind)]
 
     def _down(self):
         """The unit vector of gravity now (zero without it): the free-surface test's direction."""
-        g = np.asarray(self.sim.gravity, dtype=np.float64)
+        g = np.asarray(self.ctx.gravity(), dtype=np.float64)
         return wp.vec3(*(g / np.linalg.norm(g) if g.any() else g))
 
     def _removes_mean(self):
@@ -287,7 +288,7 @@ class DFSPHSolver(PressureSolver):
         source with a non-zero mean (the density drift of a disordered arrangement, which no velocity in a sealed
         box changes) has no solution; Jacobi drifts. Under gravity the mean is the fluid's real compression
         against the floor: removed, a tank filled to its lid blew up within ~20 steps; kept, it stays at rest."""
-        return self.drift_by_positions or not any(self.sim.gravity)
+        return self.drift_by_positions or not any(self.ctx.gravity())
 
     def _bulk_first(self, kind):
         """Whether a solve of ``kind`` applies the bulk's warm start before its first measure (kernels/pressure.py
@@ -309,21 +310,21 @@ class DFSPHSolver(PressureSolver):
     def _factor(self, kind):
         """The DFSPH factor of a solve of ``kind``: the corrected one where :meth:`_corrected`, the density
         pass's elsewhere."""
-        return self.corrected_factor if self._corrected(kind) else self.sim.fluid.factor
+        return self.corrected_factor if self._corrected(kind) else self.ctx.fluid.factor
 
     def _correction(self, kind):
         """L_i for a solve of ``kind`` where :meth:`_corrected`, else an empty array (the kernels do not read it)."""
         return self.gradient_correction if self._corrected(kind) else self.no_gradient_correction
 
     def _apply(self, kind, accumulate, velocity):
-        sim = self.sim
+        ctx, c = self.ctx, self.ctx.constants
         corrected = self._corrected(kind)
         if accumulate and self._coupled(kind):  # the bodies' answer to this iteration's pressure (not the bulk's warm start)
-            sim.moving_bodies.respond(self.stiffness, self._factor(kind), self.surface, self.free_surface,
-                                      self._correction(kind))
-        sim.launch(apply_corrected_pressure_acceleration if corrected else apply_pressure_acceleration, sim.num_fluid,
-                   [self.stiffness, sim.fluid.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume,
-                    sim.support_radius, sim.dt, accumulate, self.pressure_sum[kind], self._correction(kind), velocity])
+            ctx.bodies.respond(self.stiffness, self._factor(kind), self.surface, self.free_surface,
+                               self._correction(kind))
+        ctx.launch(apply_corrected_pressure_acceleration if corrected else apply_pressure_acceleration, ctx.num_fluid,
+                   [self.stiffness, ctx.fluid.x, ctx.neighbour_lists(), ctx.boundary.samples, c.fluid_volume,
+                    c.support_radius, ctx.dt, accumulate, self.pressure_sum[kind], self._correction(kind), velocity])
         self._couple(kind)
 
     def _couple(self, kind):
@@ -333,68 +334,68 @@ class DFSPHSolver(PressureSolver):
         (:meth:`~warpsph.bodies.MovingBodies.couple`). Without dynamic bodies nothing is launched; the periodic box's
         drift half (its velocity moves positions only) leaves the bodies as its rate half left them."""
         if self._coupled(kind):
-            self.sim.moving_bodies.couple(gravity_weight=1.0 if kind == DENSITY else 0.0)
+            self.ctx.bodies.couple(gravity_weight=1.0 if kind == DENSITY else 0.0)
 
     def _coupled(self, kind):
         """Whether a solve of ``kind`` moves dynamic bodies in its iterations: there are some, and it is not the
         periodic box's drift half."""
-        bodies = self.sim.moving_bodies
+        bodies = self.ctx.bodies
         return bodies is not None and bodies.coupling is not None and kind != DRIFT
 
     def _measure(self, kind, inputs, max_error, min_it, max_it, first, rate=(0.0, 0.0)):
         """Source, stiffness and error of the current velocities, and the loop's decision. The first
         measure of a solve replaces the stiffness by the warm start (when on; the bulk's of :meth:`_bulk_first`
         is applied before it): the loop's first apply uses it."""
-        sim = self.sim
-        sim.launch(self._source(kind), sim.num_fluid, inputs + [self.error, self.stiffness])
+        ctx = self.ctx
+        ctx.launch(self._source(kind), ctx.num_fluid, inputs + [self.error, self.stiffness])
         if self._removes_mean():  # a step without free surface (on the device): the source less its mean
-            sim.launch(reduce_source_sum, REDUCE_THREADS,
-                       [self.error, sim.num_fluid, self.free_surface, self.error_stats])
+            ctx.launch(reduce_source_sum, REDUCE_THREADS,
+                       [self.error, ctx.num_fluid, self.free_surface, self.error_stats])
             if self.free_surface_known != 1:  # (error_stats[2] stays 0 with a free surface)
-                sim.allreduce((self.error_stats, "--s"))
-            sim.launch(remove_mean_source, sim.num_fluid,
-                       [self.error_stats, sim.global_count, self.free_surface, self._factor(kind), sim.dt,
+                ctx.allreduce((self.error_stats, "--s"))
+            ctx.launch(remove_mean_source, ctx.num_fluid,
+                       [self.error_stats, ctx.global_count(), self.free_surface, self._factor(kind), ctx.dt,
                         int(kind == DIVERGENCE), self.error, self.stiffness])
-        if first and sim.scene.solver.warm_start:  # last step's pressure (kernels/pressure.py says where it is capped)
-            sim.launch(warm_start_pressure, sim.num_fluid,
-                       [self.error, self._factor(kind), sim.dt, sim.dt_previous, int(kind == DIVERGENCE),
+        if first and ctx.parameters.warm_start:  # last step's pressure (kernels/pressure.py says where it is capped)
+            ctx.launch(warm_start_pressure, ctx.num_fluid,
+                       [self.error, self._factor(kind), ctx.dt, ctx.dt_previous, int(kind == DIVERGENCE),
                         self.surface, self.free_surface, self.pressure_sum[kind], int(self._bulk_first(kind)),
                         int(not self._removes_mean()), self.stiffness])
-        sim.launch(reduce_error, REDUCE_THREADS, [self.error, sim.num_fluid, self.error_stats])
-        sim.allreduce((self.error_stats, "sm-"))
-        sim.launch(update_solver_status, 1,
-                   [self.error_stats, sim.global_count, max_error, max_error * PEAK_ERROR_RATIO, int(kind == DIVERGENCE), *rate, sim.dt, min_it, max_it,
+        ctx.launch(reduce_error, REDUCE_THREADS, [self.error, ctx.num_fluid, self.error_stats])
+        ctx.allreduce((self.error_stats, "sm-"))
+        ctx.launch(update_solver_status, 1,
+                   [self.error_stats, ctx.global_count(), max_error, max_error * PEAK_ERROR_RATIO, int(kind == DIVERGENCE), *rate, ctx.dt, min_it, max_it,
                     int(first), 0 if kind == DRIFT else kind, self.average_error[kind], self.condition,
                     self.iterations, *((self.drift_totals, self.drift_streak) if kind == DRIFT
                                        else (self.totals, self.max_iteration_streak)),
-                    self._residual(kind), max_error * sim.scene.particle_diameter])
+                    self._residual(kind), max_error * ctx.constants.particle_diameter])
 
     def _residual(self, kind):
         """The coupled bodies' velocity residual the loop of a solve of ``kind`` reads (:meth:`_couple`), or an empty
         array (no dynamic bodies; the drift half)."""
-        return self.sim.moving_bodies.coupling["residual"] if self._coupled(kind) else self.no_coupling
+        return self.ctx.bodies.coupling["residual"] if self._coupled(kind) else self.no_coupling
 
     def _solve(self, kind, inputs, max_error, min_it, max_it, velocity=None, rate=(0.0, 0.0)):
         """One pressure solve of ``kind`` (DIVERGENCE, DENSITY or DRIFT) that accumulates its stiffness in
         ``pressure_sum[kind]`` and applies it to ``velocity`` (default: the fluid's). ``rate`` = (per second, least):
         a tolerance per unit time, rate[0] x dt within [rate[1], max_error] (none when rate[0] is 0)."""
-        sim = self.sim
-        velocity = sim.fluid.v if velocity is None else velocity
+        ctx = self.ctx
+        velocity = ctx.fluid.v if velocity is None else velocity
         self._couple(kind)  # the bodies' velocities as the fluid's now (the density solve: after the step's g dt)
-        if not sim.scene.solver.warm_start:
+        if not ctx.parameters.warm_start:
             self.pressure_sum[kind].zero_()
         elif self._bulk_first(kind):
-            sim.launch(warm_start_bulk, sim.num_fluid,
-                       [self.pressure_sum[kind], sim.dt, sim.dt_previous, self.surface, self.stiffness])
-            sim.exchange(self.stiffness)
+            ctx.launch(warm_start_bulk, ctx.num_fluid,
+                       [self.pressure_sum[kind], ctx.dt, ctx.dt_previous, self.surface, self.stiffness])
+            ctx.exchange(self.stiffness)
             self._apply(kind, 0, velocity)
-            sim.exchange(velocity)
+            ctx.exchange(velocity)
         self._measure(kind, inputs, max_error, min_it, max_it, True, rate)
 
         def iteration():
-            sim.exchange(self.stiffness)  # k_j of the apply
+            ctx.exchange(self.stiffness)  # k_j of the apply
             self._apply(kind, 1, velocity)
-            sim.exchange(velocity)  # v_j of the next source
+            ctx.exchange(velocity)  # v_j of the next source
             self._measure(kind, inputs, max_error, min_it, max_it, False, rate)
 
         wp.capture_while(self.condition, iteration)
@@ -404,19 +405,19 @@ class DFSPHSolver(PressureSolver):
         :meth:`correct_density`), then particle shifting down the concentration gradient of the step's
         density pass (none when ``solver.shifting`` is 0; tangential beside walls and in the surface band, none on
         the free surface: :func:`compute_shift`)."""
-        sim, f = self.sim, self.sim.fluid
+        ctx, c = self.ctx, self.ctx.constants
+        f = ctx.fluid
         if self.drift_by_positions:
-            sim.launch(advect_positions, sim.num_fluid, [self.drift_velocity, sim.dt, sim.neighbours.lower,
-                                                         sim.neighbours.period, sim.inside_lo, sim.inside_hi, f.x])
+            ctx.launch(advect_positions, ctx.num_fluid, [self.drift_velocity, ctx.dt, ctx.lower, ctx.period,
+                                                         c.inside_lo, c.inside_hi, f.x])
         if self.shifting <= 0.0:
             return
-        sim.exchange(self.concentration_gradient, self.surface)  # read at the neighbours
-        sim.launch(compute_shift, sim.num_fluid,
-                   [self.concentration_gradient, f.x, sim.neighbours.lists, self.surface, self.free_surface,
-                    sim.support_radius, sim.dt, sim.max_speed_sq, self.shifting,
-                    MAX_SHIFT * sim.scene.particle_diameter, int(not self.drift_by_positions), self.shift])
-        sim.launch(apply_shift, sim.num_fluid, [self.shift, sim.neighbours.lower, sim.neighbours.period, sim.inside_lo,
-                                                sim.inside_hi, f.x])
+        ctx.exchange(self.concentration_gradient, self.surface)  # read at the neighbours
+        ctx.launch(compute_shift, ctx.num_fluid,
+                   [self.concentration_gradient, f.x, ctx.neighbour_lists(), self.surface, self.free_surface,
+                    c.support_radius, ctx.dt, ctx.max_speed_sq, self.shifting,
+                    MAX_SHIFT * c.particle_diameter, int(not self.drift_by_positions), self.shift])
+        ctx.launch(apply_shift, ctx.num_fluid, [self.shift, ctx.lower, ctx.period, c.inside_lo, c.inside_hi, f.x])
 
     # -- statistics (host reads, outside the step) -----------------------------------------
     def iteration_totals(self):
@@ -434,9 +435,9 @@ class DFSPHSolver(PressureSolver):
     def pressure_field(self):
         """Pressure [Pa] per particle of the last step (host copy): p = k rho^2 / rho0 of the stiffness that the
         divergence and density solves applied (together, the pressure force), with the densities of that step."""
-        sim = self.sim
-        k = sim.host(self.pressure_sum[DENSITY]) + sim.host(self.pressure_sum[DIVERGENCE])
-        return k * sim.host(sim.fluid.density) ** 2 / sim.rest_density
+        ctx = self.ctx
+        k = ctx.host(self.pressure_sum[DENSITY]) + ctx.host(self.pressure_sum[DIVERGENCE])
+        return k * ctx.host(ctx.fluid.density) ** 2 / ctx.constants.rest_density
 
     def free_surface_count(self):
         """Fluid particles on the free surface at the last step (host read)."""

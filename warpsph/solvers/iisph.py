@@ -71,27 +71,27 @@ class IISPHSolver(PressureSolver):
     def bytes_per_particle(scene):
         return IISPH_FLUID_STATE + IISPH_SOLVER
 
-    def __init__(self, sim):
-        self.sim = sim
-        z = sim.zeros
-        self.d_ii = sim.scratch(wp.vec3, 0)
-        self.displacement = sim.scratch(wp.vec3, 3)
-        self.a_ii = sim.scratch(float, 6)
-        self.source = sim.scratch(float, 7)
-        self.stiffness = sim.scratch(float, 8)
-        self.error = sim.scratch(float, 9)
-        self.pressure = sim.per_particle("pressure")  # p / rho0 of the last solve: the next step's warm start
-        self.no_gradient_correction = z("pressure", 0, dtype=SymmetricMatrix)  # DFSPH's periodic box only
-        self.no_coupling = z("pressure", 0)  # its bodies take the step's impulse after the solve (no strong coupling)
-        self.error_stats = z("pressure", 3)  # sum |error|, max |error| (update_solver_status resets them)
-        self.average_error = z("pressure", 1)
-        self.condition = z("pressure", 1, dtype=wp.int32)  # read by wp.capture_while
-        self.iterations = z("pressure", 1, dtype=wp.int32)
+    def __init__(self, ctx):
+        super().__init__(ctx)
+        z = ctx.zeros
+        self.d_ii = ctx.scratch(wp.vec3, 0)
+        self.displacement = ctx.scratch(wp.vec3, 3)
+        self.a_ii = ctx.scratch(float, 6)
+        self.source = ctx.scratch(float, 7)
+        self.stiffness = ctx.scratch(float, 8)
+        self.error = ctx.scratch(float, 9)
+        self.pressure = ctx.per_particle()  # p / rho0 of the last solve: the next step's warm start
+        self.no_gradient_correction = z(0, dtype=SymmetricMatrix)  # DFSPH's periodic box only
+        self.no_coupling = z(0)  # its bodies take the step's impulse after the solve (no strong coupling)
+        self.error_stats = z(3)  # sum |error|, max |error| (update_solver_status resets them)
+        self.average_error = z(1)
+        self.condition = z(1, dtype=wp.int32)  # read by wp.capture_while
+        self.iterations = z(1, dtype=wp.int32)
         # as DFSPHSolver's: [divergence iterations, solves, density iterations, solves]; the first two stay 0
-        self.totals = z("pressure", 4, dtype=wp.int64)
-        self.max_iteration_streak = z("pressure", 2, dtype=wp.int32)
-        self._no_outputs = [z("pressure", 0), z("pressure", 0, dtype=wp.vec3)]
-        carry = sim.state.carry
+        self.totals = z(4, dtype=wp.int64)
+        self.max_iteration_streak = z(2, dtype=wp.int32)
+        self._no_outputs = [z(0), z(0, dtype=wp.vec3)]
+        carry = ctx.state.carry
         carry("solver/totals", self.totals)
         carry("solver/max_iteration_streak", self.max_iteration_streak)
         carry("solver/pressure", self.pressure)
@@ -100,8 +100,8 @@ class IISPHSolver(PressureSolver):
         """Nothing besides density: empty position divergence and concentration gradient."""
         return self._no_outputs
 
-    def reorder(self, sim, order):
-        sim.permute(self.pressure, order)
+    def reorder(self, order):
+        self.ctx.permute(self.pressure, order)
 
     def detect_free_surface(self):
         """None: p >= 0 everywhere."""
@@ -115,33 +115,33 @@ class IISPHSolver(PressureSolver):
     def correct_density(self):
         """v := v_adv + dt a_p, with p from relaxed Jacobi on the density-invariance system (Ihmsen et al. 2014,
         Algorithm 1: PREDICT ADVECTION's coefficients, PRESSURE SOLVE, the pressure force of INTEGRATION)."""
-        sim = self.sim
-        s = sim.scene.solver
-        f, n, nb, bnd = sim.fluid, sim.num_fluid, sim.neighbours.lists, sim.boundary.samples
-        V, H = sim.fluid_volume, sim.support_radius
+        ctx = self.ctx
+        s, rho0 = ctx.parameters, ctx.constants.rest_density
+        f, n, nb, bnd = ctx.fluid, ctx.num_fluid, ctx.neighbour_lists(), ctx.boundary.samples
+        V, H = ctx.constants.fluid_volume, ctx.constants.support_radius
         max_error = s.density_max_error * 0.01
-        sim.launch(compute_iisph_coefficients, n,
-                   [f.x, f.v, nb, bnd, f.density, V, sim.rest_density, H, sim.dt, WARM_START if s.warm_start else 0.0,
+        ctx.launch(compute_iisph_coefficients, n,
+                   [f.x, f.v, nb, bnd, f.density, V, rho0, H, ctx.dt, WARM_START if s.warm_start else 0.0,
                     self.d_ii, self.a_ii, self.source, self.pressure, self.stiffness])
-        sim.launch(start_pressure_solve, 1, [self.condition, self.iterations])
+        ctx.launch(start_pressure_solve, 1, [self.condition, self.iterations])
 
         def iteration():
-            sim.launch(compute_pressure_displacement, n,
+            ctx.launch(compute_pressure_displacement, n,
                        [f.x, nb, V, H, self.d_ii, self.pressure, self.stiffness, self.displacement])
-            sim.launch(update_iisph_pressure, n,
-                       [f.x, nb, f.density, V, sim.rest_density, H, MIN_DIAGONAL / (H * H), sim.dt, s.relaxation,
+            ctx.launch(update_iisph_pressure, n,
+                       [f.x, nb, f.density, V, rho0, H, MIN_DIAGONAL / (H * H), ctx.dt, s.relaxation,
                         self.d_ii, self.a_ii, self.source, self.displacement, self.pressure, self.stiffness, self.error])
-            sim.launch(reduce_error, REDUCE_THREADS, [self.error, n, self.error_stats])
-            sim.launch(update_solver_status, 1,
-                       [self.error_stats, n, max_error, max_error * PEAK_ERROR_RATIO, 0, 0.0, 0.0, sim.dt, s.min_iterations,
+            ctx.launch(reduce_error, REDUCE_THREADS, [self.error, n, self.error_stats])
+            ctx.launch(update_solver_status, 1,
+                       [self.error_stats, n, max_error, max_error * PEAK_ERROR_RATIO, 0, 0.0, 0.0, ctx.dt, s.min_iterations,
                         s.max_iterations, 0, DENSITY, self.average_error, self.condition, self.iterations, self.totals,
                         self.max_iteration_streak, self.no_coupling, 0.0])
 
         wp.capture_while(self.condition, iteration)
         # a_p of the final pressures: q = p / rho^2 is the DFSPH stiffness, so DFSPH's kernel applies it (and
         # hands dynamic bodies their reaction)
-        sim.launch(apply_pressure_acceleration, n,
-                   [self.stiffness, f.x, nb, bnd, V, H, sim.dt, 0, self.stiffness, self.no_gradient_correction, f.v])
+        ctx.launch(apply_pressure_acceleration, n,
+                   [self.stiffness, f.x, nb, bnd, V, H, ctx.dt, 0, self.stiffness, self.no_gradient_correction, f.v])
 
     # -- statistics (host reads, outside the step) -----------------------------------------
     def iteration_totals(self):
@@ -154,4 +154,4 @@ class IISPHSolver(PressureSolver):
 
     def pressure_field(self):
         """Pressure [Pa] of the last solve per particle (host copy)."""
-        return self.sim.host(self.pressure) * self.sim.rest_density
+        return self.ctx.host(self.pressure) * self.ctx.constants.rest_density
