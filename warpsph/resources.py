@@ -13,13 +13,7 @@ from warpsph.solvers import solver_class
 
 # bytes per fluid particle, from the arrays Simulation allocates (measured 301 B/particle in all
 # on the 1M dam break, tools/results/bench_dam_break_1M_model_none_h100.json on the `results` branch)
-FLUID_STATE = 12 + 12 + 8 + 4 + 4 + 12  # x, v, ids, density, factor, acceleration
-SOLVER = 4 * 4  # stiffness, error, two warm-start pressures
-CORRECTED = 24 + 4 + 12  # DFSPH's corrected kernel gradient L_i (six floats), the corrected factor and grad C
-# IISPH (solver.method "iisph"): no factor; its warm-start pressure, and its scratch columns (IISPHSolver's,
-# shared with the models')
-IISPH_FLUID_STATE = FLUID_STATE - 4
-IISPH_SOLVER = 4
+# (the pressure solvers' own: warpsph/solvers/base.py)
 SORT = 2 * 8 + 12 + 8  # keys and order (2N each) and a gather copy: held only while sorting (the peak)
 NEIGHBOUR_ROWS = 4 * 4  # counts and offsets of both lists
 NEIGHBOUR_LISTS = 4 * (32 + 8)  # initial capacity: 32 fluid, 8 boundary neighbours a particle

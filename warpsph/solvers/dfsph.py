@@ -40,9 +40,8 @@ from warpsph.kernels.pressure import (
     warm_start_pressure,
 )
 from warpsph.kernels.shifting import apply_shift, compute_shift
-from warpsph.solvers import PressureSolver, register_solver
+from warpsph.solvers.base import CORRECTED, FLUID_STATE, SOLVER, PressureSolver, register_solver
 from warpsph.models.viscosity import Viscosity
-from warpsph.resources import CORRECTED, FLUID_STATE, SOLVER
 from warpsph.keys import key, schema
 
 DIVERGENCE, DENSITY, DRIFT = 0, 1, 2

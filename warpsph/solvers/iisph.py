@@ -25,9 +25,8 @@ from warpsph.kernels.iisph import (
 )
 from warpsph.kernels.particles import SymmetricMatrix
 from warpsph.kernels.pressure import REDUCE_THREADS, apply_pressure_acceleration, reduce_error, update_solver_status
-from warpsph.resources import IISPH_FLUID_STATE, IISPH_SOLVER
 from warpsph.keys import key, schema
-from warpsph.solvers import PressureSolver, register_solver
+from warpsph.solvers.base import IISPH_FLUID_STATE, IISPH_SOLVER, PressureSolver, register_solver
 from warpsph.solvers.dfsph import DENSITY, PEAK_ERROR_RATIO
 
 WARM_START = 0.5  # SPlisHSPlasH: the first iterate is half of last step's pressure
