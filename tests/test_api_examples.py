@@ -27,7 +27,7 @@ def examples(docstring):
 def documented_objects():
     """(dotted path, docstring) of every module, class, function and attribute that warpsph defines (griffe reads
     the sources; nothing is imported), aliases left out."""
-    griffe = pytest.importorskip("griffe")
+    griffe = pytest.importorskip("griffe", reason="reading the docstrings needs griffe (mkdocstrings-python installs it)")
     package = griffe.GriffeLoader(search_paths=[str(ROOT)]).load("warpsph")
     found, todo = [], [package]
     while todo:

@@ -21,7 +21,7 @@ from typing import Any, Literal, Optional, Tuple
 from pydantic import TypeAdapter, ValidationError
 
 from .errors import SceneError
-from .keys import CONFIG, MAX_MODEL_VISCOSITY, key, schema  # noqa: F401  (the schema's building blocks, re-exported)
+from .keys import key, schema  # the schema's building blocks (warpsph.scene.key and .schema, as before)
 from .solvers import DEFAULT_SOLVER, solver_class, solver_classes, solver_keys, solver_names
 
 Vec3 = Tuple[float, float, float]

@@ -707,6 +707,17 @@ class BackgroundMesher:
                 "clipped": clip.describe() if clip is not None else "nothing", "note": text}
 
 
+@dataclass
+class _MeshJob:
+    """The device mesher's mesh in flight: its frame, its stages (:func:`preview_stages`), the event its next stage
+    waits for (None: none) and the seconds its stages took on the simulation's thread so far."""
+
+    frame: int
+    stages: object
+    event: object = None
+    seconds: float = 0.0
+
+
 class DeviceMesher:
     """The preview meshes of a run on a GPU (``warpsph run --surface`` on cuda), made on the simulation's own
     device from a copy of the frame's device arrays (nothing goes through the host but the mesh), on a stream of
@@ -742,7 +753,7 @@ class DeviceMesher:
         self._made = {}  # frame -> its mesh, made and not yet handed over by the writer
         self._done = []
         self._stream = None  # the meshes' own stream (on a GPU)
-        self._job = None  # [frame, its stages (preview_stages), the event its next stage waits for, seconds so far]
+        self._job = None  # the mesh in flight (:class:`_MeshJob`)
         self._owner = None  # the simulation's thread, which alone launches
 
     wants = BackgroundMesher.wants
@@ -776,8 +787,8 @@ class DeviceMesher:
             if self._stream is None:
                 self._stream = wp.Stream(sim.device) if sim.device.is_cuda else None
             self._owner = threading.get_ident()
-            self._job = [frame, preview_stages(x, self.radius, v, scalar, self.options, self._walls), None,
-                         time.perf_counter() - start]
+            self._job = _MeshJob(frame, preview_stages(x, self.radius, v, scalar, self.options, self._walls),
+                                 seconds=time.perf_counter() - start)
             self._resume(first=True)
         except Exception as exc:
             self._fail(frame, exc)
@@ -786,7 +797,7 @@ class DeviceMesher:
 
     def advance(self, sim=None):
         """Launches the current mesh's next stages whose numbers are back (``on_step`` of a run; no waiting)."""
-        while self._job is not None and (self._job[2] is None or self._job[2].is_complete):
+        while self._job is not None and (self._job.event is None or self._job.event.is_complete):
             self._resume()
 
     def finish(self):
@@ -794,8 +805,8 @@ class DeviceMesher:
         import warp as wp
 
         while self._job is not None:
-            if self._job[2] is not None:
-                wp.synchronize_event(self._job[2])
+            if self._job.event is not None:
+                wp.synchronize_event(self._job.event)
             self._resume()
 
     def _resume(self, first=False):
@@ -803,25 +814,25 @@ class DeviceMesher:
         copy of the particles)."""
         import warp as wp
 
-        frame, stages, _, seconds = self._job
+        job = self._job
         start = time.perf_counter()
         try:
             if self._stream is None:
-                self._job[2] = next(stages)
+                job.event = next(job.stages)
             else:
                 with wp.ScopedStream(self._stream, sync_enter=first):
-                    self._job[2] = next(stages)
-            self._job[3] = seconds + time.perf_counter() - start
+                    job.event = next(job.stages)
+            job.seconds += time.perf_counter() - start
         except StopIteration as done:
             mesh = done.value
-            mesh.seconds = seconds + time.perf_counter() - start
+            mesh.seconds = job.seconds + time.perf_counter() - start
             self._job = None
             with self._made_changed:
-                self._made[frame] = mesh
+                self._made[job.frame] = mesh
                 self._made_changed.notify_all()
         except Exception as exc:
             self._job = None
-            self._fail(frame, exc)
+            self._fail(job.frame, exc)
 
     def _fail(self, frame, exc):
         with self._made_changed:
@@ -836,7 +847,7 @@ class DeviceMesher:
         if self._owner == threading.get_ident():
             self.finish()  # called on the simulation's thread (the API's writer on the calling thread)
         with self._made_changed:
-            while frame not in self._made and self.error is None and self._job is not None and self._job[0] == frame:
+            while frame not in self._made and self.error is None and self._job is not None and self._job.frame == frame:
                 self._made_changed.wait(0.05)
         self.check()
         with self._lock:

@@ -29,33 +29,19 @@ whole registration (tests/test_plugins.py defines one inside the test file).
 A scene names its models; a scene without one launches none of their kernels and
 allocates none of their arrays.
 
+A shipped model in a scene (writing a new one: :func:`register`'s example).
+
 Example:
 
 ```python
-import warp as wp
 import warpsph
-from warpsph.models import Model, register
-from warpsph.scene import key, schema
+from warpsph.models import scene_models
 
-@wp.kernel
-def damp(v: wp.array(dtype=wp.vec3), rate: float, dt: wp.array(dtype=float)):
-    v[wp.tid()] = v[wp.tid()] * (1.0 - rate * dt[0])
-
-@schema
-class Damping:  # a linear drag: the scene entry {"type": "damping", "rate": ...}
-    rate: float = key(2.0, doc="drag rate", unit="1/s", ge=0.0)
-
-@register("damping")
-class DampingModel(Model):
-    Parameters = Damping
-
-    def step(self, ctx):
-        ctx.launch(damp, ctx.num_fluid, [ctx.fluid.v, self.params.rate, ctx.dt])
-
+print(sorted(scene_models()))  # what a scene's "models" may name
 scene = warpsph.scene_from_dict({
     "particle_radius": 0.02, "domain": {"min": [0, 0, 0], "max": [0.4, 0.4, 0.2]},
     "fluid_blocks": [{"start": [0, 0, 0], "end": [0.2, 0.2, 0.2]}],
-    "models": [{"type": "damping", "rate": 5.0}]})
+    "models": [{"type": "vorticity_refinement"}]})
 warpsph.Simulation(scene).run(frames=2)
 ```
 """
