@@ -25,7 +25,7 @@ KEPT = (
     # docs/validation.md: the results table, the cost-against-accuracy tables, the cases' paragraphs
     "validate_taylor-green_256_h100_37.json", "validate_taylor-green_h200.json",
     "validate_lamb-oseen_models_session20_h100.json", "validate_vortex-surface_boxed_h100.json",
-    "validate_vortex-surface_models_session20_h100.json", "validate_standing-wave_256_h200.json",
+    "validate_vortex-surface_models_h100.json", "validate_standing-wave_256_h200.json",
     "validate_vortices_session20_h100.json", "rest_32_session21_h100.json", "validate_tank-at-rest_h200.json",
     "validate_sinking-sphere_h100.json", "validate_dam-front_h100_37.json",
     # docs/validation.md, performance (and docs/method.md, docs/splishsplash.md)
@@ -258,7 +258,7 @@ def test_the_cost_against_accuracy_tables_are_the_files():
     text = page("validation.md")
     methods = (("dfsph error_pct", "dfsph wall_s"), ("vr error_pct", "vr wall_s"),
                ("rankine error_pct", "rankine wall_s"), ("micropolar error_pct", "micropolar wall_s"))
-    check_table(text, "Below a free surface:", by_resolution("validate_vortex-surface_models_session20_h100.json"),
+    check_table(text, "Below a free surface:", by_resolution("validate_vortex-surface_models_h100.json"),
                 methods, "vortex-surface models")
     check_table(text, "Lamb–Oseen (full tank):", by_resolution("validate_lamb-oseen_models_session20_h100.json"),
                 methods, "lamb-oseen models")
