@@ -235,15 +235,19 @@ def check_model_over_subdomains(model, device):
         if step == 4:  # rounding alone (a copy in another row order) or a missed exchange (2.7e-5 m after one step)
             early = np.abs(by_id(other_order) - by_id(one)).max()
             assert np.abs(by_id(many) - by_id(one)).max() < max(3 * early, 1e-6)
+            energy = one.kinetic_energy()  # 5e-7 of it apart on the CPU at this step
+            assert energy > 0 and abs(many.kinetic_energy() - energy) < 1e-5 * energy
     # after 30 steps the subdomains are 1.3e-5 m (6e-4 r) from one domain with Rankine and micropolar, 2.6e-5 m
     # with VR, while a copy in another row order is 0.4-2.1e-5 m from it: rounding, grown by the stirred flow from
     # step 10 on. A model that forgets an exchange is 2.7e-5 m off after the first step, 6e-3 m after 30.
     drift = np.abs(by_id(many) - by_id(one)).max()
     assert drift < max(3 * np.abs(by_id(other_order) - by_id(one)).max(), 4e-5)
-    # the kinetic energy likewise: micropolar's differed by 1.6e-3 of it on an H100 (006c7f7), rounding's order
+    # The kinetic energy by then jumps with single particles beside the rod: Rankine's copy in another row order
+    # was 1.74e-3 of it off one domain at step 30 on the CPU (1.9e-5 at step 27), its subdomains 1.73e-3 on an H100
+    # (d0ad063), micropolar's 1.6e-3 (006c7f7): a bound of 1.5x the largest such jump.
     energy = one.kinetic_energy()
     assert energy > 0 and abs(many.kinetic_energy() - energy) < max(3 * abs(other_order.kinetic_energy() - energy),
-                                                                     1e-3 * energy)
+                                                                     2.6e-3 * energy)
     assert sum(s.arrived for s in many.subdomains) > 0
 
 
