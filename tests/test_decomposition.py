@@ -243,7 +243,7 @@ def check_model_over_subdomains(model, device):
     drift = np.abs(by_id(many) - by_id(one)).max()
     assert drift < max(3 * np.abs(by_id(other_order) - by_id(one)).max(), 4e-5)
     # The kinetic energy by then jumps with single particles beside the rod: Rankine's copy in another row order
-    # was 1.74e-3 of it off one domain at step 30 on the CPU (1.9e-5 at step 27); on an H100 (3a7a7d8) an identical
+    # was 1.74e-3 of it off one domain at step 30 on the CPU (1.9e-5 at step 27); on an H100 (695c219) an identical
     # second one-domain run was 1.73e-3 off (atomics' order) and the subdomains 1.76e-3 (micropolar 1.66e-3 and
     # 1.74e-3): a bound of 1.5x the largest such jump. At step 5 they were within 2e-6 on the H100.
     energy = one.kinetic_energy()
