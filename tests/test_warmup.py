@@ -222,3 +222,41 @@ def test_warmup_verb_errors_name_the_file_or_option(tmp_path, capsys, monkeypatc
     err = capsys.readouterr().err
     assert err.startswith("warpsph: error: ") and where in err and why in err, err
     assert compiled == []  # refused before compiling anything
+
+
+def _warmup_in(cache, *args):
+    """``warpsph warmup ARGS`` in a process of its own whose kernel cache is the folder ``cache``."""
+    env = {**os.environ, "WARP_CACHE_PATH": str(cache)}
+    return subprocess.run([sys.executable, "-m", "warpsph", "warmup", *args], env=env, capture_output=True,
+                          text=True, timeout=600)
+
+
+@pytest.mark.slow
+def test_warmup_compiles_for_a_gpu_architecture_without_a_gpu(tmp_path):
+    """``--arch 90`` fills the kernel cache for H100/H200 on any machine (Warp's NVRTC): every module the dam
+    break launches as CUBIN and as PTX for sm_90, the forms Warp loads there; a second call finds them."""
+    scene = os.path.join(SCENES_DIR, "dam_break.json")
+    first = _warmup_in(tmp_path, "--arch", "90", "--scene", scene, "--workers", "2")
+    assert first.returncode == 0, first.stderr
+    assert "13 of 13 modules compiled for sm_90" in first.stdout.splitlines()[-1]
+    root = tmp_path / wp.__version__
+    for name in CORE | {K + "diagnostics", K + "vorticity"}:
+        (folder,) = (d for d in root.glob(f"wp_{name}_*") if d.name[len(f"wp_{name}_"):].isalnum())
+        assert sorted(p.name.split(".")[-2:] for p in folder.iterdir() if p.suffix in (".cubin", ".ptx")) == \
+            [["sm90", "cubin"], ["sm90", "ptx"]], name
+    again = _warmup_in(tmp_path, "--arch", "90", "--scene", scene)
+    assert again.returncode == 0 and "0 of 13 modules compiled" in again.stdout.splitlines()[-1]
+    bad = _warmup_in(tmp_path, "--arch", "72")
+    assert bad.returncode == 2 and "--arch" in bad.stderr and "sm_72" in bad.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not wp.is_cuda_available(), reason="needs a CUDA device: the run that loads what --arch compiled")
+def test_a_run_on_the_gpu_loads_what_warmup_compiled_for_its_architecture(tmp_path):
+    """What ``--arch`` compiled on the CPU side is what a run on this GPU loads: after it, the run's own pass over
+    the same modules compiles nothing."""
+    arch = wp.get_device("cuda:0").arch
+    scene = os.path.join(SCENES_DIR, "dam_break.json")
+    assert _warmup_in(tmp_path, "--arch", str(arch), "--scene", scene).returncode == 0
+    on_device = _warmup_in(tmp_path, "--device", "cuda:0", "--scene", scene)
+    assert on_device.returncode == 0 and "0 of 13 modules compiled on cuda:0" in on_device.stdout.splitlines()[-1]

@@ -8,7 +8,7 @@
     warpsph resume CHECKPOINT.h5 [--device ...] [--frames N]
     warpsph surface OUT.usdc|OUT.particles.h5 [--cube C] [--smoothing L] [--frames A B] [--out NEW.usdc]
                     [--method splashsurf|preview] [--device cpu|cuda]
-    warpsph warmup [--device auto|cpu|cuda] [--scene SCENE.json ...]   (compile the kernels ahead of a first run)
+    warpsph warmup [--device auto|cpu|cuda | --arch SM ...] [--scene SCENE.json ...]   (compile the kernels ahead of a first run)
 
 Every command takes -q/--quiet (warnings and errors only, no progress), -v/--verbose (debug
 lines too, e.g. each frame's wall time) and --log FILE (the same lines appended to FILE, timed),

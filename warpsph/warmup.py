@@ -2,6 +2,7 @@
 
     warpsph warmup                                   # every warpsph kernel module, on the default device
     warpsph warmup --device cpu --scene scenes/dam_break.json scenes/propeller.json
+    warpsph warmup --arch 90 80                      # for H100/H200 and A100 GPUs, on a machine without one
 
 Warp compiles a module (the kernels of one ``kernels/*.py`` file) the first time one of its kernels is
 launched on a device, and keeps the binary in its kernel cache: ``WARP_CACHE_PATH`` when set, else a
@@ -12,6 +13,11 @@ set-up launches anything (:func:`preload`, one thread per idle core; ``Simulatio
 ``WARPSPH_PRELOAD=0`` leaves each to its first launch). ``warpsph warmup`` does the same ahead of time for
 every kernel module (or those of ``--scene`` files, as ``warpsph run`` would launch them) and prints what it
 compiled and how long it took, so that the first run finds them cached.
+
+``--arch`` compiles for CUDA architectures instead of a device (:func:`compile_for_archs`): Warp's NVRTC needs no
+GPU, so a login node, a container build or a CI machine can fill the kernel cache that the GPU machines' runs read
+(the same ``WARP_CACHE_PATH``, the same Warp version). Each module is written in both forms Warp may load on a GPU of
+that architecture: CUBIN (what Warp loads where the driver is older than its CUDA toolkit) and PTX (where it is not).
 
 Which modules a scene launches is :func:`scene_modules`: the stepper's own always, each feature's only when
 the scene has it (the solver's, bodies, inflow, viscosity, the models' and the shared vorticity pass).
@@ -144,7 +150,10 @@ def _cache_files(name):
     import warp as wp
 
     root = Path(wp.config.kernel_cache_dir or "")
-    return {p for d in root.glob(f"wp_{name}_*") for p in d.rglob("*")} if root.is_dir() else set()
+    if not root.is_dir():
+        return set()
+    folders = (d for d in root.glob(f"wp_{name}_*") if d.name[len(f"wp_{name}_"):].isalnum())  # not density_solver's
+    return {p for d in folders for p in d.rglob("*")}
 
 
 def idle_cores() -> int:
@@ -183,33 +192,19 @@ def _size(name):
         return 0
 
 
-def preload(names, device=None, max_workers=None) -> list[Loaded]:
-    """Compiles (or loads from Warp's kernel cache) the Warp modules ``names`` on ``device`` in one pass of
-    ``max_workers`` threads (default :func:`idle_cores`), the largest first, and returns what each took (its
-    load's wall time, beside the others). The calling thread is one of them: a module that a program compiles
-    later, lazily, finds its precompiled header built. Loading a module is what its first launch would do (the
-    same variant: results do not change); a module already loaded costs nothing."""
-    import warp as wp
-
-    device = wp.get_device(device)
-    modules = []
-    for name in dict.fromkeys(names):
-        importlib.import_module(name)
-        modules.append(wp.get_module(name))
-    modules.sort(key=lambda m: -_size(m.name))
-    workers = max(1, min(len(modules), max_workers or idle_cores()))
-    queue, lock, done = list(modules), threading.Lock(), []
+def _in_parallel(tasks, max_workers):
+    """Runs the callables ``tasks`` (the longest first) on ``max_workers`` threads, the calling thread one of
+    them, and returns what each returned, in the order given."""
+    workers = max(1, min(len(tasks), max_workers))
+    queue, lock, done = list(enumerate(tasks)), threading.Lock(), {}
 
     def work():
         while True:
             with lock:
                 if not queue:
                     return
-                module = queue.pop(0)
-            before = _cache_files(module.name)
-            start = time.perf_counter()
-            wp.force_load(device=device, modules=[module], max_workers=0)
-            done.append(Loaded(module.name, time.perf_counter() - start, bool(_cache_files(module.name) - before)))
+                k, task = queue.pop(0)
+            done[k] = task()
 
     if workers == 1:
         work()
@@ -224,8 +219,64 @@ def preload(names, device=None, max_workers=None) -> list[Loaded]:
                 raise
             for helper in helpers:
                 helper.result()
-    order = [m.name for m in modules]
-    return sorted(done, key=lambda m: order.index(m.name))
+    return [done[k] for k in range(len(tasks))]
+
+
+def _modules(names):
+    """The Warp modules ``names`` (imported), the largest Python source first."""
+    import warp as wp
+
+    modules = []
+    for name in dict.fromkeys(names):
+        importlib.import_module(name)
+        modules.append(wp.get_module(name))
+    return sorted(modules, key=lambda m: -_size(m.name))
+
+
+def preload(names, device=None, max_workers=None) -> list[Loaded]:
+    """Compiles (or loads from Warp's kernel cache) the Warp modules ``names`` on ``device`` in one pass of
+    ``max_workers`` threads (default :func:`idle_cores`), the largest first, and returns what each took (its
+    load's wall time, beside the others). The calling thread is one of them: a module that a program compiles
+    later, lazily, finds its precompiled header built. Loading a module is what its first launch would do (the
+    same variant: results do not change); a module already loaded costs nothing."""
+    import warp as wp
+
+    device = wp.get_device(device)
+
+    def load(module):
+        before = _cache_files(module.name)
+        start = time.perf_counter()
+        wp.force_load(device=device, modules=[module], max_workers=0)
+        return Loaded(module.name, time.perf_counter() - start, bool(_cache_files(module.name) - before))
+
+    modules = _modules(names)
+    return _in_parallel([lambda m=m: load(m) for m in modules], max_workers or idle_cores())
+
+
+def compile_for_archs(names, archs, max_workers=None) -> list[Loaded]:
+    """Compiles the Warp modules ``names`` for the CUDA architectures ``archs`` (e.g. 90 for H100/H200) into Warp's
+    kernel cache without a GPU (Warp's NVRTC), as CUBIN and as PTX, each of the two that Warp loads on such a GPU
+    depending on its driver; files already there are kept. One :class:`Loaded` per module and architecture (its
+    name ``module@sm_90``; ``compiled`` False where both files were in the cache)."""
+    import warp as wp
+
+    supported = set(wp.get_cuda_supported_archs())
+    for arch in archs:
+        if arch not in supported:
+            raise SceneError("", "--arch", f"Warp {wp.__version__}'s NVRTC does not compile for sm_{arch}; it "
+                                           f"compiles for {', '.join(str(a) for a in sorted(supported))}")
+
+    def build(module, arch):
+        before = _cache_files(module.name)
+        start = time.perf_counter()
+        for use_ptx in (False, True):
+            wp.compile_aot_module(module, arch=arch, use_ptx=use_ptx)
+        return Loaded(f"{module.name}@sm_{arch}", time.perf_counter() - start,
+                      bool(_cache_files(module.name) - before))
+
+    modules = _modules(names)
+    tasks = [lambda m=m, a=a: build(m, a) for m in modules for a in archs]
+    return _in_parallel(tasks, max_workers or idle_cores())
 
 
 # -- warpsph warmup -------------------------------------------------------------------------------------------
@@ -236,6 +287,10 @@ def add_arguments(parser):
                              "warpsph kernel module")
     parser.add_argument("--workers", type=int, metavar="N",
                         help="compile threads (default: one per idle CPU core, at least 1)")
+    parser.add_argument("--arch", type=int, nargs="+", metavar="SM",
+                        help="compile for these CUDA architectures (90: H100/H200, 80: A100, 89: L40/RTX 40xx, "
+                             "86: RTX 30xx) instead of a device: no GPU needed; the runs on such GPUs find them "
+                             "in the same kernel cache")
 
 
 def command(args):
@@ -251,14 +306,22 @@ def command(args):
         names = list(dict.fromkeys(names))
     else:
         names = all_modules()
-    workers = max(1, min(len(names), args.workers or idle_cores()))
-    start = time.perf_counter()
-    loaded = preload(names, args.device, max_workers=workers)
+    if args.arch:
+        tasks = len(names) * len(args.arch)
+        workers = max(1, min(tasks, args.workers or idle_cores()))
+        start = time.perf_counter()
+        loaded = compile_for_archs(names, list(dict.fromkeys(args.arch)), max_workers=workers)
+        target = "sm_" + ", sm_".join(str(a) for a in dict.fromkeys(args.arch))
+    else:
+        workers = max(1, min(len(names), args.workers or idle_cores()))
+        start = time.perf_counter()
+        loaded = preload(names, args.device, max_workers=workers)
+        target = args.device
     wall = time.perf_counter() - start
     compiled = [m for m in loaded if m.compiled]
     width = max(len(m.name) for m in loaded)
     for m in sorted(loaded, key=lambda m: -m.seconds):
         print(f"  {m.name:<{width}}  {'compiled' if m.compiled else 'cached  '}  {m.seconds:6.2f} s")
-    print(f"warpsph warmup: {len(compiled)} of {len(loaded)} modules compiled on {args.device} in {wall:.2f} s "
+    print(f"warpsph warmup: {len(compiled)} of {len(loaded)} modules compiled {'for' if args.arch else 'on'} {target} in {wall:.2f} s "
           f"({workers} thread{'s' if workers > 1 else ''}); kernel cache {wp.config.kernel_cache_dir}")
     return 0
