@@ -19,11 +19,18 @@ So a subdomain computes, for its own particles, what one simulation of the whole
 order of floating-point sums. Cuts start at the quantiles of the fluid along the axis and move back to them
 every ``rebalance_interval`` steps (load balance).
 
-Communication is Warp's: gather kernels that read the other subdomain's memory (one CPU, or GPUs with peer
-access; else a gather on the owner's device and a peer ``wp.copy``). The threads meet at a
-:class:`threading.Barrier`; on GPUs with peer access, CUDA events order the exchanges and the reductions the
-solver does not read on the host, so those meetings wait on no device. The refresh's counts, the free-surface
-flag and each solver iteration's loop condition are still read on the host, and the step is not a captured graph.
+What the subdomains say to each other goes through a communicator (the slab logic above is the same for both):
+
+- :class:`Threads` (the default): every subdomain in this process, one thread each. Communication is Warp's:
+  gather kernels that read the other subdomain's memory (one CPU, or GPUs with peer access; else a gather on the
+  owner's device and a peer ``wp.copy``). The threads meet at a :class:`threading.Barrier`; on GPUs with peer
+  access, CUDA events order the exchanges and the reductions the solver does not read on the host, so those
+  meetings wait on no device.
+- :class:`warpsph.distributed.MPIComm`: one subdomain in each process of an MPI communicator (``mpiexec``; issue
+  #40), rows and reductions through host-staged buffers (mpi4py).
+
+The refresh's counts, the free-surface flag and each solver iteration's loop condition are still read on the host,
+and the step is not a captured graph.
 Not supported yet (a clear error): emitters, sinks and open domains, dynamic bodies, IISPH,
 ``on_instability = "reduce-dt"``.
 """
@@ -38,6 +45,7 @@ import numpy as np
 import warp as wp
 
 from warpsph.errors import SceneError
+from warpsph.health import InstabilityError
 from warpsph.kernels.decomposition import (
     combine_values,
     gather_rows,
@@ -59,6 +67,13 @@ CAPACITY_FACTOR = 1.6
 GHOST_WIDTH = 1.001
 # entries a device list (leavers, ghosts) holds per subdomain at least; a list that overflows is made again, longer
 MIN_LIST_ROOM = 1024
+
+
+def _problem_fields(problem):
+    """An :class:`InstabilityError`'s fields (what crosses between processes: the exception does not pickle), or None."""
+    if problem is None:
+        return None
+    return (problem.step, problem.time, problem.check, problem.particle_id, problem.position)
 
 
 def device_names(text):
@@ -87,11 +102,41 @@ class DecompositionError(RuntimeError):
     """
 
 
-class Subdomain:
-    """What one subdomain's Simulation sees of the others (its ``halo``)."""
+def combine(values, ops):
+    """Subdomain 0's, 1's, ... values of one all-reduction (numpy arrays, in subdomain order) combined element by
+    element: ``ops[k]`` "s" (sum, in subdomain order), "m" (max) or "-" (subdomain 0's)."""
+    out = values[0].copy()
+    for k, op in enumerate(ops):
+        column = [v[k] for v in values]
+        if op == "s":
+            out[k] = sum(column[1:], column[0])
+        elif op == "m":
+            out[k] = max(column)
+    return out
 
-    def __init__(self, group, index, device, capacity):
-        self.group, self.index, self.device, self.capacity = group, index, device, capacity
+
+class Outbox:
+    """Rows a subdomain offers the others at one meeting: for subdomain j, rows
+    ``index[j * room:][:counts[j]]`` of each array in ``arrays`` (the receiver puts them where its placements say)."""
+
+    __slots__ = ("index", "room", "counts", "arrays")
+
+    def __init__(self, index, room, counts, arrays):
+        self.index, self.room, self.counts, self.arrays = index, room, counts, arrays
+
+    def rows_for(self, j, count=None):
+        """The device index list of the rows for subdomain ``j`` (its first ``count``; default all)."""
+        count = int(self.counts[j]) if count is None else int(count)
+        return self.index[j * self.room: j * self.room + count]
+
+
+class Subdomain:
+    """What one subdomain's Simulation sees of the others (its ``halo``): which rows leave, which rows the others
+    need as ghosts and where theirs go (the slab logic); the meetings themselves are its ``comm``'s
+    (:class:`Threads`: subdomains of one process; :class:`warpsph.distributed.MPIComm`: one process each)."""
+
+    def __init__(self, group, index, device, capacity, comm):
+        self.group, self.index, self.device, self.capacity, self.comm = group, index, device, capacity, comm
         self.ghosts = 0  # ghost rows after the subdomain's own particles
         self.arrived = 0  # particles that crossed into this subdomain so far
         self.cuts = wp.array(group.cuts, dtype=float, device=device)
@@ -103,52 +148,22 @@ class Subdomain:
         self.leavers, self.room = None, 0
         self.ghost_first = np.zeros(k, np.int64)  # where subdomain j's ghosts start in this one's rows
         self.ghost_count = np.zeros(k, np.int64)
-        self.posted = ()  # what an exchange or a reduction put up for the others
+        self.outbox = None  # the rows this subdomain offers the others at the meeting under way (an Outbox)
+        # the communicator's own, per subdomain
+        self.posted = ()  # what a reduction put up for the others
         self.posted_event = None  # CUDA: recorded after the posted arrays were written
         self.done_event = None  # CUDA: recorded after this subdomain's gathers from the others
-        # device arrays reused from step to step, each kind apart
-        self._lists = {}  # index lists by name (leavers, ghosts, holes, movers, counts)
         self._staging = {}  # rows gathered on another device before a copy across: by (device, dtype)
         self._snapshots = {}  # a reduction's values set aside for the others to read: by (position, dtype, shape)
         self._reduction_ops = {}  # the ops string of a reduction as a device array
+        self._lists = {}  # device index lists reused from step to step, by name (leavers, ghosts, holes, movers, counts)
 
     global_count = property(lambda self: self.group.global_count)
     grid_points = property(lambda self: self.group.global_count)  # cells as fine as one simulation's
 
-    # -- meeting the others --------------------------------------------------------------------------
-    def _meet(self):
-        """Waits until this device's work is done and every subdomain has reached the same point."""
-        wp.synchronize_device(self.device)
-        self._barrier()
-
-    def _barrier(self):
-        """The barrier, without the device's lock while waiting (subdomains of one device take turns)."""
-        lock = self.group.locks[self.device.alias]
-        lock.release()
-        try:
-            self.group.barrier.wait()
-        finally:
-            lock.acquire()
-
-    def _peers(self):
-        return [s for s in self.group.subdomains if s is not self]
-
-    def _pull_ghosts(self, mine, theirs_of):
-        """Ghost rows of each array in ``mine`` from the matching array of every other subdomain."""
-        for peer in self._peers():
-            count = int(self.ghost_count[peer.index])
-            if count:
-                first, k = int(self.ghost_first[peer.index]), self.index
-                index = peer.send_lists[k * peer.send_room: k * peer.send_room + count]
-                for dst, src in zip(mine, theirs_of(peer)):
-                    self._gather(src, index, first, dst, count)
-
-    def _staging_for(self, src, count):
-        key = (src.device.alias, src.dtype)
-        a = self._staging.get(key)
-        if a is None or a.shape[0] < count:
-            a = self._staging[key] = wp.empty(int(count * 1.25) + 16, dtype=src.dtype, device=src.device)
-        return a
+    def ghost_placements(self):
+        """(first row, count) of subdomain j's ghost rows in this one's, for every j (0 rows for itself)."""
+        return [(int(f), int(c)) for f, c in zip(self.ghost_first, self.ghost_count)]
 
     # -- the three meeting points ------------------------------------------------------------------------
     def refresh(self, sim):
@@ -157,84 +172,16 @@ class Subdomain:
         self._collect_ghosts(sim)
 
     def exchange(self, arrays):
+        """The ghost rows of each of ``arrays`` (fields of this subdomain's rows) get their owners' values."""
         arrays = [a for a in arrays if a.shape[0]]
-        self.posted = arrays
-        if not self.group.asynchronous:
-            self._meet()
-            self._pull_ghosts(arrays, lambda peer: peer.posted)
-            self._meet()
-            return
-        # CUDA with peer access: ordered by events, the host waits for no device. Each stream waits for the
-        # others' writes of the fields, gathers, and the others' streams wait for its gathers before they
-        # write their own rows again.
-        stream = self.device.stream
-        self.posted_event = stream.record_event()
-        self._barrier()
-        for peer in self._peers():
-            stream.wait_event(peer.posted_event)
-        self._pull_ghosts(arrays, lambda peer: peer.posted)
-        self.done_event = stream.record_event()
-        self._barrier()
-        for peer in self._peers():
-            stream.wait_event(peer.done_event)
+        self.outbox = Outbox(self.send_lists, self.send_room, self.send_count, arrays)
+        self.comm.exchange(self, arrays, self.ghost_placements())
 
     def allreduce(self, pairs, read=True):
         """(array, ops) pairs combined over the subdomains in one meeting, in the same order of sums in all.
-        ``read``: returns the combined values (through the host); else, where every subdomain can read the others'
-        memory, combined on the devices (:meth:`_allreduce_on_devices`) and None returned."""
-        if not read and self.group.direct:
-            return self._allreduce_on_devices(pairs)
-        self.posted = [array.numpy().copy() for array, _ in pairs]  # waits for the device (CPU: numpy() is a view)
-        self._barrier()
-        combined = []
-        for n, (array, ops) in enumerate(pairs):
-            values = [s.posted[n] for s in self.group.subdomains]
-            out = values[0].copy()
-            for k, op in enumerate(ops):
-                column = [v[k] for v in values]
-                if op == "s":
-                    out[k] = sum(column[1:], column[0])
-                elif op == "m":
-                    out[k] = max(column)
-            array.assign(out)
-            combined.append(out)
-        self._barrier()  # the posted values are read by all before the next reduction
-        return combined
-
-    def _allreduce_on_devices(self, pairs):
-        """Each subdomain copies its values aside; after the meeting each one combines subdomain 0's, 1's, ...
-        copies into its arrays on its own device (the others' memory read directly), so the host waits for no
-        device; on GPUs, events order the copies and the reads."""
-        stream = self.device.stream if self.device.is_cuda else None
-        self.posted = []
-        for n, (array, ops) in enumerate(pairs):
-            key = (n, array.dtype, array.shape)
-            snapshot = self._snapshots.get(key)
-            if snapshot is None:
-                snapshot = self._snapshots[key] = wp.empty_like(array)
-            if ops not in self._reduction_ops:
-                self._reduction_ops[ops] = wp.array(["-sm".index(o) for o in ops], dtype=wp.int32, device=self.device)
-            wp.copy(snapshot, array)
-            self.posted.append(snapshot)
-        if stream is not None:
-            self.posted_event = stream.record_event()
-        self._barrier()
-        if stream is not None:
-            for peer in self._peers():
-                stream.wait_event(peer.posted_event)
-        first = self.group.subdomains[0]
-        for n, (array, ops) in enumerate(pairs):
-            wp.copy(array, first.posted[n])
-            for other in self.group.subdomains[1:]:
-                wp.launch(combine_values, array.shape[0], [other.posted[n], self._reduction_ops[ops], array],
-                          device=self.device)
-        if stream is not None:
-            self.done_event = stream.record_event()
-        self._barrier()  # the copies are read by all before the next reduction overwrites them
-        if stream is not None:
-            for peer in self._peers():
-                stream.wait_event(peer.done_event)
-        return None
+        ``read``: returns the combined values (numpy, through the host); else None (the communicator may combine
+        them on the devices)."""
+        return self.comm.allreduce(self, pairs, read)
 
     # -- refresh ----------------------------------------------------------------------------------------
     def _list(self, name, size):
@@ -261,22 +208,19 @@ class Subdomain:
             room = int(leaving.max())
         leave = int(leaving.sum())
         self.leave_count, self.leavers, self.room = leaving, leavers, room
-        self._meet()
         rows = sim.state.carried_rows()
-        arriving = [int(p.leave_count[k]) for p in group.subdomains]
-        total_in = sum(arriving)
+        self.outbox = Outbox(leavers, room, leaving, rows)
+        arriving = self.comm.counts(self, leaving)  # arriving[j]: the rows subdomain j sends this one
+        total_in = int(sum(arriving))
         if n + total_in > self.capacity:
             raise DecompositionError(f"subdomain {k} needs {n + total_in:,} rows of its {self.capacity:,} "
                                      "(raise capacity_factor or rebalance more often)")
-        first = n  # arrivals behind the old rows: the leavers' rows are still being read
-        for peer in self._peers():
-            count = arriving[peer.index]
-            if count:
-                index = peer.leavers[k * peer.room: k * peer.room + count]
-                for dst, src in zip(rows, peer.sim.state.carried_rows()):
-                    self._gather(src, index, first, dst, count)
-                first += count
-        self._meet()
+        placements, first = [], n  # arrivals behind the old rows: the leavers' rows are still being read
+        for j in range(group.count):
+            count = 0 if j == k else int(arriving[j])
+            placements.append((first, count))
+            first += count
+        self.comm.transfer(self, rows, placements)
         stay = n - leave
         if leave:  # the stayers among the last `leave` rows move into the leavers' rows before them
             holes, movers = self._list("holes", leave), self._list("movers", leave)
@@ -293,17 +237,6 @@ class Subdomain:
         sim.state.num_fluid = stay + total_in
         self.arrived += total_in
 
-    def _gather(self, src, index, first, dst, count):
-        """dst[first + i] = src[index[i]], i < count: on dst's device (reading src's memory where peer access
-        allows), else gathered on src's device and copied across."""
-        if self.group.reads_directly(dst.device, src.device):
-            wp.launch(gather_rows, count, [src, index, first, dst], device=dst.device)
-        else:
-            staging = self._staging_for(src, count)
-            wp.launch(gather_rows, count, [src, index, 0, staging], device=src.device)
-            stream = src.device.stream if src.device.is_cuda else None  # after the gather
-            wp.copy(dst, staging, dest_offset=first, count=count, stream=stream)
-
     def _collect_ghosts(self, sim):
         """Lists, for every other subdomain, this one's particles within a support radius of its slab (on the
         device, ``room`` entries each); then takes its own ghost rows from the others' lists."""
@@ -314,27 +247,212 @@ class Subdomain:
         while True:
             index = self._list("ghost_index", group.count * room)
             counts.zero_()
-            for peer in self._peers():
-                lower, upper = group.slab_bounds(peer.index)
-                sim.launch(list_ghosts, n, [sim.fluid.x, group.axis, lower, upper, group.period, width, peer.index,
-                                            room, counts, index])
+            for peer in range(group.count):
+                if peer != self.index:
+                    lower, upper = group.slab_bounds(peer)
+                    sim.launch(list_ghosts, n, [sim.fluid.x, group.axis, lower, upper, group.period, width, peer,
+                                                room, counts, index])
             found = counts.numpy()[: group.count].astype(np.int64)
             if found.max(initial=0) <= room:
                 break
             room = int(found.max())
         self.send_count, self.send_lists, self.send_room = found, index, room
-        self._meet()
+        rows = sim.state.carried_rows()
+        self.outbox = Outbox(index, room, found, rows)
+        received = self.comm.counts(self, found)  # received[j]: subdomain j's rows that are ghosts here
         first = n
-        for peer in self._peers():
-            count = int(peer.send_count[self.index])
-            self.ghost_first[peer.index], self.ghost_count[peer.index] = first, count
-            first += count
+        for j in range(group.count):
+            if j != self.index:
+                self.ghost_first[j], self.ghost_count[j] = first, int(received[j])
+                first += int(received[j])
         if first > self.capacity:
             raise DecompositionError(f"subdomain {self.index} needs {first:,} rows with its ghosts, of its "
                                      f"{self.capacity:,} (raise capacity_factor)")
         self.ghosts = first - n
-        self._pull_ghosts(sim.state.carried_rows(), lambda peer: peer.sim.state.carried_rows())
-        self._meet()
+        self.comm.transfer(self, rows, self.ghost_placements())
+
+
+class Threads:
+    """The communicator of the subdomains of one process (:class:`DecomposedSimulation`), one thread each (the
+    threads of one device take turns between meetings). They meet at a :class:`threading.Barrier` and read each
+    other's rows directly: gather kernels that read the other subdomain's memory (one CPU, or GPUs with peer access;
+    else a gather on the owner's device and a peer ``wp.copy``). On GPUs with peer access, CUDA events order the
+    exchanges and the reductions the solver does not read on the host, so those meetings wait on no device.
+
+    The interface a communicator offers the subdomains (:class:`warpsph.distributed.MPIComm` is the other one):
+    ``counts(sub, mine)`` (an all-to-all of row counts: what each subdomain holds for ``sub``), ``transfer(sub, dst,
+    placements)`` (the rows of every subdomain's ``outbox`` for ``sub`` into ``dst`` at ``placements[j]`` = (first,
+    count)), ``exchange(sub, arrays, placements)`` (the same for the ghost rows of fields), ``allreduce(sub, pairs,
+    read)``; and for the group, ``local(count)`` (the subdomains this process steps), ``parallel(sims, work)``, ``everyone(values)``
+    (every subdomain's values, in order, from this process's list of its own) and ``from_first(make)`` (the first
+    process's ``make()``)."""
+
+    def __init__(self, group, devices, count):
+        self.group = group
+        self.barrier = threading.Barrier(count)
+        # one thread at a time on a device: Warp's scans and sorts share their temporary storage per device
+        self.locks = {wp.get_device(d).alias: threading.Lock() for d in devices}
+
+    @staticmethod
+    def local(count):
+        """The subdomains this process steps: all."""
+        return list(range(count))
+
+    @staticmethod
+    def everyone(values):
+        """Every subdomain's value, in subdomain order, from this process's list (one per subdomain it steps)."""
+        return list(values)
+
+    @staticmethod
+    def from_first(make):
+        """``make()`` as the first process computes it (here: computed)."""
+        return make()
+
+    # -- meeting the others --------------------------------------------------------------------------
+    def _meet(self, sub):
+        """Waits until this device's work is done and every subdomain has reached the same point."""
+        wp.synchronize_device(sub.device)
+        self._barrier(sub)
+
+    def _barrier(self, sub):
+        """The barrier, without the device's lock while waiting (subdomains of one device take turns)."""
+        lock = self.locks[sub.device.alias]
+        lock.release()
+        try:
+            self.barrier.wait()
+        finally:
+            lock.acquire()
+
+    def _peers(self, sub):
+        return [s for s in self.group.subdomains if s is not sub]
+
+    def _pull(self, sub, dst, placements):
+        """Rows of every other subdomain's outbox for ``sub`` into ``dst`` at ``placements``."""
+        for peer in self._peers(sub):
+            first, count = placements[peer.index]
+            if count:
+                box = peer.outbox
+                index = box.rows_for(sub.index, count)
+                for d, s in zip(dst, box.arrays):
+                    self._gather(sub, s, index, first, d, count)
+
+    def _staging_for(self, sub, src, count):
+        key = (src.device.alias, src.dtype)
+        a = sub._staging.get(key)
+        if a is None or a.shape[0] < count:
+            a = sub._staging[key] = wp.empty(int(count * 1.25) + 16, dtype=src.dtype, device=src.device)
+        return a
+
+    def _gather(self, sub, src, index, first, dst, count):
+        """dst[first + i] = src[index[i]], i < count: on dst's device (reading src's memory where peer access
+        allows), else gathered on src's device and copied across."""
+        if self.group.reads_directly(dst.device, src.device):
+            wp.launch(gather_rows, count, [src, index, first, dst], device=dst.device)
+        else:
+            staging = self._staging_for(sub, src, count)
+            wp.launch(gather_rows, count, [src, index, 0, staging], device=src.device)
+            stream = src.device.stream if src.device.is_cuda else None  # after the gather
+            wp.copy(dst, staging, dest_offset=first, count=count, stream=stream)
+
+    # -- what the subdomains call --------------------------------------------------------------------
+    def parallel(self, sims, work):
+        """Runs ``work(sim)`` for every subdomain, one thread each; the first error stops them all."""
+        def run(sim):
+            try:
+                with self.locks[sim.device.alias], wp.ScopedDevice(sim.device):
+                    return work(sim)
+            except BaseException:
+                self.barrier.abort()  # the others stop at their next meeting point
+                raise
+
+        with ThreadPoolExecutor(len(sims)) as pool:
+            futures = [pool.submit(run, s) for s in sims]
+        errors = [f.exception() for f in futures if f.exception() is not None]
+        if errors:
+            self.barrier.reset()
+            real = [e for e in errors if not isinstance(e, threading.BrokenBarrierError)]
+            raise (real or errors)[0]
+        return [f.result() for f in futures]
+
+    def counts(self, sub, mine):
+        """Meets the others (their outboxes posted); what each subdomain's outbox holds for ``sub``."""
+        self._meet(sub)
+        return np.array([0 if p is sub else int(p.outbox.counts[sub.index]) for p in self.group.subdomains], np.int64)
+
+    def transfer(self, sub, dst, placements):
+        """The others' outbox rows for ``sub`` into ``dst``; then meets them (their outboxes read by all)."""
+        self._pull(sub, dst, placements)
+        self._meet(sub)
+
+    def exchange(self, sub, arrays, placements):
+        if not self.group.asynchronous:
+            self._meet(sub)
+            self._pull(sub, arrays, placements)
+            self._meet(sub)
+            return
+        # CUDA with peer access: ordered by events, the host waits for no device. Each stream waits for the
+        # others' writes of the fields, gathers, and the others' streams wait for its gathers before they
+        # write their own rows again.
+        stream = sub.device.stream
+        sub.posted_event = stream.record_event()
+        self._barrier(sub)
+        for peer in self._peers(sub):
+            stream.wait_event(peer.posted_event)
+        self._pull(sub, arrays, placements)
+        sub.done_event = stream.record_event()
+        self._barrier(sub)
+        for peer in self._peers(sub):
+            stream.wait_event(peer.done_event)
+
+    def allreduce(self, sub, pairs, read=True):
+        """``read``: combined through the host and returned; else, where every subdomain can read the others'
+        memory, combined on the devices (:meth:`_allreduce_on_devices`) and None returned."""
+        if not read and self.group.direct:
+            return self._allreduce_on_devices(sub, pairs)
+        sub.posted = [array.numpy().copy() for array, _ in pairs]  # waits for the device (CPU: numpy() is a view)
+        self._barrier(sub)
+        combined = []
+        for n, (array, ops) in enumerate(pairs):
+            out = combine([s.posted[n] for s in self.group.subdomains], ops)
+            array.assign(out)
+            combined.append(out)
+        self._barrier(sub)  # the posted values are read by all before the next reduction
+        return combined
+
+    def _allreduce_on_devices(self, sub, pairs):
+        """Each subdomain copies its values aside; after the meeting each one combines subdomain 0's, 1's, ...
+        copies into its arrays on its own device (the others' memory read directly), so the host waits for no
+        device; on GPUs, events order the copies and the reads."""
+        stream = sub.device.stream if sub.device.is_cuda else None
+        sub.posted = []
+        for n, (array, ops) in enumerate(pairs):
+            key = (n, array.dtype, array.shape)
+            snapshot = sub._snapshots.get(key)
+            if snapshot is None:
+                snapshot = sub._snapshots[key] = wp.empty_like(array)
+            if ops not in sub._reduction_ops:
+                sub._reduction_ops[ops] = wp.array(["-sm".index(o) for o in ops], dtype=wp.int32, device=sub.device)
+            wp.copy(snapshot, array)
+            sub.posted.append(snapshot)
+        if stream is not None:
+            sub.posted_event = stream.record_event()
+        self._barrier(sub)
+        if stream is not None:
+            for peer in self._peers(sub):
+                stream.wait_event(peer.posted_event)
+        first = self.group.subdomains[0]
+        for n, (array, ops) in enumerate(pairs):
+            wp.copy(array, first.posted[n])
+            for other in self.group.subdomains[1:]:
+                wp.launch(combine_values, array.shape[0], [other.posted[n], sub._reduction_ops[ops], array],
+                          device=sub.device)
+        if stream is not None:
+            sub.done_event = stream.record_event()
+        self._barrier(sub)  # the copies are read by all before the next reduction overwrites them
+        if stream is not None:
+            for peer in self._peers(sub):
+                stream.wait_event(peer.done_event)
+        return None
 
 
 class DecomposedSimulation:
@@ -355,11 +473,15 @@ class DecomposedSimulation:
     """
 
     def __init__(self, scene, devices, subdomains=None, axis=None, capacity_factor=CAPACITY_FACTOR,
-                 rebalance_interval=100, state=None):
+                 rebalance_interval=100, state=None, comm=None):
         """``state``: (arrays, flags) of one simulation of the scene (``Simulation.state_arrays()`` as numpy,
-        ``state_flags()``; a checkpoint's) to start from instead of the scene's initial particles."""
+        ``state_flags()``; a checkpoint's) to start from instead of the scene's initial particles. ``comm``: how
+        the subdomains meet; None: :class:`Threads`, every subdomain in this process; an
+        :class:`~warpsph.distributed.MPIComm`: one subdomain in each process of its MPI communicator, this one's on
+        ``devices[0]`` (:class:`~warpsph.distributed.DistributedSimulation`)."""
         devices = [wp.get_device(d) for d in devices]
-        self.count = subdomains or len(devices)
+        self.count = comm.size if comm is not None else subdomains or len(devices)
+        self.comm = comm if comm is not None else Threads(self, devices, self.count)
         self.scene = scene
         self.rebalance_interval = rebalance_interval
         self._refuse_unsupported(scene)
@@ -371,20 +493,17 @@ class DecomposedSimulation:
             arrays, flags = state
             count = int(flags["num_fluid"])
             x, v, ids = (arrays[f"fluid/{k}"][:count] for k in ("x", "v", "ids"))
-        else:
-            x, v = self._initial_fluid(scene, devices[0])
+        else:  # sampled (and packed) once: on the first process, sent to the others
+            x, v = self.comm.from_first(lambda: self._initial_fluid(scene, devices[0]))
             ids = np.arange(len(x), dtype=np.int32)
         self.global_count = len(x)
         self.cuts = self._balanced_cuts(x[:, self.axis])
         slab = np.searchsorted(self.cuts, x[:, self.axis], side="right")
         capacity = self._capacity(x[:, self.axis], slab, scene.support_radius, capacity_factor)
-        self.barrier = threading.Barrier(self.count)
-        # one thread at a time on a device: Warp's scans and sorts share their temporary storage per device
-        self.locks = {wp.get_device(d).alias: threading.Lock() for d in devices}
-        self.subdomains, self.sims = [], []
-        for k in range(self.count):
+        self.subdomains, self.sims = [], []  # this process's
+        for k in self.comm.local(self.count):
             device = devices[k % len(devices)]
-            halo = Subdomain(self, k, device, capacity)
+            halo = Subdomain(self, k, device, capacity, self.comm)
             mine = slab == k
             sim = Simulation(scene, device=device, particles=(x[mine], v[mine], ids[mine]), halo=halo)
             halo.sim = sim
@@ -440,9 +559,9 @@ class DecomposedSimulation:
         """Each subdomain's rows of every carried array, and the rest (clock, solver totals, flags) as saved."""
         arrays, flags = state
         count = int(flags["num_fluid"])
-        for k, sim in enumerate(self.sims):
+        for sim in self.sims:
             rows = {id(a) for a in sim.state.carried_rows()}
-            mine = np.flatnonzero(slab == k)
+            mine = np.flatnonzero(slab == sim.halo.index)
             for name, a in sim.state_arrays().items():
                 data = arrays[name]
                 if id(a) in rows:
@@ -517,30 +636,16 @@ class DecomposedSimulation:
         sim.rebalance()  # also every rebalance_interval steps (default 100)
         ```
         """
-        coordinate = np.concatenate([s.host(s.fluid.x)[:, self.axis] for s in self.sims])
+        coordinate = np.concatenate(self.comm.everyone([s.host(s.fluid.x)[:, self.axis] for s in self.sims]))
         self.cuts = self._balanced_cuts(coordinate)
         for s in self.subdomains:
             s.cuts.assign(self.cuts)
 
     # -- lockstep -------------------------------------------------------------------------------------------
     def _parallel(self, work):
-        """Runs ``work(sim)`` for every subdomain, one thread each; the first error stops them all."""
-        def run(sim):
-            try:
-                with self.locks[sim.device.alias], wp.ScopedDevice(sim.device):
-                    return work(sim)
-            except BaseException:
-                self.barrier.abort()  # the others stop at their next meeting point
-                raise
-
-        with ThreadPoolExecutor(self.count) as pool:
-            futures = [pool.submit(run, s) for s in self.sims]
-        errors = [f.exception() for f in futures if f.exception() is not None]
-        if errors:
-            self.barrier.reset()
-            real = [e for e in errors if not isinstance(e, threading.BrokenBarrierError)]
-            raise (real or errors)[0]
-        return [f.result() for f in futures]
+        """Runs ``work(sim)`` for every subdomain of this process (the communicator's way: a thread each, or at once
+        where it has one); the first error stops them all."""
+        return self.comm.parallel(self.sims, work)
 
     def step(self):
         if self.rebalance_interval and self.step_count and self.step_count % self.rebalance_interval == 0:
@@ -585,11 +690,11 @@ class DecomposedSimulation:
         or several): the per-particle ones gathered in id order (host arrays), the others subdomain 0's."""
         first = self.sims[0]
         rows = {id(a) for a in first.state.carried_rows()}
-        order = np.argsort(np.concatenate([s.ids() for s in self.sims]), kind="stable")
+        order = np.argsort(np.concatenate(self.comm.everyone([s.ids() for s in self.sims])), kind="stable")
         out = {}
         for name, a in first.state_arrays().items():
             if id(a) in rows:
-                data = np.concatenate([s.host(s.state_arrays()[name]) for s in self.sims])[order]
+                data = np.concatenate(self.comm.everyone([s.host(s.state_arrays()[name]) for s in self.sims]))[order]
                 out[name] = wp.array(data, dtype=a.dtype, device="cpu")
             else:
                 out[name] = a
@@ -613,10 +718,12 @@ class DecomposedSimulation:
             s.state.frame = value
 
     def check_health(self):
-        for s in self.sims:
-            problem = s.check_health()
+        """The first subdomain's failed health check (an :class:`InstabilityError`, the same in every process), or
+        None."""
+        mine = {s.halo.index: s.check_health() for s in self.sims}
+        for k, problem in enumerate(self.comm.everyone([_problem_fields(p) for p in mine.values()])):
             if problem is not None:
-                return problem
+                return mine[k] if k in mine else InstabilityError(*problem)  # another process's: its fields
         return None
 
     def statistics(self):
@@ -624,12 +731,12 @@ class DecomposedSimulation:
 
     def _gathered(self, read):
         """One per-particle quantity of every subdomain's own particles, rows ordered by id."""
-        ids = np.concatenate([s.ids() for s in self.sims])
-        values = np.concatenate([read(s) for s in self.sims])
+        ids = np.concatenate(self.comm.everyone([s.ids() for s in self.sims]))
+        values = np.concatenate(self.comm.everyone([read(s) for s in self.sims]))
         return values[np.argsort(ids, kind="stable")]
 
     def ids(self):
-        return np.sort(np.concatenate([s.ids() for s in self.sims]))
+        return np.sort(np.concatenate(self.comm.everyone([s.ids() for s in self.sims])))
 
     def positions(self):
         return self._gathered(lambda s: s.positions())
@@ -641,7 +748,7 @@ class DecomposedSimulation:
         return self._gathered(lambda s: s.densities())
 
     def kinetic_energy(self):
-        return sum(s.kinetic_energy() for s in self.sims)
+        return sum(self.comm.everyone([s.kinetic_energy() for s in self.sims]))
 
     def owned_counts(self):
         """Particles per subdomain (its own, without ghosts).
@@ -656,7 +763,7 @@ class DecomposedSimulation:
         assert sum(sim.owned_counts()) == sim.num_fluid
         ```
         """
-        return [s.num_fluid for s in self.sims]
+        return self.comm.everyone([s.num_fluid for s in self.sims])
 
     def _advance_to(self, target, on_step=None):
         """Steps until ``time >= target``, stopping at the first failed health check (``on_step(self)`` after each
