@@ -283,8 +283,9 @@ class _Writer:
     """Rank 0's output: the USD point cache (as ``warpsph run`` writes it: the fluid's points, velocities and ids a
     frame, the boundary once) and the last frame for ``--positions``."""
 
-    def __init__(self, sim, out):
+    def __init__(self, sim, out, frames=None, quiet=False):
         self.sim, self.out, self.cache, self.last = sim, out, None, None
+        self.frames, self.quiet, self.started = frames, quiet, time.perf_counter()
         if out is not None and sim.rank == 0:
             scene = sim.scene
             static = sim.num_boundary if sim.moving_bodies is None else sim.moving_bodies.first_sample
@@ -298,6 +299,11 @@ class _Writer:
         if arrays is None:
             return
         self.last = (frame, sim.time, sim.step_count, arrays)
+        if self.frames is not None and not self.quiet:  # progress, as warpsph run prints it
+            wall = time.perf_counter() - self.started
+            eta = wall / frame * (self.frames - frame) if frame else 0.0
+            print(f"frame {frame}/{self.frames}  t={sim.time:.3f}s  steps={sim.step_count}  "
+                  f"{sim.step_count / max(wall, 1e-9):.1f} steps/s  eta {eta:.0f}s", flush=True)
         if self.cache is not None:
             poses = sim.moving_bodies.poses() if sim.moving_bodies is not None else None
             item = HostFrame(frame, sim.time, sim.step_count, len(arrays["ids"]), arrays, poses)
@@ -323,6 +329,7 @@ def _arguments(argv):
                                                                            "(default: the domain's longest)")
     p.add_argument("--rebalance-interval", type=int, default=100, help="steps between rebalances (0: never)")
     p.add_argument("--capacity-factor", type=float, default=CAPACITY_FACTOR)
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress line a frame (rank 0 prints them)")
     return p.parse_args(argv)
 
 
@@ -340,7 +347,8 @@ def run(argv=None):
     sim = DistributedSimulation(scene, device=args.device, comm=comm, axis=args.axis, capacity_factor=args.capacity_factor,
                                 rebalance_interval=args.rebalance_interval)
     setup = time.perf_counter() - start
-    writer = _Writer(sim, args.out)
+    frames = scene.output.frames if args.frames is None else args.frames
+    writer = _Writer(sim, args.out, None if args.steps is not None else frames, args.quiet)
     start = time.perf_counter()
     if args.steps is not None:
         for _ in range(args.steps):
@@ -350,7 +358,6 @@ def run(argv=None):
                 raise problem
         writer(sim, sim.frame)
     else:
-        frames = scene.output.frames if args.frames is None else args.frames
         sim.run(frames=frames, on_frame=writer)
     wall = time.perf_counter() - start
     writer.close()
