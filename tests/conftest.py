@@ -108,3 +108,19 @@ def as_in_a_terminal():
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def by_id(sim):
+    """A simulation's (or decomposed simulation's) positions in particle-id order."""
+    import numpy as np
+
+    return sim.positions()[np.argsort(sim.ids(), kind="stable")]
+
+
+def shuffled(scene, device):
+    """One domain whose rows start in another order: how far float sums in another order alone drift."""
+    import numpy as np
+
+    sim = Simulation(scene, device=device)
+    order = np.random.default_rng(0).permutation(sim.num_fluid)
+    return Simulation(scene, device=device, particles=(sim.positions()[order], sim.velocities()[order], sim.ids()[order]))

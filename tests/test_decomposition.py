@@ -13,7 +13,7 @@ from warpsph.kernels.rankine import apply_rankine_feedback, compute_vorticity_ch
 from warpsph.models import REGISTRY, register, scene_models
 from warpsph.models.rankine import RankineModel
 from warpsph.scene import key, schema
-from conftest import SCENES_DIR, tank_scene
+from conftest import SCENES_DIR, by_id, shuffled, tank_scene
 
 RADIUS = 0.06
 
@@ -26,17 +26,6 @@ def dam_break_with_vr():
     data.update(particle_radius=RADIUS, models=[{"type": "vorticity_refinement"}])
     data["time"]["fixed_dt"] = 0.002
     return scene_from_dict(data, base_dir=SCENES_DIR)
-
-
-def by_id(sim):
-    return sim.positions()[np.argsort(sim.ids(), kind="stable")]
-
-
-def shuffled(scene, device):
-    """One domain whose rows start in another order: how far float sums in another order alone drift."""
-    sim = Simulation(scene, device=device)
-    order = np.random.default_rng(0).permutation(sim.num_fluid)
-    return Simulation(scene, device=device, particles=(sim.positions()[order], sim.velocities()[order], sim.ids()[order]))
 
 
 @pytest.mark.slow

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from warpsph import DecomposedSimulation, Simulation, scene_from_dict
-from conftest import SCENES_DIR
+from conftest import SCENES_DIR, by_id, shuffled
 
 RADIUS = 0.04
 STEPS = 40  # two frames at 25 fps
@@ -46,17 +46,6 @@ def dam_break_data():
     data.update(particle_radius=RADIUS, models=[{"type": "vorticity_refinement"}])
     data["time"]["fixed_dt"] = 0.002
     return data
-
-
-def by_id(sim):
-    return sim.positions()[np.argsort(sim.ids(), kind="stable")]
-
-
-def shuffled(scene, device):
-    """One domain whose rows start in another order: how far float sums in another order alone drift."""
-    sim = Simulation(scene, device=device)
-    order = np.random.default_rng(0).permutation(sim.num_fluid)
-    return Simulation(scene, device=device, particles=(sim.positions()[order], sim.velocities()[order], sim.ids()[order]))
 
 
 def test_a_missing_mpi4py_names_the_extra(monkeypatch):
