@@ -531,7 +531,7 @@ def _cmdline(pid):
 
 def _start_surface_run(tmp_path, *extra):
     """A long ``run --surface --surface-method preview`` on the CPU in a session of its own, once it has written a
-    few frames; (process, out, its mesher worker's pid)."""
+    few frames (and, with --checkpoint-every, its first checkpoint); (process, out, its mesher worker's pid)."""
     data = tank_scene(radius=0.03, domain=(0.6, 0.4, 0.2), block=(0.2, 0.3, 0.2), output={"fps": 50, "frames": 400})
     scene = write_scene(tmp_path, data)
     out = tmp_path / "long.usdc"
@@ -539,10 +539,13 @@ def _start_surface_run(tmp_path, *extra):
                              "--surface", "--surface-method", "preview", *extra], stderr=subprocess.PIPE, text=True,
                             cwd=tmp_path, start_new_session=True)
     stats = out.with_suffix(".stats.csv")
+    # on a loaded machine the mesher lags: a worker killed before the first checkpoint leaves none to name
+    checkpoint = out.with_suffix(".checkpoint.h5") if "--checkpoint-every" in extra else None
     workers = []
     deadline = time.time() + 120
     while time.time() < deadline and proc.poll() is None and (
-            not workers or not stats.exists() or len(stats.read_text().splitlines()) < 4):
+            not workers or not stats.exists() or len(stats.read_text().splitlines()) < 4
+            or (checkpoint is not None and not checkpoint.exists())):
         workers = [pid for pid in _children(proc.pid) if "spawn_main" in _cmdline(pid)]
         time.sleep(0.2)
     if proc.poll() is not None or len(workers) != 1:
