@@ -266,17 +266,20 @@ def compile_for_archs(names, archs, max_workers=None) -> list[Loaded]:
             raise SceneError("", "--arch", f"Warp {wp.__version__}'s NVRTC does not compile for sm_{arch}; it "
                                            f"compiles for {', '.join(str(a) for a in sorted(supported))}")
 
-    def build(module, arch):
-        before = _cache_files(module.name)
-        start = time.perf_counter()
-        for use_ptx in (False, True):
-            wp.compile_aot_module(module, arch=arch, use_ptx=use_ptx)
-        return Loaded(f"{module.name}@sm_{arch}", time.perf_counter() - start,
-                      bool(_cache_files(module.name) - before))
+    def build(module):  # one thread a module: its architectures one after the other (a module is not thread-safe)
+        out = []
+        for arch in archs:
+            before = _cache_files(module.name)
+            start = time.perf_counter()
+            for use_ptx in (False, True):
+                wp.compile_aot_module(module, arch=arch, use_ptx=use_ptx)
+            out.append(Loaded(f"{module.name}@sm_{arch}", time.perf_counter() - start,
+                              bool(_cache_files(module.name) - before)))
+        return out
 
     modules = _modules(names)
-    tasks = [lambda m=m, a=a: build(m, a) for m in modules for a in archs]
-    return _in_parallel(tasks, max_workers or idle_cores())
+    return [m for built in _in_parallel([lambda m=m: build(m) for m in modules], max_workers or idle_cores())
+            for m in built]
 
 
 # -- warpsph warmup -------------------------------------------------------------------------------------------
@@ -307,8 +310,7 @@ def command(args):
     else:
         names = all_modules()
     if args.arch:
-        tasks = len(names) * len(args.arch)
-        workers = max(1, min(tasks, args.workers or idle_cores()))
+        workers = max(1, min(len(names), args.workers or idle_cores()))
         start = time.perf_counter()
         loaded = compile_for_archs(names, list(dict.fromkeys(args.arch)), max_workers=workers)
         target = "sm_" + ", sm_".join(str(a) for a in dict.fromkeys(args.arch))
