@@ -74,7 +74,7 @@ def test_two_mpi_processes_match_two_subdomains_in_one_process(tmp_path):
                "--out", str(tmp_path / "out.usdc")]
     done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stdout + done.stderr
-    assert [line.split()[1] for line in done.stdout.splitlines() if line.startswith("frame ")] == ["0/2", "1/2", "2/2"]
+    assert [line.split()[1] for line in done.stderr.splitlines() if line.startswith("frame ")] == ["0/2", "1/2", "2/2"]
     mpi = np.load(out)
     assert int(mpi["steps"]) == STEPS and int(mpi["arrived"]) > 0  # particles crossed between the processes
     assert min(mpi["owned"]) > 0

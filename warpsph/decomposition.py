@@ -115,6 +115,26 @@ def combine(values, ops):
     return out
 
 
+def reduced(pairs, posted):
+    """Each (array, ops) of ``pairs`` set to every subdomain's values combined (:func:`combine`; ``posted[s][n]``:
+    subdomain s's values of pair n, in subdomain order); returns the combined numpy arrays."""
+    combined = []
+    for n, (array, ops) in enumerate(pairs):
+        out = combine([values[n] for values in posted], ops)
+        array.assign(out)
+        combined.append(out)
+    return combined
+
+
+def reusable(cache, key, count, dtype, device, spare=16, pinned=False):
+    """``cache[key]``: an array of at least ``count`` entries of ``dtype`` on ``device``, reused from meeting to
+    meeting; allocated (a quarter more, plus ``spare``) when missing or short."""
+    a = cache.get(key)
+    if a is None or a.shape[0] < count or a.dtype != dtype:
+        a = cache[key] = wp.empty(int(count * 1.25) + spare, dtype=dtype, device=device, pinned=pinned)
+    return a
+
+
 class Outbox:
     """Rows a subdomain offers the others at one meeting: for subdomain j, rows
     ``index[j * room:][:counts[j]]`` of each array in ``arrays`` (the receiver puts them where its placements say)."""
@@ -186,10 +206,7 @@ class Subdomain:
     # -- refresh ----------------------------------------------------------------------------------------
     def _list(self, name, size):
         """A reusable device index list of at least ``size`` entries (grown by a quarter when short)."""
-        a = self._lists.get(name)
-        if a is None or a.shape[0] < size:
-            a = self._lists[name] = wp.empty(int(size * 1.25) + 1024, dtype=wp.int32, device=self.device)
-        return a
+        return reusable(self._lists, name, size, wp.int32, self.device, spare=1024)
 
     def _migrate(self, sim):
         """Particles whose slab changed go to its subdomain: listed by destination on the device (``leavers``,
@@ -336,20 +353,13 @@ class Threads:
                 for d, s in zip(dst, box.arrays):
                     self._gather(sub, s, index, first, d, count)
 
-    def _staging_for(self, sub, src, count):
-        key = (src.device.alias, src.dtype)
-        a = sub._staging.get(key)
-        if a is None or a.shape[0] < count:
-            a = sub._staging[key] = wp.empty(int(count * 1.25) + 16, dtype=src.dtype, device=src.device)
-        return a
-
     def _gather(self, sub, src, index, first, dst, count):
         """dst[first + i] = src[index[i]], i < count: on dst's device (reading src's memory where peer access
         allows), else gathered on src's device and copied across."""
         if self.group.reads_directly(dst.device, src.device):
             wp.launch(gather_rows, count, [src, index, first, dst], device=dst.device)
         else:
-            staging = self._staging_for(sub, src, count)
+            staging = reusable(sub._staging, (src.device.alias, src.dtype), count, src.dtype, src.device)
             wp.launch(gather_rows, count, [src, index, 0, staging], device=src.device)
             stream = src.device.stream if src.device.is_cuda else None  # after the gather
             wp.copy(dst, staging, dest_offset=first, count=count, stream=stream)
@@ -411,11 +421,7 @@ class Threads:
             return self._allreduce_on_devices(sub, pairs)
         sub.posted = [array.numpy().copy() for array, _ in pairs]  # waits for the device (CPU: numpy() is a view)
         self._barrier(sub)
-        combined = []
-        for n, (array, ops) in enumerate(pairs):
-            out = combine([s.posted[n] for s in self.group.subdomains], ops)
-            array.assign(out)
-            combined.append(out)
+        combined = reduced(pairs, [s.posted for s in self.group.subdomains])
         self._barrier(sub)  # the posted values are read by all before the next reduction
         return combined
 

@@ -39,7 +39,9 @@ import traceback
 import numpy as np
 import warp as wp
 
-from warpsph.decomposition import CAPACITY_FACTOR, DecomposedSimulation, combine
+from warpsph import log
+from warpsph.cli import Progress
+from warpsph.decomposition import CAPACITY_FACTOR, DecomposedSimulation, reduced, reusable
 from warpsph.errors import SceneError
 from warpsph.io.frames import HostFrame
 from warpsph.io.usd import UsdPointCache, body_meshes, run_metadata, write_host_frame
@@ -150,30 +152,17 @@ class MPIComm:
     def allreduce(self, sub, pairs, read=True):
         """Every rank's values gathered, combined in rank order on every rank (the same sums as the threads')."""
         values = [array.numpy().copy() for array, _ in pairs]  # waits for the device
-        everyone = self.comm.allgather(values)
-        combined = []
-        for n, (array, ops) in enumerate(pairs):
-            out = combine([v[n] for v in everyone], ops)
-            array.assign(out)
-            combined.append(out)
-        return combined
+        return reduced(pairs, self.comm.allgather(values))
 
     # -- rows: the transport (an NCCL communicator replaces these three) -----------------------------------
-    def _buffer(self, key, dtype, count, device, pinned=False):
-        """A staging array of at least ``count`` rows, reused by ``key`` (grown by a quarter when short)."""
-        a = self._buffers.get(key)
-        if a is None or a.shape[0] < count or a.dtype != dtype:
-            a = self._buffers[key] = wp.empty(int(count * 1.25) + 16, dtype=dtype, device=device, pinned=pinned)
-        return a
-
     def _pack(self, sub, src, index, count, key):
         """Rows ``src[index[:count]]`` as a contiguous host array (gathered on src's device, then copied off it)."""
         device = src.device
-        rows = self._buffer(("rows", *key, device.alias), src.dtype, count, device)
+        rows = reusable(self._buffers, ("rows", *key, device.alias), count, src.dtype, device)
         wp.launch(gather_rows, count, [src, index, 0, rows], device=device)
         if device.is_cpu:
             return rows
-        host = self._buffer(("out", *key, device.alias), src.dtype, count, "cpu", pinned=True)
+        host = reusable(self._buffers, ("out", *key, device.alias), count, src.dtype, "cpu", pinned=True)
         wp.copy(host, rows, count=count)
         return host
 
@@ -193,7 +182,7 @@ class MPIComm:
             first, count = placements[j]
             if count:
                 for n, a in enumerate(dst):
-                    receives.append((self._buffer(("in", j, n, "cpu"), a.dtype, count, "cpu"), a, first, count, j, n))
+                    receives.append((reusable(self._buffers, ("in", j, n, "cpu"), count, a.dtype, "cpu"), a, first, count, j, n))
         if sends and not sub.device.is_cpu:
             wp.synchronize_device(sub.device)  # the host copies are done
         requests = [self.comm.Irecv([host.numpy()[:count], MPI.BYTE], source=j, tag=n)
@@ -283,9 +272,9 @@ class _Writer:
     """Rank 0's output: the USD point cache (as ``warpsph run`` writes it: the fluid's points, velocities and ids a
     frame, the boundary once) and the last frame for ``--positions``."""
 
-    def __init__(self, sim, out, frames=None, quiet=False):
+    def __init__(self, sim, out, frames=None):
         self.sim, self.out, self.cache, self.last = sim, out, None, None
-        self.frames, self.quiet, self.started = frames, quiet, time.perf_counter()
+        self.progress = Progress(frames) if frames is not None and sim.rank == 0 else None
         if out is not None and sim.rank == 0:
             scene = sim.scene
             static = sim.num_boundary if sim.moving_bodies is None else sim.moving_bodies.first_sample
@@ -299,17 +288,16 @@ class _Writer:
         if arrays is None:
             return
         self.last = (frame, sim.time, sim.step_count, arrays)
-        if self.frames is not None and not self.quiet:  # progress, as warpsph run prints it
-            wall = time.perf_counter() - self.started
-            eta = wall / frame * (self.frames - frame) if frame else 0.0
-            print(f"frame {frame}/{self.frames}  t={sim.time:.3f}s  steps={sim.step_count}  "
-                  f"{sim.step_count / max(wall, 1e-9):.1f} steps/s  eta {eta:.0f}s", flush=True)
+        if self.progress is not None:
+            self.progress(sim, frame)
         if self.cache is not None:
             poses = sim.moving_bodies.poses() if sim.moving_bodies is not None else None
             item = HostFrame(frame, sim.time, sim.step_count, len(arrays["ids"]), arrays, poses)
             write_host_frame(self.cache, item, sim.scene.particle_radius, ["points", "velocities", "ids"])
 
     def close(self):
+        if self.progress is not None:
+            self.progress.close()
         if self.cache is not None:
             self.cache.finish(self.out)
 
@@ -329,7 +317,7 @@ def _arguments(argv):
                                                                            "(default: the domain's longest)")
     p.add_argument("--rebalance-interval", type=int, default=100, help="steps between rebalances (0: never)")
     p.add_argument("--capacity-factor", type=float, default=CAPACITY_FACTOR)
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress line a frame (rank 0 prints them)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress a frame (rank 0 shows it, as warpsph run)")
     return p.parse_args(argv)
 
 
@@ -340,6 +328,7 @@ def run(argv=None):
         raise SceneError("", "--out", "--steps runs steps, not frames: give --frames for a cache (--positions keeps "
                                       "the last step's particles)")
     comm = MPIComm()
+    log.configure(log.verbosity(quiet=args.quiet) if comm.rank == 0 else log.QUIET)
     wp.config.quiet = True
     wp.init()
     scene = load_scene(args.scene, scale=args.scale)
@@ -348,7 +337,7 @@ def run(argv=None):
                                 rebalance_interval=args.rebalance_interval)
     setup = time.perf_counter() - start
     frames = scene.output.frames if args.frames is None else args.frames
-    writer = _Writer(sim, args.out, None if args.steps is not None else frames, args.quiet)
+    writer = _Writer(sim, args.out, None if args.steps is not None else frames)
     start = time.perf_counter()
     if args.steps is not None:
         for _ in range(args.steps):
