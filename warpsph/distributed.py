@@ -41,6 +41,7 @@ import warp as wp
 
 from warpsph import log
 from warpsph.cli import Progress
+from warpsph.device import init_warp
 from warpsph.decomposition import CAPACITY_FACTOR, DecomposedSimulation, reduced, reusable
 from warpsph.errors import SceneError
 from warpsph.io.frames import HostFrame
@@ -329,8 +330,7 @@ def run(argv=None):
                                       "the last step's particles)")
     comm = MPIComm()
     log.configure(log.verbosity(quiet=args.quiet) if comm.rank == 0 else log.QUIET)
-    wp.config.quiet = True
-    wp.init()
+    init_warp()  # as the command line starts Warp: no CUDA-driver warning on a host without one
     scene = load_scene(args.scene, scale=args.scale)
     start = time.perf_counter()
     sim = DistributedSimulation(scene, device=args.device, comm=comm, axis=args.axis, capacity_factor=args.capacity_factor,

@@ -397,8 +397,6 @@ class Output:
     up_axis: Literal["Y", "Z"] = key("Y", doc="the USD stage's up axis")
 
 
-
-
 @schema
 class InitialPacking:
     """A particle packing before t = 0 (set-up, not simulated time): the sampled lattice jittered by up to
