@@ -270,11 +270,11 @@ class DistributedSimulation(DecomposedSimulation):
 
 
 class _Writer:
-    """Rank 0's output: the USD point cache (as ``warpsph run`` writes it: the fluid's points, velocities and ids a
-    frame, the boundary once) and the last frame for ``--positions``."""
+    """Rank 0's output a frame: the progress and the USD point cache (as ``warpsph run`` writes it: the fluid's
+    points, velocities and ids a frame, the boundary once); the frame is gathered only for the cache."""
 
     def __init__(self, sim, out, frames=None):
-        self.sim, self.out, self.cache, self.last = sim, out, None, None
+        self.sim, self.out, self.cache = sim, out, None
         self.progress = Progress(frames) if frames is not None and sim.rank == 0 else None
         if out is not None and sim.rank == 0:
             scene = sim.scene
@@ -285,12 +285,11 @@ class _Writer:
                                        metadata=run_metadata(scene), domain=scene.domain)
 
     def __call__(self, sim, frame):
-        arrays = sim.frame_arrays()  # collective
-        if arrays is None:
-            return
-        self.last = (frame, sim.time, sim.step_count, arrays)
         if self.progress is not None:
             self.progress(sim, frame)
+        if self.out is None:
+            return
+        arrays = sim.frame_arrays()  # collective: every rank writes or none
         if self.cache is not None:
             poses = sim.moving_bodies.poses() if sim.moving_bodies is not None else None
             item = HostFrame(frame, sim.time, sim.step_count, len(arrays["ids"]), arrays, poses)
@@ -345,18 +344,18 @@ def run(argv=None):
             problem = sim.check_health()
             if problem is not None:
                 raise problem
-        writer(sim, sim.frame)
     else:
         sim.run(frames=frames, on_frame=writer)
     wall = time.perf_counter() - start
     writer.close()
     counts = sim.owned_counts()
     arrived = sum(comm.everyone([s.arrived for s in sim.subdomains]))  # particles that crossed a cut
+    arrays = sim.frame_arrays() if args.positions else None  # collective: the last step's particles
     if sim.rank == 0:
-        frame, now, steps, arrays = writer.last
+        steps = sim.step_count
         if args.positions:
-            np.savez(args.positions, ids=arrays["ids"], x=arrays["x"], v=arrays["v"], time=now, steps=steps,
-                     frame=frame, owned=np.array(counts), arrived=arrived)
+            np.savez(args.positions, ids=arrays["ids"], x=arrays["x"], v=arrays["v"], time=sim.time, steps=steps,
+                     frame=sim.frame, owned=np.array(counts), arrived=arrived)
         print(f"{scene.name}: {sim.num_fluid} fluid particles over {sim.size} processes ({counts} along "
               f"{'xyz'[sim.axis]}), {sim.device.alias}; set-up {setup:.2f} s, {steps} steps in {wall:.2f} s "
               f"({1e3 * wall / max(steps, 1):.1f} ms a step), {arrived} crossed a cut" + (f" -> {args.out}" if args.out else ""), flush=True)
