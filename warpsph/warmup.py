@@ -146,14 +146,19 @@ class Loaded:
     compiled: bool
 
 
-def _cache_files(name):
+def cache_folders(name, root=None):
+    """The folders of Warp module ``name`` in the kernel cache ``root`` (default Warp's): ``wp_<name>_<hash>``, one
+    per variant of the module (``warpsph.kernels.density``'s, not ``density_solver``'s)."""
     import warp as wp
 
-    root = Path(wp.config.kernel_cache_dir or "")
+    root = Path(root if root is not None else wp.config.kernel_cache_dir or "")
     if not root.is_dir():
-        return set()
-    folders = (d for d in root.glob(f"wp_{name}_*") if d.name[len(f"wp_{name}_"):].isalnum())  # not density_solver's
-    return {p for d in folders for p in d.rglob("*")}
+        return []
+    return [d for d in root.glob(f"wp_{name}_*") if d.name[len(f"wp_{name}_"):].isalnum()]
+
+
+def _cache_files(name):
+    return {p for d in cache_folders(name) for p in d.rglob("*")}
 
 
 def idle_cores() -> int:
