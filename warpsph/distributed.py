@@ -106,6 +106,7 @@ class MPIComm:
         self.local_rank = node.Get_rank()  # this rank's place among the ranks of its host: its GPU
         node.Free()
         self._buffers = {}  # staging arrays reused from meeting to meeting: by (direction, peer, position, device)
+        self._unpacked = None  # on a GPU: the event after the last meeting's copies out of the host staging
 
     # -- the group's ---------------------------------------------------------------------------------
     def local(self, count):
@@ -170,7 +171,10 @@ class MPIComm:
     def _swap(self, sub, dst, placements):
         """Every peer's rows for this subdomain (its outbox) into ``dst`` at ``placements[j]`` = (first, count), and
         this subdomain's outbox rows to every peer: one message per (peer, array), tagged by the array's position."""
-        MPI, box = self.MPI, sub.outbox
+        MPI, box, gpu = self.MPI, sub.outbox, not sub.device.is_cpu
+        if self._unpacked is not None:  # the last meeting's copies out of the host staging are done before its reuse
+            wp.synchronize_event(self._unpacked)
+            self._unpacked = None
         sends, receives = [], []
         for j in range(self.size):
             if j == self.rank:
@@ -183,8 +187,9 @@ class MPIComm:
             first, count = placements[j]
             if count:
                 for n, a in enumerate(dst):
-                    receives.append((reusable(self._buffers, ("in", j, n, "cpu"), count, a.dtype, "cpu"), a, first, count, j, n))
-        if sends and not sub.device.is_cpu:
+                    host = reusable(self._buffers, ("in", j, n, "cpu"), count, a.dtype, "cpu", pinned=gpu)
+                    receives.append((host, a, first, count, j, n))
+        if sends and gpu:
             wp.synchronize_device(sub.device)  # the host copies are done
         requests = [self.comm.Irecv([host.numpy()[:count], MPI.BYTE], source=j, tag=n)
                     for host, _, _, count, j, n in receives]
@@ -192,12 +197,13 @@ class MPIComm:
         MPI.Request.Waitall(requests)
         self._unpack(sub, receives)
 
-    @staticmethod
-    def _unpack(sub, receives):
+    def _unpack(self, sub, receives):
+        """The received rows into place: on a GPU, copies from pinned memory on the device's stream, which the host
+        does not wait for (the next meeting waits for their event before it reuses the staging)."""
         for host, a, first, count, _, _ in receives:
             wp.copy(a, host, dest_offset=first, count=count)
         if receives and not sub.device.is_cpu:
-            wp.synchronize_device(sub.device)  # the staging is reused by the next meeting
+            self._unpacked = sub.device.stream.record_event()
 
 
 def rank_device(comm, device=None):
@@ -330,9 +336,11 @@ def run(argv=None):
     comm = MPIComm()
     log.configure(log.verbosity(quiet=args.quiet) if comm.rank == 0 else log.QUIET)
     init_warp()  # as the command line starts Warp: no CUDA-driver warning on a host without one
+    device = rank_device(comm, args.device)
+    wp.set_device(device)  # nothing of this rank's lands on another GPU by default
     scene = load_scene(args.scene, scale=args.scale)
     start = time.perf_counter()
-    sim = DistributedSimulation(scene, device=args.device, comm=comm, axis=args.axis, capacity_factor=args.capacity_factor,
+    sim = DistributedSimulation(scene, device=device, comm=comm, axis=args.axis, capacity_factor=args.capacity_factor,
                                 rebalance_interval=args.rebalance_interval)
     setup = time.perf_counter() - start
     frames = scene.output.frames if args.frames is None else args.frames
