@@ -102,3 +102,46 @@ def test_two_mpi_processes_match_two_subdomains_in_one_process(tmp_path):
     stage = Usd.Stage.Open(str(tmp_path / "out.usdc"))
     fluid = stage.GetPrimAtPath("/World/Fluid")
     assert len(fluid.GetAttribute("points").Get(0)) == len(mpi["ids"])
+
+
+def test_each_rank_takes_its_hosts_gpu_of_its_local_rank(monkeypatch):
+    """rank_device: cuda:<local rank> modulo the host's GPUs for "cuda" or no device where CUDA is available."""
+    import types
+
+    import warp as wp
+
+    from warpsph.distributed import rank_device
+
+    monkeypatch.setattr(wp, "is_cuda_available", lambda: True)
+    monkeypatch.setattr(wp, "get_cuda_device_count", lambda: 2)
+    assert [rank_device(types.SimpleNamespace(local_rank=k)) for k in range(3)] == ["cuda:0", "cuda:1", "cuda:0"]
+    assert rank_device(types.SimpleNamespace(local_rank=1), "cuda") == "cuda:1"
+    assert rank_device(types.SimpleNamespace(local_rank=1), "cuda:0") == "cuda:0"
+    monkeypatch.setattr(wp, "is_cuda_available", lambda: False)
+    assert rank_device(types.SimpleNamespace(local_rank=1)) == "cpu"
+
+
+@pytest.mark.slow
+def test_the_mpi_benchmark_writes_ms_per_step_and_each_ranks_time_in_the_communicator(tmp_path):
+    """--particles / --steps / --bench-json: bench steps' scene and timing over two processes (about 4 s)."""
+    reason = missing()
+    if reason is not None:
+        pytest.skip(reason)
+    out = tmp_path / "bench.json"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([os.path.abspath(ROOT), os.environ.get("PYTHONPATH", "")]),
+           "WARPSPH_COMMIT": "abc1234"}
+    scene = os.path.join(SCENES_DIR, "dam_break.json")
+    command = [mpiexec(), "-n", "2", sys.executable, "-m", "warpsph.distributed", scene, "--particles", "1000",
+               "--model", "none", "--warmup", "1", "--steps", "2", "--bench-json", str(out), "--device", "cpu", "-q"]
+    done = subprocess.run(command, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stdout + done.stderr
+    result = json.loads(out.read_text())
+    assert json.loads(done.stdout) == result  # rank 0 prints what it writes
+    assert result["ranks"] == 2 and result["devices"] == ["cpu", "cpu"] and result["commit"] == "abc1234"
+    assert result["model"] == "none" and 500 < result["fluid_particles"] < 2000
+    assert sum(result["particles_per_subdomain"]) == result["fluid_particles"]
+    assert result["steps_total"] == 1 + 2 + 2 and result["ms_per_step"] > 0
+    for seconds, calls in zip(result["comm_seconds_per_rank"], result["comm_calls_per_rank"]):
+        assert set(seconds) == set(calls) == {"counts", "transfer", "exchange", "allreduce"}
+        assert calls["counts"] == 2 * 2 and calls["exchange"] > 2 and all(s >= 0 for s in seconds.values())
+        assert sum(seconds.values()) < 2 * result["ms_per_step"] / 1e3  # two timed steps

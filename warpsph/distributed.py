@@ -20,21 +20,36 @@ copies what arrives into place (``_unpack``); an NCCL communicator would send th
 ``ncclAllReduce`` (sum and max are ops of its own) or an ``allgather`` and the same ordered combine on the device.
 The counts stay small host messages.
 
+Each rank adds the seconds it spends inside ``counts``, ``transfer``, ``exchange`` and ``allreduce`` (waiting for the
+others included) to ``MPIComm.seconds`` and their calls to ``MPIComm.calls``.
+
 Launch (one process per GPU; several hosts are a host file away)::
 
     mpiexec -n 2 python -m warpsph.distributed scenes/dam_break.json --scale 64 --frames 50 --out out/dam.usdc
 
 Rank 0 gathers each frame and writes the USD point cache (and ``--positions``: the last frame as .npz); the other
-ranks write nothing. Needs the ``distributed`` extra: ``pip install 'warpsph[distributed]'`` (mpi4py and the
-``mpich`` wheel, whose libmpi mpi4py's wheel loads; any MPI that mpi4py finds works).
+ranks write nothing. Benchmark (strong scaling against ``warpsph bench steps --devices``: the same scene at ~N fluid
+particles, the same timing)::
+
+    mpiexec -n 2 python -m warpsph.distributed scenes/dam_break.json --particles 32e6 --model none \\
+        --warmup 60 --steps 30 --bench-json out/mpi_2.json
+
+Rank 0 prints, and writes to ``--bench-json``, what ``bench steps`` writes for ``--devices`` (ms per step; the stages
+of subdomain 0, rank 0's) with each rank's device and seconds inside the communicator over the timed steps
+(``tools/gpu/mpi_scaling.sh`` runs 1, 2 and 4 ranks on a GPU host). Needs the ``distributed`` extra:
+``pip install 'warpsph[distributed]'`` (mpi4py and the ``mpich`` wheel, whose libmpi mpi4py's wheel loads; any MPI
+that mpi4py finds works).
 """
 
 from __future__ import annotations
 
 import argparse
+import functools
+import json
 import sys
 import time
 import traceback
+from pathlib import Path
 
 import numpy as np
 import warp as wp
@@ -48,6 +63,8 @@ from warpsph.io.frames import HostFrame
 from warpsph.io.usd import UsdPointCache, body_meshes, run_metadata, write_host_frame
 from warpsph.scene import load_scene
 from warpsph.kernels.decomposition import gather_rows
+from warpsph.validation.bench import MODELS, make_scene, timed_steps
+from warpsph.validation.cases import commit_info
 
 EXTRA = "pip install 'warpsph[distributed]' (mpi4py and an MPI runtime such as the mpich wheel)"
 
@@ -79,6 +96,20 @@ def mpi():
     return MPI
 
 
+def _timed(method):
+    """The communicator's call, its seconds and calls added to ``self.seconds`` / ``self.calls`` under its name."""
+    @functools.wraps(method)
+    def timed(self, *args, **kwargs):
+        start = time.perf_counter()
+        try:
+            return method(self, *args, **kwargs)
+        finally:
+            name = method.__name__
+            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
+            self.calls[name] = self.calls.get(name, 0) + 1
+    return timed
+
+
 class MPIComm:
     """The communicator of :class:`~warpsph.decomposition.DecomposedSimulation` when each subdomain is a process of
     ``comm`` (default ``MPI.COMM_WORLD``): subdomain k is rank k. The interface is
@@ -107,6 +138,7 @@ class MPIComm:
         node.Free()
         self._buffers = {}  # staging arrays reused from meeting to meeting: by (direction, peer, position, device)
         self._unpacked = None  # on a GPU: the event after the last meeting's copies out of the host staging
+        self.seconds, self.calls = {}, {}  # inside counts, transfer, exchange, allreduce: by name (:func:`_timed`)
 
     # -- the group's ---------------------------------------------------------------------------------
     def local(self, count):
@@ -138,6 +170,7 @@ class MPIComm:
         self.comm.Abort(code)
 
     # -- the subdomain's -----------------------------------------------------------------------------
+    @_timed
     def counts(self, sub, mine):
         """What each rank's outbox holds for this one (``mine[j]``: this one's for rank j)."""
         received = np.zeros(self.size, np.int64)
@@ -145,12 +178,15 @@ class MPIComm:
         received[self.rank] = 0
         return received
 
+    @_timed
     def transfer(self, sub, dst, placements):
         self._swap(sub, dst, placements)
 
+    @_timed
     def exchange(self, sub, arrays, placements):
         self._swap(sub, arrays, placements)
 
+    @_timed
     def allreduce(self, sub, pairs, read=True):
         """Every rank's values gathered, combined in rank order on every rank (the same sums as the threads')."""
         values = [array.numpy().copy() for array, _ in pairs]  # waits for the device
@@ -312,7 +348,12 @@ def _arguments(argv):
     p = argparse.ArgumentParser(prog="mpiexec -n N python -m warpsph.distributed",
                                 description="One simulation over the MPI processes, a slab of the domain each.")
     p.add_argument("scene", help="scene JSON")
-    p.add_argument("--scale", type=float, default=1.0, help="particle count scale, as warpsph run's")
+    size = p.add_mutually_exclusive_group()
+    size.add_argument("--scale", type=float, default=1.0, help="particle count scale, as warpsph run's")
+    size.add_argument("--particles", type=float, default=None, help="instead of --scale: the scale that gives ~N fluid "
+                                                                    "particles (as warpsph bench steps)")
+    p.add_argument("--model", choices=MODELS, default=None, help="with --particles: the models, as warpsph bench "
+                                                                 "steps' (none: plain DFSPH; default the scene's)")
     p.add_argument("--frames", type=int, default=None, help="output frames (default: the scene's)")
     p.add_argument("--steps", type=int, default=None, help="instead of --frames: this many steps, then the last frame")
     p.add_argument("--device", default=None, help="cpu, cuda (each rank its host's GPU of its local rank; "
@@ -323,8 +364,72 @@ def _arguments(argv):
                                                                            "(default: the domain's longest)")
     p.add_argument("--rebalance-interval", type=int, default=100, help="steps between rebalances (0: never)")
     p.add_argument("--capacity-factor", type=float, default=CAPACITY_FACTOR)
+    p.add_argument("--warmup", type=int, default=None, help="benchmark: this many steps, then --steps (default 30) "
+                                                             "timed as warpsph bench steps times them")
+    p.add_argument("--bench-json", default=None, help="benchmark (--warmup default 0): the result rank 0 writes")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress a frame (rank 0 shows it, as warpsph run)")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    args.bench = args.warmup is not None or args.bench_json is not None
+    if args.bench:
+        args.warmup, args.steps = args.warmup or 0, 30 if args.steps is None else args.steps
+    return args
+
+
+def bench(args, sim, setup_s):
+    """``--warmup`` steps, then :func:`~warpsph.validation.bench.timed_steps` (the stage-timed steps, then the timed
+    ones), each end of the timed steps met by every rank (its device synchronised, then an MPI barrier). The result
+    on rank 0 (ms per step, and each rank's seconds and calls inside the communicator over the timed steps), None
+    on the others."""
+    comm, marks = sim.comm, []
+
+    def meet():
+        wp.synchronize_device(sim.device)
+        comm.comm.Barrier()
+        marks.append((dict(comm.seconds), dict(comm.calls)))
+
+    for _ in range(args.warmup):
+        sim.step()
+    stages, ms, iterations = timed_steps(sim, sim.sims[0], args.steps, synchronize=meet)
+    (s0, c0), (s1, c1) = marks[-2:]
+    device = sim.device.name if sim.device.is_cuda else "cpu"
+    mine = {"device": device, "device_alias": sim.device.alias, "host": comm.MPI.Get_processor_name(),
+            "ms_per_step": ms, "owned": sim.sims[0].num_fluid, "ghosts": sim.subdomains[0].ghosts,
+            "rows": sim.subdomains[0].capacity,
+            "comm_seconds": {k: v - s0.get(k, 0.0) for k, v in s1.items()},
+            "comm_calls": {k: v - c0.get(k, 0) for k, v in c1.items()}}
+    ranks = comm.to_first([mine])
+    if ranks is None:
+        return None
+    scene = sim.scene
+    return {
+        "benchmark": "scene, MPI",
+        "scene": scene.name,
+        "model": "+".join(type(m).plugin_name for m in scene.models) or "none",
+        "ranks": sim.size,
+        "devices": [r["device"] for r in ranks],
+        "device_aliases": [r["device_alias"] for r in ranks],
+        "hosts": [r["host"] for r in ranks],
+        "warp": wp.__version__,
+        **commit_info(),
+        "fluid_particles": sim.num_fluid,
+        "axis": sim.axis,
+        "particles_per_subdomain": [r["owned"] for r in ranks],
+        "ghosts_per_subdomain": [r["ghosts"] for r in ranks],
+        "rows_per_subdomain": [r["rows"] for r in ranks],
+        "particle_radius": scene.particle_radius,
+        "rebalance_interval": sim.rebalance_interval,
+        "setup_s": setup_s,
+        "warmup_steps": args.warmup,
+        "timed_steps": args.steps,
+        "simulated_time_s": sim.time,
+        "steps_total": sim.step_count,
+        "ms_per_step": ms,
+        "ms_per_step_per_rank": [r["ms_per_step"] for r in ranks],
+        "ms_per_step_by_stage_synchronised_subdomain0": stages,
+        **iterations,
+        "comm_seconds_per_rank": [r["comm_seconds"] for r in ranks],  # over the timed steps, waiting included
+        "comm_calls_per_rank": [r["comm_calls"] for r in ranks],
+    }
 
 
 def run(argv=None):
@@ -333,16 +438,33 @@ def run(argv=None):
     if args.steps is not None and args.out is not None:
         raise SceneError("", "--out", "--steps runs steps, not frames: give --frames for a cache (--positions keeps "
                                       "the last step's particles)")
+    if args.model is not None and args.particles is None:
+        raise SceneError("", "--model", "goes with --particles (the benchmark's scene)")
+    for option, value, low in (("--particles", args.particles, 1), ("--warmup", args.warmup, 0),
+                               ("--steps", args.steps, 1)):
+        if value is not None and not low <= value < float("inf"):
+            raise SceneError("", option, f"expected a number >= {low}, got {value}")
     comm = MPIComm()
     log.configure(log.verbosity(quiet=args.quiet) if comm.rank == 0 else log.QUIET)
     init_warp()  # as the command line starts Warp: no CUDA-driver warning on a host without one
     device = rank_device(comm, args.device)
     wp.set_device(device)  # nothing of this rank's lands on another GPU by default
-    scene = load_scene(args.scene, scale=args.scale)
+    if args.particles is not None:
+        scene = make_scene(args, args.particles)  # bench steps' scene at ~N fluid particles
+    else:
+        scene = load_scene(args.scene, scale=args.scale)
     start = time.perf_counter()
     sim = DistributedSimulation(scene, device=device, comm=comm, axis=args.axis, capacity_factor=args.capacity_factor,
                                 rebalance_interval=args.rebalance_interval)
     setup = time.perf_counter() - start
+    if args.bench:
+        result = bench(args, sim, setup)
+        if result is not None:
+            print(json.dumps(result, indent=2), flush=True)
+            if args.bench_json:
+                Path(args.bench_json).parent.mkdir(parents=True, exist_ok=True)
+                Path(args.bench_json).write_text(json.dumps(result, indent=2) + "\n")
+        return 0
     frames = scene.output.frames if args.frames is None else args.frames
     writer = _Writer(sim, args.out, None if args.steps is not None else frames)
     start = time.perf_counter()

@@ -158,7 +158,7 @@ def make_scene(args, particles):
     n_base = len(sample_scene(load_scene(args.scene))[0])
     scene = load_scene(args.scene, scale=particles / n_base)
     changes = {}
-    if args.density_error:
+    if getattr(args, "density_error", None):
         changes["density_max_error"] = args.density_error
     if getattr(args, "sort_interval", None) is not None:
         changes["sort_interval"] = args.sort_interval
@@ -243,11 +243,13 @@ def run(args, particles):
     return result
 
 
-def timed_steps(sim, timed, steps):
+def timed_steps(sim, timed, steps, synchronize=None):
     """``steps`` steps with ``timed``'s stage timer (synchronised around every stage; no graph), then ``steps``
-    as production steps them (graph where available): (ms per stage, ms per step, mean solver iterations)."""
+    as production steps them (graph where available), ``synchronize()`` at both ends (default ``wp.synchronize``;
+    several processes: their barrier too): (ms per stage, ms per step, mean solver iterations)."""
     import warp as wp
 
+    synchronize = synchronize or wp.synchronize
     timed.timer.enabled = True
     timed.timer.seconds.clear()
     it0 = timed.pressure_solver.iteration_totals()
@@ -255,11 +257,11 @@ def timed_steps(sim, timed, steps):
         sim.step()
     stages = {k: 1e3 * v / steps for k, v in timed.timer.seconds.items()}
     timed.timer.enabled = False
-    wp.synchronize()
+    synchronize()
     start = time.perf_counter()
     for _ in range(steps):
         sim.step()
-    wp.synchronize()
+    synchronize()
     total_ms = 1e3 * (time.perf_counter() - start) / steps
     it1 = timed.pressure_solver.iteration_totals()
     solves = max(it1[1] - it0[1], 1), max(it1[3] - it0[3], 1)
