@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Strong scaling of one simulation over MPI ranks, one GPU each (#40), against the threads backend in one process.
 # On a lent GPU host, at the checkout's root, with PYTHONPATH=/tmp/gpu-site:$PWD (the bundle unpacked, mpi4py and
-# the mpich wheel among its wheels) and $OUT set:
+# the mpich wheel among its wheels, and prepare.sh's wheels: pydantic) and $OUT set:
 #   bash tools/gpu/mpi_scaling.sh
+# or through tools/gpu/run.sh, which unpacks all that first (results in $OUT/results.tgz):
+#   BUDGET=570 bash .gpu/s/run.sh "cmd:OUT=/tmp/o/mpi_scaling bash tools/gpu/mpi_scaling.sh"
 # For N in RANKS (default 1 2, and 4 where nvidia-smi lists 4 GPUs or more): the dam break at ~PARTICLES fluid
 # particles, plain DFSPH, WARMUP steps then STEPS timed (python -m warpsph.distributed --bench-json) into
 # $OUT/mpi_N.json (MPI=0: not run); with THREADS=1 (default) also `warpsph bench steps` (N = 1: one GPU, one
@@ -14,8 +16,8 @@
 # starts the ranks with -launcher fork (this host only, no ssh).
 set -u
 PARTICLES=${PARTICLES:-32e6}; WARMUP=${WARMUP:-60}; STEPS=${STEPS:-30}; MODEL=${MODEL:-none}
-SCENE=${SCENE:-scenes/dam_break.json}; MPI=${MPI:-1}; THREADS=${THREADS:-1}; RUN_TIMEOUT=${RUN_TIMEOUT:-420}
-OUT=${OUT:-out/mpi_scaling}; PY=${PYTHON:-$(command -v python3 || command -v python)}
+SCENE=${SCENE:-scenes/dam_break.json}; MPI=${MPI:-1}; THREADS=${THREADS:-1}; RUN_TIMEOUT=${RUN_TIMEOUT:-240}
+OUT=${OUT:-out/mpi_scaling}; PY=${PYTHON:-$(command -v python || command -v python3)}
 mkdir -p "$OUT"
 [ -e warpsph/kernels ] || ln -s ../kernels warpsph/kernels  # the package's kernels/ where it is not installed
 gpus=$( (nvidia-smi -L 2>/dev/null || true) | grep -c '^GPU')
@@ -40,6 +42,7 @@ if [ "$MPILIB" != - ]; then
   export LD_LIBRARY_PATH=$MPILIB${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}
 fi
 [ -x "$MPIEXEC" ] || { echo "no mpiexec ($MPIEXEC): set MPIEXEC"; exit 3; }
+"$PY" -c "import warpsph.distributed, mpi4py.MPI" || { echo "warpsph.distributed or mpi4py does not import (above)"; exit 4; }
 MPIRUN=("$MPIEXEC" -launcher fork)
 { echo "commit $WARPSPH_COMMIT; $gpus GPUs; device $DEVICE; ranks $RANKS; mpiexec $MPIEXEC"
   (nvidia-smi --query-gpu=index,name,driver_version,memory.total --format=csv,noheader; nvidia-smi topo -m) 2>/dev/null
@@ -47,7 +50,7 @@ MPIRUN=("$MPIEXEC" -launcher fork)
 "${MPIRUN[@]}" -n 2 "$PY" -c "from mpi4py import MPI; c = MPI.COMM_WORLD; v = MPI.Get_library_version().split()
 hosts = c.gather(MPI.Get_processor_name())
 c.rank or print(f'mpi4py {v[0]} {v[2]}: {c.size} ranks on {hosts}', flush=True)" 2>&1 | tee -a "$OUT/host.txt"
-[ "${PIPESTATUS[0]}" = 0 ] || { echo "mpiexec -n 2 failed (above)"; exit 4; }
+[ "${PIPESTATUS[0]}" = 0 ] || { echo "mpiexec -n 2 failed (above)"; exit 5; }
 
 line() {  # one line from a result JSON: particles, ms a step, MPI: each rank's ms a step in the communicator; the run's s
   "$PY" - "$@" <<'P'
