@@ -30,6 +30,7 @@ KEPT = (
     "validate_sinking-sphere_h100.json", "validate_dam-front_h100_37.json",
     # docs/validation.md, performance (and docs/method.md, docs/splishsplash.md)
     "bench_dam_break_1M_models_h100.json", "scaling_h200x4.json", "multi_gpu_h200x2.json",
+    "scaling_mpi_h200x4.json",
     "vs_splishsplash_1M_h100.json",
     # docs/papers.md: the latest run of each table
     "vr_fig7_h200_37.json", "rankine_fig11_h200_37.json", "vr_table1_h100.json",
@@ -297,6 +298,16 @@ def test_the_performance_numbers_are_the_files():
     for cell, value in zip(table[1][2:4], (ms[(63710026, 2, 2)], ms[(63710026, 4, 4)])):
         assert agrees(numbers(cell)[0], value)
     assert agrees(numbers(table[2][3])[0], ms[(199794688, 4, 8)])
+
+    backends = load("scaling_mpi_h200x4.json")
+    table = table_after(text, "**One process per GPU (MPI)**")
+    for row, kind in zip(table, ("threads", "mpi")):
+        runs = backends[kind]
+        for cell, n in zip(row[1:4], ("1", "2", "4")):
+            number, *speedup = numbers(cell)
+            assert agrees(number, runs[n]["ms_per_step"]), (kind, n)
+            if speedup:
+                assert agrees(speedup[0], runs[n]["speedup_vs_1"]), (kind, n)
 
     multi = load("multi_gpu_h200x2.json")["summary"]
     check_table(text, "**Two NVIDIA H200**", {
