@@ -308,6 +308,10 @@ def test_the_performance_numbers_are_the_files():
             assert agrees(number, runs[n]["ms_per_step"]), (kind, n)
             if speedup:
                 assert agrees(speedup[0], runs[n]["speedup_vs_1"]), (kind, n)
+    weak = backends["weak_32M_per_gpu"]["runs"]
+    quoted = re.search(r"Weak scaling at 32M a GPU.*?\(goal", " ".join(text.split())).group(0)
+    for n in ("2", "4"):
+        assert f"{weak[n]['ms_per_step']:.1f} ms" in quoted and f"**{100 * weak[n]['efficiency']:.0f} %**" in quoted, n
 
     multi = load("multi_gpu_h200x2.json")["summary"]
     check_table(text, "**Two NVIDIA H200**", {
