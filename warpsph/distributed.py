@@ -401,21 +401,25 @@ def bench(args, sim, setup_s):
     if ranks is None:
         return None
     scene = sim.scene
+
+    def each(key):  # every rank's value of ``key``, in rank order
+        return [r[key] for r in ranks]
+
     return {
         "benchmark": "scene, MPI",
         "scene": scene.name,
         "model": "+".join(type(m).plugin_name for m in scene.models) or "none",
         "ranks": sim.size,
-        "devices": [r["device"] for r in ranks],
-        "device_aliases": [r["device_alias"] for r in ranks],
-        "hosts": [r["host"] for r in ranks],
+        "devices": each("device"),
+        "device_aliases": each("device_alias"),
+        "hosts": each("host"),
         "warp": wp.__version__,
         **commit_info(),
         "fluid_particles": sim.num_fluid,
         "axis": sim.axis,
-        "particles_per_subdomain": [r["owned"] for r in ranks],
-        "ghosts_per_subdomain": [r["ghosts"] for r in ranks],
-        "rows_per_subdomain": [r["rows"] for r in ranks],
+        "particles_per_subdomain": each("owned"),
+        "ghosts_per_subdomain": each("ghosts"),
+        "rows_per_subdomain": each("rows"),
         "particle_radius": scene.particle_radius,
         "rebalance_interval": sim.rebalance_interval,
         "setup_s": setup_s,
@@ -424,11 +428,11 @@ def bench(args, sim, setup_s):
         "simulated_time_s": sim.time,
         "steps_total": sim.step_count,
         "ms_per_step": ms,
-        "ms_per_step_per_rank": [r["ms_per_step"] for r in ranks],
+        "ms_per_step_per_rank": each("ms_per_step"),
         "ms_per_step_by_stage_synchronised_subdomain0": stages,
         **iterations,
-        "comm_seconds_per_rank": [r["comm_seconds"] for r in ranks],  # over the timed steps, waiting included
-        "comm_calls_per_rank": [r["comm_calls"] for r in ranks],
+        "comm_seconds_per_rank": each("comm_seconds"),  # over the timed steps, waiting included
+        "comm_calls_per_rank": each("comm_calls"),
     }
 
 
