@@ -3,7 +3,7 @@
 import warp as wp
 
 from .particles import Boundary, Neighbours, SymmetricMatrix, separation, symmetric_times
-from .reductions import REDUCE_THREADS
+from .pressure import REDUCE_THREADS
 from .sph_kernel import cubic_kernel_gradient
 
 wp.set_module_options({"enable_backward": False})

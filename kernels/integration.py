@@ -3,8 +3,48 @@
 import warp as wp
 
 from .particles import keep_in_domain
+from .pressure import REDUCE_THREADS, block_max, first_in_block
 
 wp.set_module_options({"enable_backward": False})
+
+
+@wp.kernel
+def compute_max_speed(
+    v: wp.array(dtype=wp.vec3),
+    count: int,
+    gravity: wp.vec3,
+    dt: wp.array(dtype=float),
+    max_speed_sq: wp.array(dtype=float),
+):
+    """max_speed_sq[0] = max_i |v_i|^2 and max_speed_sq[1] = max_i |v_i + g dt|^2 with ``dt`` the last step's (reset
+    both to 0 first; the second is SPlisHSPlasH's CFL speed |v + a h|, its a the gravity here): launched on
+    REDUCE_THREADS threads, grid-stride, one atomic per block and value (one atomic per particle on one address took
+    0.45 ms at 1M on an H100, 7 % of a step)."""
+    t = wp.tid()
+    shift = gravity * dt[0]
+    m = float(0.0)
+    m_cfl = float(0.0)
+    for i in range(t, count, REDUCE_THREADS):
+        m = wp.max(m, wp.length_sq(v[i]))
+        m_cfl = wp.max(m_cfl, wp.length_sq(v[i] + shift))
+    m = block_max(m)
+    m_cfl = block_max(m_cfl)
+    if first_in_block(t):
+        wp.atomic_max(max_speed_sq, 0, m)
+        wp.atomic_max(max_speed_sq, 1, m_cfl)
+
+
+@wp.kernel
+def compute_max_body_speed(v: wp.array(dtype=wp.vec3), count: int, max_speed_sq: wp.array(dtype=float)):
+    """max_speed_sq[1] = max(max_speed_sq[1], max_i |v_i|^2) over moving bodies' boundary samples (SPlisHSPlasH's CFL
+    speed takes the moving bodies' too): launched on REDUCE_THREADS threads, as :data:`compute_max_speed`."""
+    t = wp.tid()
+    m = float(0.0)
+    for i in range(t, count, REDUCE_THREADS):
+        m = wp.max(m, wp.length_sq(v[i]))
+    m = block_max(m)
+    if first_in_block(t):
+        wp.atomic_max(max_speed_sq, 1, m)
 
 
 @wp.kernel

@@ -13,9 +13,8 @@ import warp as wp
 
 from conftest import make_sim, tank_scene
 from warpsph import load_scene
-from warpsph.kernels import reductions
-from warpsph.kernels.integration import compute_time_step
-from warpsph.kernels.reductions import REDUCE_THREADS
+from warpsph.kernels.integration import compute_max_body_speed, compute_max_speed, compute_time_step
+from warpsph.kernels.pressure import REDUCE_THREADS
 from warpsph.simulation import viscous_substeps
 
 GRAVITY = np.array([0.0, -9.81, 0.0])
@@ -53,10 +52,9 @@ def test_moving_bodies_speeds_bound_the_step(device):
         body = wp.array(np.array([[0.0, 0.0, 4.0], [1.0, 0.0, 0.0]], np.float32), dtype=wp.vec3)
         last = wp.array(np.array([0.002], np.float32), dtype=float)
         speed = wp.zeros(2, dtype=float)
-        kernels = reductions.for_device(device)
-        wp.launch(kernels.compute_max_speed, REDUCE_THREADS, [fluid, 2, wp.vec3(*GRAVITY), last, speed])
+        wp.launch(compute_max_speed, REDUCE_THREADS, [fluid, 2, wp.vec3(*GRAVITY), last, speed])
         assert math.sqrt(float(speed.numpy()[1])) == pytest.approx(1.0 + 9.81 * 0.002, rel=1e-5)
-        wp.launch(kernels.compute_max_body_speed, REDUCE_THREADS, [body, 2, speed])
+        wp.launch(compute_max_body_speed, REDUCE_THREADS, [body, 2, speed])
         assert math.sqrt(float(speed.numpy()[1])) == pytest.approx(4.0, rel=1e-5)
         assert math.sqrt(float(speed.numpy()[0])) == pytest.approx(1.0, rel=1e-5)  # the fluid's, untouched
         empty_i, empty_f = wp.empty(0, dtype=wp.int32), wp.empty(0, dtype=float)

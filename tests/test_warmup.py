@@ -21,7 +21,7 @@ from warpsph.simulation import Simulation
 
 K = "warpsph.kernels."
 CORE = {K + n for n in ("neighbours", "density", "pressure", "integration", "stability", "boundary", "free_surface",
-                        "density_solver", "divergence_solver", "shifting", "viscosity", "reductions")}
+                        "density_solver", "divergence_solver", "shifting", "viscosity")}
 FEATURES = {K + n for n in ("bodies", "inflow", "iisph", "micropolar", "rankine", "vorticity_refinement",
                             "vorticity", "decomposition", "diagnostics")}
 
@@ -34,23 +34,20 @@ def channel(**extra):
 
 
 def test_scene_modules_name_each_feature_only_when_the_scene_has_it():
-    on_cpu = lambda scene, **options: warmup.scene_modules(scene, device="cpu", **options)  # noqa: E731
     dam = load_scene(os.path.join(SCENES_DIR, "dam_break.json"), scale=0.1)
-    assert set(warmup.scene_modules(dam, device="cpu")) == CORE
-    # the reductions' build is the device's: tile code only where it runs (CUDA), both when the device is not known
-    assert set(warmup.scene_modules(dam)) == CORE | {K + "block_reductions"}
-    assert set(on_cpu(dam, frames=True)) == CORE | {K + "diagnostics", K + "vorticity"}
-    assert set(on_cpu(dam, decomposed=True)) == CORE | {K + "decomposition"}
+    assert set(warmup.scene_modules(dam)) == CORE
+    assert set(warmup.scene_modules(dam, frames=True)) == CORE | {K + "diagnostics", K + "vorticity"}
+    assert set(warmup.scene_modules(dam, decomposed=True)) == CORE | {K + "decomposition"}
     tank = tank_scene(radius=0.05)
-    micropolar = set(on_cpu(scene_from_dict({**tank, "models": [{"type": "micropolar"}]})))
+    micropolar = set(warmup.scene_modules(scene_from_dict({**tank, "models": [{"type": "micropolar"}]})))
     assert micropolar == CORE | {K + "micropolar"}  # the viscosity pass fills the shared vorticity
-    inviscid = set(on_cpu(scene_from_dict({**tank, "fluid": {"viscosity": 0.0},
-                                           "models": [{"type": "vorticity_refinement"}]})))
+    inviscid = set(warmup.scene_modules(scene_from_dict({**tank, "fluid": {"viscosity": 0.0},
+                                                         "models": [{"type": "vorticity_refinement"}]})))
     assert inviscid == CORE - {K + "viscosity"} | {K + "vorticity_refinement", K + "vorticity"}
-    iisph = set(on_cpu(scene_from_dict({**tank, "solver": {"method": "iisph"}})))
+    iisph = set(warmup.scene_modules(scene_from_dict({**tank, "solver": {"method": "iisph"}})))
     assert iisph == CORE - {K + n for n in ("free_surface", "density_solver", "divergence_solver", "shifting")} | {K + "iisph"}
-    assert K + "inflow" in on_cpu(scene_from_dict(channel()))
-    assert K + "bodies" in on_cpu(load_scene(os.path.join(SCENES_DIR, "propeller.json"), scale=0.01))
+    assert K + "inflow" in warmup.scene_modules(scene_from_dict(channel()))
+    assert K + "bodies" in warmup.scene_modules(load_scene(os.path.join(SCENES_DIR, "propeller.json"), scale=0.01))
 
 
 def test_plugin_modules_are_named_or_those_of_its_kernels():
@@ -141,7 +138,7 @@ SCRIPT = textwrap.dedent("""
     for _ in range(5):
         sim.step()
     print(json.dumps({"before": before, "after_set_up": after_set_up, "after_steps": loaded(),
-                      "expected": sorted(warmup.scene_modules(scene, device="cpu"))}))
+                      "expected": sorted(warmup.scene_modules(scene))}))
 """)
 
 
@@ -197,7 +194,7 @@ def test_warmup_verb_compiles_the_scene_modules_and_reports(capsys):
     listed = {line.split()[0] for line in out.splitlines() if line.startswith("  ")}
     assert listed == CORE | {K + "diagnostics", K + "vorticity"}  # what warpsph run launches, no other
     last = out.splitlines()[-1]
-    assert "of 14 modules compiled on cpu in" in last and "(2 threads)" in last
+    assert "of 13 modules compiled on cpu in" in last and "(2 threads)" in last
     assert f"kernel cache {wp.config.kernel_cache_dir}" in last
 
 
@@ -241,14 +238,14 @@ def test_warmup_compiles_for_a_gpu_architecture_without_a_gpu(tmp_path):
     scene = os.path.join(SCENES_DIR, "dam_break.json")
     first = _warmup_in(tmp_path, "--arch", "90", "--scene", scene, "--workers", "2")
     assert first.returncode == 0, first.stderr
-    assert "14 of 14 modules compiled for sm_90" in first.stdout.splitlines()[-1]
+    assert "13 of 13 modules compiled for sm_90" in first.stdout.splitlines()[-1]
     root = tmp_path / wp.__version__
-    for name in CORE - {K + "reductions"} | {K + "block_reductions", K + "diagnostics", K + "vorticity"}:
-        (folder,) = warmup.cache_folders(name, root)  # the reductions' CUDA build, not the CPU's
+    for name in CORE | {K + "diagnostics", K + "vorticity"}:
+        (folder,) = warmup.cache_folders(name, root)
         assert sorted(p.name.split(".")[-2:] for p in folder.iterdir() if p.suffix in (".cubin", ".ptx")) == \
             [["sm90", "cubin"], ["sm90", "ptx"]], name
     again = _warmup_in(tmp_path, "--arch", "90", "--scene", scene)
-    assert again.returncode == 0 and "0 of 14 modules compiled" in again.stdout.splitlines()[-1]
+    assert again.returncode == 0 and "0 of 13 modules compiled" in again.stdout.splitlines()[-1]
     bad = _warmup_in(tmp_path, "--arch", "72")
     assert bad.returncode == 2 and "--arch" in bad.stderr and "sm_72" in bad.stderr
 
@@ -262,4 +259,4 @@ def test_a_run_on_the_gpu_loads_what_warmup_compiled_for_its_architecture(tmp_pa
     scene = os.path.join(SCENES_DIR, "dam_break.json")
     assert _warmup_in(tmp_path, "--arch", str(arch), "--scene", scene).returncode == 0
     on_device = _warmup_in(tmp_path, "--device", "cuda:0", "--scene", scene)
-    assert on_device.returncode == 0 and "0 of 14 modules compiled on cuda:0" in on_device.stdout.splitlines()[-1]
+    assert on_device.returncode == 0 and "0 of 13 modules compiled on cuda:0" in on_device.stdout.splitlines()[-1]

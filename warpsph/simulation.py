@@ -22,12 +22,13 @@ from warpsph.kernels.density import compute_density_and_factor
 from warpsph.kernels.integration import (
     advance_clock,
     advect_positions,
+    compute_max_body_speed,
+    compute_max_speed,
     compute_time_step,
     predict_velocity,
 )
 from warpsph.kernels.neighbours import gather
-from warpsph.kernels import reductions
-from warpsph.kernels.reductions import REDUCE_THREADS
+from warpsph.kernels.pressure import REDUCE_THREADS
 from warpsph.kernels.particles import Boundary
 from warpsph.models import REGISTRY, ModelContext, plugin_of
 from warpsph.models.vorticity import VorticityField, curl_of
@@ -161,7 +162,6 @@ class Simulation:
             self.viscous_substeps = (z("clock", int(sub), dtype=wp.int32), z("clock", int(sub)))
             self.substeps_left = z("clock", int(sub), dtype=wp.int32)
             self.max_speed_sq = z("clock", 2)  # [max |v|^2 of the fluid, the CFL speed^2 (compute_max_speed)]
-            self.reductions = reductions.for_device(self.device)  # the per-block build on CUDA, per-thread on the CPU
             has_dynamic = any(b.kind == "dynamic" for b in moving)
             first_dynamic = first_moving + sum(len(b.samples) for b in moving if b.kind == "kinematic")
             self.boundary = BoundaryParticles(
@@ -188,7 +188,7 @@ class Simulation:
                 neighbour_lists=lambda: self.neighbours.lists, lower=self.neighbours.lower,
                 period=self.neighbours.period, launch=self.launch, scratch=self.scratch, permute=self.permute,
                 exchange=self.exchange, allreduce=self.allreduce, global_count=lambda: self.global_count,
-                gravity=lambda: self.gravity, max_speed_sq=self.max_speed_sq, reductions=self.reductions,
+                gravity=lambda: self.gravity, max_speed_sq=self.max_speed_sq,
                 # the dynamic bodies it moves inside its iterations (start_coupling below); not those that stay put
                 bodies=self.moving_bodies if bodies_move else None)
             with stage("pressure solver set-up"):
@@ -244,7 +244,7 @@ class Simulation:
         extra = [] if preload is None or isinstance(preload, bool) else list(preload)
         if preload is True or (preload is not False and warmup.enabled()):
             names = warmup.scene_modules(self.scene, bodies=self.bodies, fluid=fluid,
-                                         decomposed=self.halo is not None, device=self.device)
+                                         decomposed=self.halo is not None)
             warmup.preload(names + extra, self.device)
 
     # -- the constants live in self.constants; these read them ----------------------------------------------
@@ -624,12 +624,10 @@ class Simulation:
             self.pressure_solver.detect_free_surface()
         with t("time_step"):  # CFL condition on |v^n + g dt^(n-1)| and the moving bodies' speeds (SPlisHSPlasH's)
             self.max_speed_sq.zero_()
-            self.launch(self.reductions.compute_max_speed, REDUCE_THREADS,
-                        [f.v, n, self.gravity, self.dt, self.max_speed_sq])
+            self.launch(compute_max_speed, REDUCE_THREADS, [f.v, n, self.gravity, self.dt, self.max_speed_sq])
             moving = self.boundary.v.shape[0]
             if moving:
-                self.launch(self.reductions.compute_max_body_speed, REDUCE_THREADS,
-                            [self.boundary.v, moving, self.max_speed_sq])
+                self.launch(compute_max_body_speed, REDUCE_THREADS, [self.boundary.v, moving, self.max_speed_sq])
             self.allreduce((self.max_speed_sq, "mm"))
             tm = self.scene.time
             self.launch(compute_time_step, 1,

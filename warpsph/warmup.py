@@ -65,28 +65,13 @@ def plugin_modules(cls) -> list[str]:
     return sorted({v.module.name for v in namespace.values() if isinstance(v, wp.Kernel)})
 
 
-def reduction_modules(device=None) -> list[str]:
-    """The build of kernels/reductions.py that ``device`` launches (a Warp device or its alias): the per-block one
-    (tile code) on CUDA, the per-thread one on the CPU; both when ``device`` is None (not known yet)."""
-    import warp as wp
-
-    from warpsph.device import pick_device
-
-    if device is None:
-        return _k("reductions", "block_reductions")
-    if isinstance(device, str):
-        device = pick_device(device)
-    return _k("block_reductions" if wp.get_device(device).is_cuda else "reductions")
-
-
-def scene_modules(scene, bodies=None, fluid=None, decomposed=False, frames=False, device=None) -> list[str]:
+def scene_modules(scene, bodies=None, fluid=None, decomposed=False, frames=False) -> list[str]:
     """The names of the Warp modules whose kernels a :class:`~warpsph.simulation.Simulation` of ``scene``
     launches in its set-up and its steps. ``bodies``: the scene's obstacles as loaded
     (:class:`~warpsph.bodies.RigidBody`) and ``fluid``: the fluid particles sampled at t = 0, which tell whether
     the bodies launch kernels; ``decomposed``: as a
     subdomain of a :class:`~warpsph.decomposition.DecomposedSimulation`; ``frames``: with the frame
-    diagnostics of ``warpsph run`` (:class:`~warpsph.diagnostics.Diagnostics`); ``device``: the device it runs on
-    (:func:`reduction_modules`).
+    diagnostics of ``warpsph run`` (:class:`~warpsph.diagnostics.Diagnostics`).
 
     The stepper's own always (neighbour lists and re-sorting, densities, pressure, integration, the health
     check); the boundary volumes when there are walls or bodies; DFSPH's free surface and density solve, its
@@ -95,7 +80,7 @@ def scene_modules(scene, bodies=None, fluid=None, decomposed=False, frames=False
     is closed and fluid was sampled (the fluid inside it is removed): without ``bodies``, whenever the scene has
     obstacles (an open static mesh launches none); inflow with emitters, sinks or an open domain."""
     domain, solver = scene.domain, scene.solver
-    names = _k("neighbours", "density", "pressure", "integration", "stability") + reduction_modules(device)
+    names = _k("neighbours", "density", "pressure", "integration", "stability")
     if (domain.walls and len(domain.periodic) < 3) or scene.obstacles:
         names += _k("boundary")
     names += solver_class(solver.method).kernel_modules(scene)
@@ -146,7 +131,7 @@ def all_modules() -> list[str]:
     names = []
     for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda i: i.name):
         module = importlib.import_module(f"{KERNELS}.{info.name}")
-        if wp.get_module(module.__name__).kernels:
+        if any(isinstance(v, wp.Kernel) for v in vars(module).values()):
             names.append(module.__name__)
     return list(dict.fromkeys(names + surface_modules()))
 
@@ -242,16 +227,14 @@ def _in_parallel(tasks, max_workers):
     return [done[k] for k in range(len(tasks))]
 
 
-def _modules(names, kind):
-    """The Warp modules ``names`` (imported) that are built for devices of ``kind`` ("cpu" or "cuda"; a module may
-    name the kinds it is for in ``DEVICES``, as kernels/reductions.py's two builds do), the largest Python source
-    first."""
+def _modules(names):
+    """The Warp modules ``names`` (imported), the largest Python source first."""
     import warp as wp
 
     modules = []
     for name in dict.fromkeys(names):
-        if kind in getattr(importlib.import_module(name), "DEVICES", (kind,)):
-            modules.append(wp.get_module(name))
+        importlib.import_module(name)
+        modules.append(wp.get_module(name))
     return sorted(modules, key=lambda m: -_size(m.name))
 
 
@@ -271,7 +254,7 @@ def preload(names, device=None, max_workers=None) -> list[Loaded]:
         wp.force_load(device=device, modules=[module], max_workers=0)
         return Loaded(module.name, time.perf_counter() - start, bool(_cache_files(module.name) - before))
 
-    modules = _modules(names, "cuda" if device.is_cuda else "cpu")
+    modules = _modules(names)
     return _in_parallel([lambda m=m: load(m) for m in modules], max_workers or idle_cores())
 
 
@@ -299,7 +282,7 @@ def compile_for_archs(names, archs, max_workers=None) -> list[Loaded]:
                               bool(_cache_files(module.name) - before)))
         return out
 
-    modules = _modules(names, "cuda")
+    modules = _modules(names)
     return [m for built in _in_parallel([lambda m=m: build(m) for m in modules], max_workers or idle_cores())
             for m in built]
 
@@ -327,8 +310,7 @@ def command(args):
     if args.scene:
         names = []
         for path in args.scene:
-            names += scene_modules(load_scene(path), frames=True,  # a bad file: SceneError naming it
-                                   device=None if args.arch else args.device)
+            names += scene_modules(load_scene(path), frames=True)  # a bad file: SceneError naming it
         names = list(dict.fromkeys(names))
     else:
         names = all_modules()

@@ -32,7 +32,6 @@ class SolverContext:
     global_count: object  # () -> fluid particles in the whole simulation (over every subdomain)
     gravity: object  # () -> wp.vec3 [m/s^2]: the gravity now (it may change between steps)
     max_speed_sq: object  # device array of two: this step's [max |v|^2, the CFL speed^2] (compute_max_speed)
-    reductions: object  # the device's build of kernels/reductions.py (reduce_error, reduce_source_sum, ...)
     bodies: object = None  # warpsph.bodies.MovingBodies whose dynamic bodies move inside the pressure
     # iterations (``respond``, ``couple``, ``coupling["residual"]``), or None (none, or they do not move)
 

@@ -28,15 +28,17 @@ from warpsph.kernels.free_surface import classify_free_surface
 from warpsph.kernels.integration import advect_positions
 from warpsph.kernels.particles import SymmetricMatrix
 from warpsph.kernels.pressure import (
+    REDUCE_THREADS,
     apply_corrected_pressure_acceleration,
     apply_pressure_acceleration,
     compute_gradient_correction,
+    reduce_error,
+    reduce_source_sum,
     remove_mean_source,
     update_solver_status,
     warm_start_bulk,
     warm_start_pressure,
 )
-from warpsph.kernels.reductions import REDUCE_THREADS
 from warpsph.kernels.shifting import apply_shift, compute_shift
 from warpsph.solvers.base import CORRECTED, FLUID_STATE, SOLVER, PressureSolver, register_solver
 from warpsph.models.viscosity import Viscosity
@@ -346,7 +348,7 @@ class DFSPHSolver(PressureSolver):
         ctx = self.ctx
         ctx.launch(self._source(kind), ctx.num_fluid, inputs + [self.error, self.stiffness])
         if self._removes_mean():  # a step without free surface (on the device): the source less its mean
-            ctx.launch(ctx.reductions.reduce_source_sum, REDUCE_THREADS,
+            ctx.launch(reduce_source_sum, REDUCE_THREADS,
                        [self.error, ctx.num_fluid, self.free_surface, self.error_stats])
             if self.free_surface_known != 1:  # (error_stats[2] stays 0 with a free surface)
                 ctx.allreduce((self.error_stats, "--s"))
@@ -358,7 +360,7 @@ class DFSPHSolver(PressureSolver):
                        [self.error, self._factor(kind), ctx.dt, ctx.dt_previous, int(kind == DIVERGENCE),
                         self.surface, self.free_surface, self.pressure_sum[kind], int(self._bulk_first(kind)),
                         int(not self._removes_mean()), self.stiffness])
-        ctx.launch(ctx.reductions.reduce_error, REDUCE_THREADS, [self.error, ctx.num_fluid, self.error_stats])
+        ctx.launch(reduce_error, REDUCE_THREADS, [self.error, ctx.num_fluid, self.error_stats])
         ctx.allreduce((self.error_stats, "sm-"))
         ctx.launch(update_solver_status, 1,
                    [self.error_stats, ctx.global_count(), max_error, max_error * PEAK_ERROR_RATIO, int(kind == DIVERGENCE), *rate, ctx.dt, min_it, max_it,

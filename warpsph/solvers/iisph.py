@@ -24,8 +24,7 @@ from warpsph.kernels.iisph import (
     update_iisph_pressure,
 )
 from warpsph.kernels.particles import SymmetricMatrix
-from warpsph.kernels.pressure import apply_pressure_acceleration, update_solver_status
-from warpsph.kernels.reductions import REDUCE_THREADS
+from warpsph.kernels.pressure import REDUCE_THREADS, apply_pressure_acceleration, reduce_error, update_solver_status
 from warpsph.keys import key, schema
 from warpsph.solvers.base import IISPH_FLUID_STATE, IISPH_SOLVER, PressureSolver, register_solver
 from warpsph.solvers.dfsph import DENSITY, PEAK_ERROR_RATIO
@@ -131,7 +130,7 @@ class IISPHSolver(PressureSolver):
             ctx.launch(update_iisph_pressure, n,
                        [f.x, nb, f.density, V, rho0, H, MIN_DIAGONAL / (H * H), ctx.dt, s.relaxation,
                         self.d_ii, self.a_ii, self.source, self.displacement, self.pressure, self.stiffness, self.error])
-            ctx.launch(ctx.reductions.reduce_error, REDUCE_THREADS, [self.error, n, self.error_stats])
+            ctx.launch(reduce_error, REDUCE_THREADS, [self.error, n, self.error_stats])
             ctx.launch(update_solver_status, 1,
                        [self.error_stats, n, max_error, max_error * PEAK_ERROR_RATIO, 0, 0.0, 0.0, ctx.dt, s.min_iterations,
                         s.max_iterations, 0, DENSITY, self.average_error, self.condition, self.iterations, self.totals,
