@@ -12,6 +12,7 @@ from .vorticity import curl_term
 wp.set_module_options({"enable_backward": False})
 
 
+
 @wp.func
 def residual_laplacian(a_dot_x: float, x_ij: wp.vec3, grad_w: wp.vec3, volume_j: float, support_radius: float):
     """:func:`artificial_laplacian` given A_ij . x_ij."""
