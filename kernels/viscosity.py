@@ -2,6 +2,8 @@
 free surface the divergence of the corrected strain rate, div (2 S), with eq 4 on its gradient-corrected residual.
 """
 
+import os
+
 import warp as wp
 
 from .free_surface import SURFACE, off_surface
@@ -11,6 +13,12 @@ from .vorticity import curl_term
 
 wp.set_module_options({"enable_backward": False})
 
+# Prototype (#37, helper h6; not the default): WARPSPH_VISCOSITY_PAIR_VOLUME=1 gives eq 4, and the residual's eq 4 in
+# the corrected operator, the pair's mean volume (m / rho_i + m / rho_j) / 2 (Morris et al. 1997 with mu = rho nu)
+# instead of m / rho_j: the pair's central forces are then equal and opposite, so they exert no torque and no net
+# force. With m / rho_j, a pair across the free surface's density drop (0.8-1.0 rho0) took -0.36 / -0.43 % of the
+# vortex-surface case's angular momentum by T at 16 / 24 across (docs/notes/solver.md, helper h6). Unset: m / rho_j.
+PAIR_VOLUME = wp.constant(int(os.environ.get("WARPSPH_VISCOSITY_PAIR_VOLUME", "0").strip() not in ("", "0")))
 
 
 @wp.func
@@ -104,10 +112,7 @@ def _viscosity_acceleration_kernel(corrected: bool):
         acceleration: wp.array(dtype=wp.vec3),
         vorticity: wp.array(dtype=wp.vec3),
     ):
-        """a_i += nu * laplacian(v)_i (eq 4) with the pair's mean volume (m / rho_i + m / rho_j) / 2 as the neighbour's
-        (Morris et al. 1997 with mu = rho nu): the pair's forces are then equal and opposite along x_ij, so they exert
-        no torque and no net force (with m / rho_j, pairs across the free surface's density drop to 0.8 rho0 took 0.4 %
-        of a vortex's angular momentum by T below a surface); plus, with
+        """a_i += nu * laplacian(v)_i with m_j / rho_j as the neighbour volume (eq 4), plus, with
         ``boundary_viscosity``, the same term against the boundary samples' velocities (V_b as volume):
         walls and moving bodies drag the fluid; a dynamic body's sample gets the opposite impulse.
 
@@ -134,7 +139,6 @@ def _viscosity_acceleration_kernel(corrected: bool):
         curl = wp.vec3(0.0)
         si = SymmetricMatrix()
         volume0 = particle_mass / rest_density
-        own_volume = particle_mass / density[i]
         bulk = False  # the corrected operator away from the free surface and its band, eq 4 there
         if wp.static(corrected):
             si = strain_rate[i]
@@ -143,7 +147,9 @@ def _viscosity_acceleration_kernel(corrected: bool):
             j = nb.fluid[k]
             x_ij = separation(nb, xi, x[j])
             volume = particle_mass / density[j]
-            pair_volume = 0.5 * (volume + own_volume)  # eq 4's (the vorticity keeps m / rho_j)
+            pair_volume = volume  # eq 4's (the vorticity keeps m / rho_j)
+            if PAIR_VOLUME != 0:
+                pair_volume = 0.5 * (volume + particle_mass / density[i])
             v_ij = vi - v[j]
             gw = cubic_kernel_gradient(x_ij, support_radius)
             # a pair weighs the two operators by its particles' share of the bulk, the same from both sides (equal
