@@ -2,8 +2,6 @@
 free surface the divergence of the corrected strain rate, div (2 S), with eq 4 on its gradient-corrected residual.
 """
 
-import os
-
 import warp as wp
 
 from .free_surface import SURFACE, off_surface
@@ -12,13 +10,6 @@ from .sph_kernel import cubic_kernel_gradient
 from .vorticity import curl_term
 
 wp.set_module_options({"enable_backward": False})
-
-# Prototype (#37, helper h6; not the default): WARPSPH_VISCOSITY_PAIR_VOLUME=1 gives eq 4, and the residual's eq 4 in
-# the corrected operator, the pair's mean volume (m / rho_i + m / rho_j) / 2 (Morris et al. 1997 with mu = rho nu)
-# instead of m / rho_j: the pair's central forces are then equal and opposite, so they exert no torque and no net
-# force. With m / rho_j, a pair across the free surface's density drop (0.8-1.0 rho0) took -0.36 / -0.43 % of the
-# vortex-surface case's angular momentum by T at 16 / 24 across (docs/notes/solver.md, helper h6). Unset: m / rho_j.
-PAIR_VOLUME = wp.constant(int(os.environ.get("WARPSPH_VISCOSITY_PAIR_VOLUME", "0").strip() not in ("", "0")))
 
 
 @wp.func
@@ -147,9 +138,6 @@ def _viscosity_acceleration_kernel(corrected: bool):
             j = nb.fluid[k]
             x_ij = separation(nb, xi, x[j])
             volume = particle_mass / density[j]
-            pair_volume = volume  # eq 4's (the vorticity keeps m / rho_j)
-            if PAIR_VOLUME != 0:
-                pair_volume = 0.5 * (volume + particle_mass / density[i])
             v_ij = vi - v[j]
             gw = cubic_kernel_gradient(x_ij, support_radius)
             # a pair weighs the two operators by its particles' share of the bulk, the same from both sides (equal
@@ -164,9 +152,9 @@ def _viscosity_acceleration_kernel(corrected: bool):
                 stress = symmetric_times(si, symmetric_times(stress_correction[i], gw))
                 stress += symmetric_times(strain_rate[j], symmetric_times(stress_correction[j], gw))
                 lap += (2.0 * share * volume0) * stress
-                lap += (share * CORRECTED_STABILISER) * residual_laplacian(residual, x_ij, gw, pair_volume, support_radius)
+                lap += (share * CORRECTED_STABILISER) * residual_laplacian(residual, x_ij, gw, volume, support_radius)
             if share < 1.0:
-                lap += (1.0 - share) * artificial_laplacian(v_ij, x_ij, gw, pair_volume, support_radius)
+                lap += (1.0 - share) * artificial_laplacian(v_ij, x_ij, gw, volume, support_radius)
             if with_vorticity != 0:
                 curl += curl_term(v_ij, gw, volume)
         friction = wp.vec3(0.0)
