@@ -14,12 +14,14 @@ def compute_max_speed(
     count: int,
     gravity: wp.vec3,
     dt: wp.array(dtype=float),
+    viscous_rate: wp.array(dtype=float),
     max_speed_sq: wp.array(dtype=float),
 ):
     """max_speed_sq[0] = max_i |v_i|^2 and max_speed_sq[1] = max_i |v_i + g dt|^2 with ``dt`` the last step's (reset
-    both to 0 first; the second is SPlisHSPlasH's CFL speed |v + a h|, its a the gravity here): launched on
-    REDUCE_THREADS threads, grid-stride, one atomic per block and value (one atomic per particle on one address took
-    0.45 ms at 1M on an H100, 7 % of a step)."""
+    both to 0 first; the second is SPlisHSPlasH's CFL speed |v + a h|, its a the gravity here), and with
+    ``viscous_rate`` (not empty) max_speed_sq[2] = its largest value: launched on REDUCE_THREADS threads, grid-stride,
+    one atomic per block and value (one atomic per particle on one address took 0.45 ms at 1M on an H100, 7 % of a
+    step)."""
     t = wp.tid()
     shift = gravity * dt[0]
     m = float(0.0)
@@ -32,6 +34,13 @@ def compute_max_speed(
     if first_in_block(t):
         wp.atomic_max(max_speed_sq, 0, m)
         wp.atomic_max(max_speed_sq, 1, m_cfl)
+    if viscous_rate.shape[0] > 0:
+        rate = float(0.0)
+        for i in range(t, count, REDUCE_THREADS):
+            rate = wp.max(rate, viscous_rate[i])
+        rate = block_max(rate)
+        if first_in_block(t):
+            wp.atomic_max(max_speed_sq, 2, rate)
 
 
 @wp.kernel
@@ -45,6 +54,11 @@ def compute_max_body_speed(v: wp.array(dtype=wp.vec3), count: int, max_speed_sq:
     m = block_max(m)
     if first_in_block(t):
         wp.atomic_max(max_speed_sq, 1, m)
+
+
+# dt x the viscosity's largest rate at most (explicit Euler is stable to 2): Morris et al.'s 0.125 (H/2)^2 / nu
+# on a lattice, where the rate is 2 / (1.14 x that dt)
+VISCOUS_MARGIN = wp.constant(1.9)
 
 
 @wp.kernel
@@ -63,12 +77,19 @@ def compute_time_step(
     substeps: wp.array(dtype=wp.int32),
     substep_dt: wp.array(dtype=float),
 ):
-    """One thread: dt = clamp(min(cfl * 0.4 * d / u, max_substeps x viscous_dt), dt_min, dt_max), u =
+    """One thread: dt = clamp(min(cfl * 0.4 * d / u, max_substeps x h_visc), dt_min, dt_max), u =
     sqrt(max_speed_sq[1]) the largest of |v + g dt_last| over the fluid and |v| over moving bodies (SPlisHSPlasH's
     CFL rule, Simulation::updateTimeStepSizeCFL, and the explicit-viscosity limit, which the viscosity's sub-steps
     stretch; SPlisHSPlasH has no viscous limit), or ``fixed_dt`` when it is positive, times ``dt_scale`` (< 1 when a
-    step is retried after an instability); the old dt moves to ``dt_previous``. With ``substeps`` (not empty): the
-    viscosity's sub-steps n = ceil(dt / viscous_dt), at most ``max_substeps``, and their dt / n into ``substep_dt``."""
+    step is retried after an instability); the old dt moves to ``dt_previous``. h_visc = min(``viscous_dt``,
+    VISCOUS_MARGIN / max_speed_sq[2]) where the density pass bounded the viscosity's largest rate in max_speed_sq[2]
+    (a lattice's ``viscous_dt``, Morris et al.'s, is only 1.14x below its stability limit 2 / rate; a compressed pair
+    exceeds it). With ``substeps`` (not empty): the viscosity's sub-steps n = ceil(dt / h_visc), at most
+    ``max_substeps``, and their dt / n into ``substep_dt``."""
+    h_visc = viscous_dt
+    if max_speed_sq.shape[0] > 2:
+        if max_speed_sq[2] > 0.0:
+            h_visc = wp.min(h_visc, VISCOUS_MARGIN / max_speed_sq[2])
     if dt[0] > 0.0:
         dt_previous[0] = dt[0]
     if fixed_dt > 0.0:
@@ -78,10 +99,10 @@ def compute_time_step(
         h = dt_max
         if speed > 1.0e-9:
             h = cfl_factor * 0.4 * particle_diameter / speed
-        h = wp.min(h, viscous_dt * float(max_substeps))
+        h = wp.min(h, h_visc * float(max_substeps))
         dt[0] = wp.clamp(h, dt_min, dt_max) * dt_scale
     if substeps.shape[0] > 0:
-        n = wp.min(max_substeps, wp.max(1, int(wp.ceil(dt[0] / viscous_dt * (1.0 - 1.0e-5)))))
+        n = wp.min(max_substeps, wp.max(1, int(wp.ceil(dt[0] / h_visc * (1.0 - 1.0e-5)))))
         substeps[0] = n
         substep_dt[0] = dt[0] / float(n)
 

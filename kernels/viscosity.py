@@ -12,6 +12,7 @@ from .vorticity import curl_term
 wp.set_module_options({"enable_backward": False})
 
 
+
 @wp.func
 def residual_laplacian(a_dot_x: float, x_ij: wp.vec3, grad_w: wp.vec3, volume_j: float, support_radius: float):
     """:func:`artificial_laplacian` given A_ij . x_ij."""
@@ -138,6 +139,10 @@ def _viscosity_acceleration_kernel(corrected: bool):
             j = nb.fluid[k]
             x_ij = separation(nb, xi, x[j])
             volume = particle_mass / density[j]
+            # eq 4's volume: the pair's mean (m / rho_i + m / rho_j) / 2 (Morris et al. 1997 with mu = rho nu), so that
+            # a pair's central forces are equal and opposite (no torque across the free surface's density drop);
+            # the vorticity keeps m / rho_j
+            pair_volume = 0.5 * (volume + particle_mass / density[i])
             v_ij = vi - v[j]
             gw = cubic_kernel_gradient(x_ij, support_radius)
             # a pair weighs the two operators by its particles' share of the bulk, the same from both sides (equal
@@ -152,9 +157,9 @@ def _viscosity_acceleration_kernel(corrected: bool):
                 stress = symmetric_times(si, symmetric_times(stress_correction[i], gw))
                 stress += symmetric_times(strain_rate[j], symmetric_times(stress_correction[j], gw))
                 lap += (2.0 * share * volume0) * stress
-                lap += (share * CORRECTED_STABILISER) * residual_laplacian(residual, x_ij, gw, volume, support_radius)
+                lap += (share * CORRECTED_STABILISER) * residual_laplacian(residual, x_ij, gw, pair_volume, support_radius)
             if share < 1.0:
-                lap += (1.0 - share) * artificial_laplacian(v_ij, x_ij, gw, volume, support_radius)
+                lap += (1.0 - share) * artificial_laplacian(v_ij, x_ij, gw, pair_volume, support_radius)
             if with_vorticity != 0:
                 curl += curl_term(v_ij, gw, volume)
         friction = wp.vec3(0.0)

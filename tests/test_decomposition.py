@@ -158,7 +158,12 @@ def test_a_run_over_subdomains_writes_what_one_domain_writes_and_resumes_either_
         shutil.copytree(tmp_path / "two", tmp_path / name)  # the checkpoint (frame 4) and the cache it continues
         run(name, *extra, command="resume", source=tmp_path / name / "out.checkpoint.h5", frames=6)
         (x1, ids1), (x2, ids2) = points(straight, 6), points(tmp_path / name / "out.usdc", 6)
-        assert np.array_equal(ids1, ids2) and np.abs(x1 - x2).max() < 7e-4, name  # measured 4.4e-4 m (r = 2 cm)
+        # this splashing tank amplifies rounding 3-7x a frame from frame 4: the two-subdomain run is 8.5e-5 m from one
+        # domain at frame 4 (the checkpoint), then resumed on one domain 2.9e-4 / 1.9e-3 m at frames 5 / 6, on three
+        # 2.6e-4 / 1.3e-3 (on one against on three, from the same checkpoint: 6.2e-4 at frame 6); a one-domain run
+        # resumed from its own checkpoint is the straight run exactly (f971e15, CPU; 4.4e-4 m at frame 6 before the
+        # viscous pairs took their mean volume)
+        assert np.array_equal(ids1, ids2) and np.abs(x1 - x2).max() < 2.9e-3, name  # r = 2 cm
 
 
 def test_subdomains_run_a_scene_over_the_limit_of_one_simulation(monkeypatch):
@@ -226,11 +231,14 @@ def check_model_over_subdomains(model, device):
             assert np.abs(by_id(many) - by_id(one)).max() < max(3 * early, 1e-6)
             energy = one.kinetic_energy()  # 5e-7 of it apart on the CPU at this step
             assert energy > 0 and abs(many.kinetic_energy() - energy) < 1e-5 * energy
-    # after 30 steps the subdomains are 1.3e-5 m (6e-4 r) from one domain with Rankine and micropolar, 2.6e-5 m
-    # with VR, while a copy in another row order is 0.4-2.1e-5 m from it: rounding, grown by the stirred flow from
-    # step 10 on. A model that forgets an exchange is 2.7e-5 m off after the first step, 6e-3 m after 30.
+    # after 30 steps the subdomains are 1.3e-5 m (6e-4 r) from one domain with Rankine and micropolar, while a copy
+    # in another row order is 0.4-2.1e-5 m from it: rounding, grown by the stirred flow from step 10 on. With VR
+    # (f971e15, CPU) the three subdomains stay within 1.3e-7 m to step 7, then one particle two layers below the
+    # surface parts by 8e-6 m at step 8 (a discrete decision taken the other way on rounding: no surface flag
+    # differs) and the run ends 1.4e-4 m apart; two subdomains end 1.2e-6 m apart, three row orders 1.5-3.1e-6 m. A
+    # model that forgets an exchange is 2.7e-5 m off after the first step (the step-4 check), 6e-3 m after 30.
     drift = np.abs(by_id(many) - by_id(one)).max()
-    assert drift < max(3 * np.abs(by_id(other_order) - by_id(one)).max(), 4e-5)
+    assert drift < max(3 * np.abs(by_id(other_order) - by_id(one)).max(), 2.1e-4)
     # The kinetic energy by then jumps with single particles beside the rod: Rankine's copy in another row order
     # was 1.74e-3 of it off one domain at step 30 on the CPU (1.9e-5 at step 27); on an H100 (695c219) an identical
     # second one-domain run was 1.73e-3 off (atomics' order) and the subdomains 1.76e-3 (micropolar 1.66e-3 and

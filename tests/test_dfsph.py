@@ -8,15 +8,8 @@ from conftest import make_sim, tank_scene
 
 def _densities(sim):
     """Densities of the current positions, computed as the stepper does (no step taken)."""
-    from warpsph.kernels.density import compute_density_and_factor
-
-    sim.neighbours.update(sim.fluid.x)
-
-    f = sim.fluid
-    sim.launch(compute_density_and_factor, sim.num_fluid,
-               [f.x, sim.neighbours.lists, sim.boundary.samples, sim.fluid_volume, sim.rest_density,
-                sim.support_radius, f.density, f.factor, *sim.pressure_solver.density_pass_outputs()])
-    return f.density.numpy()
+    sim.update_densities()
+    return sim.fluid.density.numpy()
 
 
 def test_lattice_density_is_rest_density_in_bulk_and_at_walls(device):

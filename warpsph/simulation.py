@@ -161,7 +161,10 @@ class Simulation:
             sub = self.max_viscous_substeps > 1
             self.viscous_substeps = (z("clock", int(sub), dtype=wp.int32), z("clock", int(sub)))
             self.substeps_left = z("clock", int(sub), dtype=wp.int32)
-            self.max_speed_sq = z("clock", 2)  # [max |v|^2 of the fluid, the CFL speed^2 (compute_max_speed)]
+            # [max |v|^2 of the fluid, the CFL speed^2, with viscosity its largest rate (compute_max_speed)]
+            self.max_speed_sq = z("clock", 3 if scene.fluid.viscous else 2)
+            # each particle's bound on the explicit viscosity's rate, from the density pass (compute_density_and_factor)
+            self.viscous_rate = z("viscosity", self.capacity if scene.fluid.viscous else 0)
             has_dynamic = any(b.kind == "dynamic" for b in moving)
             first_dynamic = first_moving + sum(len(b.samples) for b in moving if b.kind == "kinematic")
             self.boundary = BoundaryParticles(
@@ -624,11 +627,12 @@ class Simulation:
             self.pressure_solver.detect_free_surface()
         with t("time_step"):  # CFL condition on |v^n + g dt^(n-1)| and the moving bodies' speeds (SPlisHSPlasH's)
             self.max_speed_sq.zero_()
-            self.launch(compute_max_speed, REDUCE_THREADS, [f.v, n, self.gravity, self.dt, self.max_speed_sq])
+            self.launch(compute_max_speed, REDUCE_THREADS, [f.v, n, self.gravity, self.dt, self.viscous_rate,
+                                                            self.max_speed_sq])
             moving = self.boundary.v.shape[0]
             if moving:
                 self.launch(compute_max_body_speed, REDUCE_THREADS, [self.boundary.v, moving, self.max_speed_sq])
-            self.allreduce((self.max_speed_sq, "mm"))
+            self.allreduce((self.max_speed_sq, "m" * self.max_speed_sq.shape[0]))
             tm = self.scene.time
             self.launch(compute_time_step, 1,
                         [self.max_speed_sq, self.scene.particle_diameter, tm.cfl, *self.scene.time_step_bounds,
@@ -667,7 +671,8 @@ class Simulation:
         f = self.fluid
         self.launch(compute_density_and_factor, self.num_fluid,
                     [f.x, self.neighbours.lists, self.boundary.samples, self.fluid_volume, self.rest_density,
-                     self.support_radius, f.density, f.factor, *self.pressure_solver.density_pass_outputs()])
+                     self.support_radius, f.density, f.factor, *self.pressure_solver.density_pass_outputs(),
+                     self.scene.fluid.viscosity, self.scene.fluid.boundary_viscosity, self.viscous_rate])
         self.exchange(f.density)
 
     # -- host views -------------------------------------------------------------------------------------
