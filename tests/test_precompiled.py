@@ -1,4 +1,4 @@
-"""warpsph's precompiled CUDA kernels (#43, warpsph/precompiled.py): the shipped set is current for the source (the
+"""warpsph's precompiled CUDA kernels (#43, warpsph/precompiled/): the shipped set is current for the source (the
 default scene's modules for sm_90 as CUBIN and PTX, and every module built), what is copied into Warp's kernel cache is
 what Warp looks up and loads without compiling, and nothing is copied for a module built from another source, for
 another Warp, for a file that is not the one built, on the CPU, or with WARPSPH_PRECOMPILED=0. On the CPU: Warp
@@ -93,12 +93,14 @@ def test_every_kernel_module_is_shipped_and_current():
 def test_the_set_is_small_and_is_package_data():
     man = precompiled.manifest()
     listed = {f"{e['dir']}/{f}.xz" for e in man["modules"].values() for f in e["files"]}
-    on_disk = set(files_in(precompiled.FOLDER)) - {precompiled.MANIFEST}
+    on_disk = {f for f in files_in(precompiled.FOLDER) if f.endswith(".xz")}
     assert on_disk == listed  # no file left over from an older build, none missing
     size = sum((precompiled.FOLDER / f).stat().st_size for f in on_disk)
     assert size < 10 * 2**20
-    data = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["package-data"]["warpsph"]
-    shipped = {p.relative_to(precompiled.FOLDER.parent).as_posix() for p in precompiled.FOLDER.rglob("*") if p.is_file()}
+    setuptools = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    assert "warpsph.precompiled" in setuptools["packages"]
+    data = setuptools["package-data"]["warpsph.precompiled"]
+    shipped = on_disk | {precompiled.MANIFEST}
     assert all(any(Path(f).match(pattern) for pattern in data) for f in shipped), data
 
 

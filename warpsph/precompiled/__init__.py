@@ -39,7 +39,7 @@ import threading
 from pathlib import Path
 
 ENV = "WARPSPH_PRECOMPILED"
-FOLDER = Path(__file__).resolve().parent / "precompiled"
+FOLDER = Path(__file__).resolve().parent  # the package: this file, manifest.json and a folder per module
 MANIFEST = "manifest.json"
 FORMAT = 1
 # The architectures tools/build_precompiled.py builds by default: T4 (75), A100/A30 (80), RTX 30xx/A10/A40 (86),
