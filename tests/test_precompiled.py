@@ -189,3 +189,35 @@ def test_a_simulation_copies_its_scene_modules_whether_or_not_it_preloads(monkey
         sim = make_sim(tank_scene(radius=0.05), preload=preload)
         assert calls[-1] == (warmup.scene_modules(sim.scene, bodies=sim.bodies, fluid=sim.num_fluid), sim.device)
     assert len(calls) == 2
+
+
+class FakeGpu:
+    """What Warp's file naming asks of a CUDA device (no GPU here): its architecture, the form its driver takes
+    (Warp compiles PTX where the driver is at least its toolkit's version, else CUBIN) and the arch Warp compiles for."""
+
+    is_cpu, is_cuda = False, True
+
+    def __init__(self, arch, form):
+        self.arch, self.form = arch, form
+
+    def get_cuda_output_format(self, preferred=None):
+        return self.form
+
+    def get_cuda_compile_arch(self):
+        return self.arch
+
+    def _get_cuda_arch_suffix(self, arch):
+        return ""
+
+
+@pytest.mark.parametrize("arch, form, copied", [(90, "cubin", ".sm90.cubin"), (90, "ptx", ".sm90.ptx"),
+                                                (80, "cubin", ".sm80.cubin"), (110, "cubin", None)])
+def test_a_gpu_gets_the_file_warp_names_for_it(cache, monkeypatch, arch, form, copied):
+    gpu = FakeGpu(arch, form)
+    monkeypatch.setattr(wp, "get_device", lambda d=None: gpu if d is gpu else pytest.fail(f"asked for {d}"))
+    written = precompiled.seed(dam_break_modules(), gpu)
+    if copied is None:  # sm_110 (Thor) is not shipped: it compiles
+        assert written == []
+    else:
+        assert len(written) == 2 * 13
+        assert sorted({p.name.split("_")[-1].split(".", 1)[1] for p in written}) == sorted(["meta", copied[1:]])
