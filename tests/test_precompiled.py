@@ -221,3 +221,35 @@ def test_a_gpu_gets_the_file_warp_names_for_it(cache, monkeypatch, arch, form, c
     else:
         assert len(written) == 2 * 13
         assert sorted({p.name.split("_")[-1].split(".", 1)[1] for p in written}) == sorted(["meta", copied[1:]])
+
+
+FIRST_STEP = """
+import sys
+import warp as wp
+from warpsph import load_scene
+from warpsph.simulation import Simulation
+sim = Simulation(load_scene(sys.argv[1], scale=0.05), device="cuda:0")
+sim.step()
+wp.synchronize()
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not wp.is_cuda_available(), reason="needs a CUDA device of an architecture shipped")
+@pytest.mark.parametrize("shipped", [True, False])
+def test_a_first_run_on_the_gpu_compiles_nothing_shipped(tmp_path, shipped):
+    """A fresh process on an empty kernel cache sets up the dam break and steps: with the set, no module is compiled
+    (Warp writes a module's generated source only when it compiles it); with WARPSPH_PRECOMPILED=0, all 11 are."""
+    import subprocess
+    import sys
+
+    if wp.get_device("cuda:0").arch not in precompiled.manifest()["archs"]:
+        pytest.skip(f"sm_{wp.get_device('cuda:0').arch} is not shipped")
+    env = {**os.environ, "WARP_CACHE_PATH": str(tmp_path), precompiled.ENV: "1" if shipped else "0"}
+    out = subprocess.run([sys.executable, "-c", FIRST_STEP, DAM_BREAK], env=env, capture_output=True, text=True,
+                         timeout=600)
+    assert out.returncode == 0, out.stderr
+    compiled = sorted(p.name for p in tmp_path.rglob("*.cu"))
+    binaries = sorted(p.name for p in tmp_path.rglob("*") if p.suffix in (".cubin", ".ptx"))
+    assert len(binaries) == 11
+    assert compiled == ([] if shipped else sorted(b.rsplit(".", 2)[0] + ".cu" for b in binaries))
