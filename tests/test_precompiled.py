@@ -253,3 +253,14 @@ def test_a_first_run_on_the_gpu_compiles_nothing_shipped(tmp_path, shipped):
     binaries = sorted(p.name for p in tmp_path.rglob("*") if p.suffix in (".cubin", ".ptx"))
     assert len(binaries) == 11
     assert compiled == ([] if shipped else sorted(b.rsplit(".", 2)[0] + ".cu" for b in binaries))
+
+
+def test_a_missing_or_broken_file_copies_nothing_of_its_module(cache, tmp_path):
+    names = ["warpsph.kernels.stability"]
+    binary, meta = precompiled.lookup_names(precompiled.warp_module(names[0]), arch=90, use_ptx=False)
+    for broken in ("missing", "not xz"):
+        folder, man = copy_of_the_set(tmp_path / broken.replace(" ", "_"), names)
+        path = folder / man["modules"][names[0]]["dir"] / f"{binary}.xz"
+        path.unlink() if broken == "missing" else path.write_bytes(b"not xz")
+        assert precompiled.seed(names, arch=90, use_ptx=False, folder=write_manifest(folder, man)) == []
+    assert files_in(cache) == []

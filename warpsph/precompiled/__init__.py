@@ -124,10 +124,11 @@ def _write(data, path):
 
 def seed(names, device=None, *, arch=None, use_ptx=None, root=None, folder=FOLDER) -> list[Path]:
     """Copies into Warp's kernel cache (``root``, default ``wp.config.kernel_cache_dir``) the precompiled files of
-    the Warp modules ``names`` (Python module names, or Warp modules) that Warp will look up when it loads them on ``device`` (a CUDA device; a CPU device
-    copies nothing), or for architecture ``arch`` as PTX or CUBIN (``use_ptx``), where the cache lacks them, the
-    set is this Warp's and the module's hash is the one they were built from. Returns the paths written (none when
-    ``WARPSPH_PRECOMPILED`` is 0 or Warp's ``cache_kernels`` is off). A module left out compiles as before."""
+    the Warp modules ``names`` (Python module names, or Warp modules) that Warp will look up when it loads them on
+    ``device`` (a CUDA device; a CPU device copies nothing), or for architecture ``arch`` as PTX or CUBIN
+    (``use_ptx``), where the cache lacks them, the set is this Warp's and the module's hash is the one they were
+    built from. Returns the paths written (none when ``WARPSPH_PRECOMPILED`` is 0 or Warp's ``cache_kernels`` is
+    off). A module left out compiles as before."""
     import warp as wp
 
     if not enabled():
@@ -163,10 +164,13 @@ def seed(names, device=None, *, arch=None, use_ptx=None, root=None, folder=FOLDE
         missing = [f for f in (meta, binary) if not (target / f).exists()]
         contents = {}
         for f in missing:
-            data = lzma.decompress((Path(folder) / entry["dir"] / f"{f}.xz").read_bytes())
-            if hashlib.sha256(data).hexdigest() != entry["files"][f]:
-                log.warning("precompiled %s: %s is not the file built (its SHA-256 differs); the module compiles",
-                            name, f)
+            try:
+                data = lzma.decompress((Path(folder) / entry["dir"] / f"{f}.xz").read_bytes())
+            except (OSError, lzma.LZMAError):
+                data = None
+            if data is None or hashlib.sha256(data).hexdigest() != entry["files"][f]:
+                log.warning("precompiled %s: %s is missing or not the file built (its SHA-256 differs); the module "
+                            "compiles", name, f)
                 contents = {}
                 break
             contents[f] = data
