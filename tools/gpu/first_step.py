@@ -49,6 +49,6 @@ print(json.dumps({
     "warp_init_s": round(t_warp - t_import, 3), "imports_s": round(t_list - t_warp, 3), "scene_s": round(t_scene - t1, 3), "simulation_s": round(t_sim - t_scene, 3),
     "step_s": round(t_step - t_sim, 3), "particles": sim.num_fluid, "device": device.name, "arch": getattr(device, "arch", None),
     "warp": wp.config.version, "precompiled": precompiled.enabled(), "kernel_cache": str(cache),
-    "new_files": {"sources_compiled (.cu)": sum(n.endswith(".cu") for n in new),
+    "new_files": {"modules_compiled (their .cu/.cpp)": sum(n.endswith((".cu", ".cpp")) for n in new),
                   "binaries": sum(n.endswith((".cubin", ".ptx", ".o")) for n in new), "total": len(new)},
     "commit": os.environ.get("WARPSPH_COMMIT", "")}))
