@@ -55,11 +55,16 @@ def enabled() -> bool:
     return os.environ.get(ENV, "1").strip().lower() not in ("0", "false", "no", "off")
 
 
-@functools.lru_cache(maxsize=4)
 def manifest(folder=FOLDER) -> dict | None:
-    """The manifest of the precompiled set in ``folder`` (default: the one shipped), or None where there is none."""
+    """The manifest of the precompiled set in ``folder`` (default: the one shipped), or None where there is none
+    (read once a folder; not to be changed)."""
+    return _manifest(Path(folder).resolve())
+
+
+@functools.lru_cache(maxsize=4)
+def _manifest(folder) -> dict | None:
     try:
-        with open(Path(folder) / MANIFEST) as f:
+        with open(folder / MANIFEST) as f:
             data = json.load(f)
     except (OSError, ValueError):
         return None
