@@ -225,8 +225,9 @@ def test_warmup_verb_errors_name_the_file_or_option(tmp_path, capsys, monkeypatc
 
 
 def _warmup_in(cache, *args):
-    """``warpsph warmup ARGS`` in a process of its own whose kernel cache is the folder ``cache``."""
-    env = {**os.environ, "WARP_CACHE_PATH": str(cache)}
+    """``warpsph warmup ARGS`` in a process of its own whose kernel cache is the folder ``cache``, compiling: without
+    warpsph's precompiled kernels (``WARPSPH_PRECOMPILED=0``; tests/test_precompiled.py has them)."""
+    env = {**os.environ, "WARP_CACHE_PATH": str(cache), "WARPSPH_PRECOMPILED": "0"}
     return subprocess.run([sys.executable, "-m", "warpsph", "warmup", *args], env=env, capture_output=True,
                           text=True, timeout=600)
 

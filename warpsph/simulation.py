@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from warpsph import health, warmup
+from warpsph import health, precompiled, warmup
 from warpsph.diagnostics import DiagnosticsContext
 from warpsph.bodies import BODY_INSET, BodiesContext, MovingBodies
 from warpsph.health import InstabilityError  # noqa: F401 (public here too)
@@ -243,12 +243,16 @@ class Simulation:
 
     def _preload(self, preload, fluid):
         """The set-up's one parallel compile (#43), after the host sampling (its errors come first, and the
-        bodies and the ``fluid`` count tell which kernels of the bodies run) and before anything is launched."""
+        bodies and the ``fluid`` count tell which kernels of the bodies run) and before anything is launched. On a
+        GPU, warpsph's precompiled kernels go into Warp's kernel cache first, whether or not it preloads
+        (:func:`warpsph.precompiled.seed`)."""
         extra = [] if preload is None or isinstance(preload, bool) else list(preload)
+        names = warmup.scene_modules(self.scene, bodies=self.bodies, fluid=fluid,
+                                     decomposed=self.halo is not None) + extra
         if preload is True or (preload is not False and warmup.enabled()):
-            names = warmup.scene_modules(self.scene, bodies=self.bodies, fluid=fluid,
-                                         decomposed=self.halo is not None)
-            warmup.preload(names + extra, self.device)
+            warmup.preload(names, self.device)
+        else:
+            precompiled.seed(names, self.device)
 
     # -- the constants live in self.constants; these read them ----------------------------------------------
     support_radius = property(lambda self: self.constants.support_radius, doc="The kernel's support 4r [m].")

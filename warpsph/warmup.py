@@ -19,6 +19,10 @@ GPU, so a login node, a container build or a CI machine can fill the kernel cach
 (the same ``WARP_CACHE_PATH``, the same Warp version). Each module is written in both forms Warp may load on a GPU of
 that architecture: CUBIN (what Warp loads where the driver is older than its CUDA toolkit) and PTX (where it is not).
 
+On a GPU (and for ``--arch``) both first copy warpsph's precompiled kernels into the cache where they are the ones
+built from the source now (:mod:`warpsph.precompiled`; ``WARPSPH_PRECOMPILED=0`` turns that off): those load, the
+rest compiles.
+
 Which modules a scene launches is :func:`scene_modules`: the stepper's own always, each feature's only when
 the scene has it (the solver's, bodies, inflow, viscosity, the models' and the shared vorticity pass).
 A model plug-in's modules are those of the kernels its Python module defines or imports (its class may
@@ -36,6 +40,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from warpsph import precompiled
 from warpsph.errors import SceneError
 from warpsph.models import REGISTRY, plugin_of
 from warpsph.scene import load_scene
@@ -243,10 +248,12 @@ def preload(names, device=None, max_workers=None) -> list[Loaded]:
     ``max_workers`` threads (default :func:`idle_cores`), the largest first, and returns what each took (its
     load's wall time, beside the others). The calling thread is one of them: a module that a program compiles
     later, lazily, finds its precompiled header built. Loading a module is what its first launch would do (the
-    same variant: results do not change); a module already loaded costs nothing."""
+    same variant: results do not change); a module already loaded costs nothing. On a GPU, warpsph's precompiled
+    kernels are copied into the cache first where they fit (:func:`warpsph.precompiled.seed`): those load."""
     import warp as wp
 
     device = wp.get_device(device)
+    precompiled.seed(names, device)
 
     def load(module):
         before = _cache_files(module.name)
@@ -261,8 +268,9 @@ def preload(names, device=None, max_workers=None) -> list[Loaded]:
 def compile_for_archs(names, archs, max_workers=None) -> list[Loaded]:
     """Compiles the Warp modules ``names`` for the CUDA architectures ``archs`` (e.g. 90 for H100/H200) into Warp's
     kernel cache without a GPU (Warp's NVRTC), as CUBIN and as PTX, each of the two that Warp loads on such a GPU
-    depending on its driver; files already there are kept. One :class:`Loaded` per module and architecture (its
-    name ``module@sm_90``; ``compiled`` False where both files were in the cache)."""
+    depending on its driver; files already there are kept, and warpsph's precompiled kernels are copied there first
+    where they fit (:func:`warpsph.precompiled.seed`). One :class:`Loaded` per module and architecture (its name
+    ``module@sm_90``; ``compiled`` False where both files were in the cache or shipped)."""
     import warp as wp
 
     supported = set(wp.get_cuda_supported_archs())
@@ -274,6 +282,8 @@ def compile_for_archs(names, archs, max_workers=None) -> list[Loaded]:
     def build(module):  # one thread a module: its architectures one after the other (a module is not thread-safe)
         out = []
         for arch in archs:
+            for use_ptx in (False, True):
+                precompiled.seed([module], arch=arch, use_ptx=use_ptx)
             before = _cache_files(module.name)
             start = time.perf_counter()
             for use_ptx in (False, True):
