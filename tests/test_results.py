@@ -24,7 +24,7 @@ MAX_FILES = 20  # tracked files in tools/results/, .gitignore included (issue 41
 KEPT = (
     # docs/validation.md: the results table, the cost-against-accuracy tables, the cases' paragraphs
     "validate_taylor-green_256_h100_37.json", "validate_taylor-green_h200.json",
-    "validate_lamb-oseen_models_session20_h100.json", "validate_vortex-surface_h200_f971e15.json",
+    "validate_lamb-oseen_models_session20_h100.json", "validate_vortex-surface_h200_216628b.json",
     "validate_vortex-surface_models_h100.json", "validate_standing-wave_256_h200.json",
     "validate_vortices_session20_h100.json", "rest_32_session21_h100.json", "validate_tank-at-rest_h200.json",
     "validate_sinking-sphere_h100.json", "validate_dam-front_h100_37.json",
@@ -216,7 +216,7 @@ def test_the_validation_results_table_is_the_files():
     tg = by_resolution("validate_taylor-green_h200.json")
     tg256 = row("validate_taylor-green_256_h100_37.json", "dfsph", 256)
     lo = "validate_lamb-oseen_models_session20_h100.json"
-    vs = "validate_vortex-surface_h200_f971e15.json"
+    vs = "validate_vortex-surface_h200_216628b.json"
     across = (64, 128, 256)
     rest = load("rest_32_session21_h100.json")["validation_adopted_surface_only"]["standing-wave"]
     vortices = load("validate_vortices_session20_h100.json")
