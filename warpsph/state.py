@@ -22,12 +22,14 @@ from warpsph.scene import MAX_VISCOSITY_SUBSTEPS, walled_faces
 
 def viscous_substeps(scene, viscous_dt: float) -> int:
     """The most sub-steps of the explicit viscosity in a step: ``solver.viscosity_substeps``, or where that is 0 as
-    many as let the longest step (``time.fixed_dt``, else dt_max) stay within the viscous limit ``viscous_dt`` [s], at
-    most MAX_VISCOSITY_SUBSTEPS: the step then follows the CFL rule alone, as SPlisHSPlasH's does."""
+    many as let the longest step (``time.fixed_dt``, else dt_max) stay within half the lattice's viscous limit
+    ``viscous_dt`` [s] (the step's own limit falls below the lattice's where the flow compresses pairs:
+    kernels/integration.py, VISCOUS_MARGIN), at most MAX_VISCOSITY_SUBSTEPS: the step then follows the CFL rule alone,
+    as SPlisHSPlasH's does."""
     n = scene.solver.viscosity_substeps
     if n == 0:
         longest = scene.time.fixed_dt or scene.time_step_bounds[1]
-        n = min(MAX_VISCOSITY_SUBSTEPS, max(1, int(np.ceil(longest / viscous_dt * (1.0 - 1.0e-6)))))
+        n = min(MAX_VISCOSITY_SUBSTEPS, max(1, int(np.ceil(2.0 * longest / viscous_dt * (1.0 - 1.0e-6)))))
     return n
 
 
