@@ -112,3 +112,27 @@ def test_boundary_particles_make_no_maps(tmp_path):
     assert sim.moving_bodies.maps is None
     assert sim.boundary.x.shape[0] == sim.num_boundary and sim.neighbours.volume_maps is None
     assert rest_distance(d, rho) < 1.5  # measured 1.02 r: samples on the surface hold it closer than a map
+
+
+def test_the_preload_names_the_volume_maps_and_what_else_is_launched(tmp_path, monkeypatch):
+    """A scene with a mapped body preloads the volume map's module (warpsph.warmup.scene_modules), and the preload is
+    exactly what its set-up and steps launch."""
+    import warp as wp
+
+    from warpsph import warmup
+
+    preloaded, launched = [], set()
+    preload, launch = warmup.preload, wp.launch
+
+    def spy_preload(names, device=None, max_workers=None):
+        preloaded.append(list(names))
+        return preload(names, device, max_workers)
+
+    monkeypatch.setattr(warmup, "preload", spy_preload)
+    monkeypatch.setattr(wp, "launch", lambda kernel, *a, **k: (launched.add(kernel.module.name), launch(kernel, *a, **k)))
+    sim, _, _ = lone_density(tmp_path, 2)
+    for _ in range(3):
+        sim.step()
+    assert len(preloaded) == 1 and "warpsph.kernels.volume_map" in preloaded[0]
+    assert set(preloaded[0]) == launched
+    assert warmup.scene_modules(sim.scene) == preloaded[0]  # without the loaded bodies: from the conversion
