@@ -452,7 +452,7 @@ class MovingBodies:
         self._dynamic_slices = [slice(int(starts[k]), int(starts[k + 1])) for k in range(n)]
         self._contacts = self._contact_arrays(list(obstacles)) if self.dynamic and n + len(obstacles) > 1 else None
         self.coupling = None  # the strong coupling's arrays (:meth:`start_coupling`), none unless a solver couples
-        self.maps = None  # the mapped bodies' volume maps (:meth:`start_volume_maps`), none unless a body has one
+        self.maps = None  # the mapped bodies' volume maps (:meth:`attach_volume_maps`), none unless a body has one
         self._coupled_sample_body = self._dynamic_sample_body  # the dynamic samples' bodies, then the maps' points'
 
     def attach_volume_maps(self, maps, capacity):
