@@ -56,7 +56,7 @@ def blocks_at_rest(data, file):
     return shifts
 
 
-def scene_copy(pss_python, scene, radius, work, at_rest=True, map_scale=1):
+def scene_copy(pss_python, scene, radius, work, at_rest=True, map_scale=1, particles=False):
     """The scene file at ``radius`` (unchanged when None), in ``work/Scenes`` beside a link to SPlisHSPlasH's
     models, so its relative paths resolve; with ``at_rest``, its fluid blocks moved out of the walls' band
     (:func:`blocks_at_rest`). Returns the copy's path and the shifts."""
@@ -65,6 +65,10 @@ def scene_copy(pss_python, scene, radius, work, at_rest=True, map_scale=1):
     data = json.loads(source.read_text())
     if radius is not None:
         data["Configuration"]["particleRadius"] = float(radius)
+    if particles:  # boundary particles in both codes: SPlisHSPlasH samples each mesh at r itself
+        data["Configuration"]["boundaryHandlingMethod"] = 0
+        for body in data.get("RigidBodies", []):
+            body.pop("particleFile", None)
     shifts = blocks_at_rest(data, source) if at_rest else {}
     if map_scale != 1:  # SPlisHSPlasH's volume maps only (warpsph samples its boundaries itself)
         for body in data.get("RigidBodies", []):
@@ -75,7 +79,7 @@ def scene_copy(pss_python, scene, radius, work, at_rest=True, map_scale=1):
     if not models.exists():
         models.symlink_to(data_dir / "models")
     out = scenes / (Path(scene).stem + (f"_r{radius:g}" if radius is not None else "") + ("_rest" if at_rest else "")
-                    + (f"_map{map_scale:g}" if map_scale != 1 else "") + ".json")
+                    + (f"_map{map_scale:g}" if map_scale != 1 else "") + ("_particles" if particles else "") + ".json")
     out.write_text(json.dumps(data, indent=1))
     return out, shifts
 
@@ -216,6 +220,9 @@ def main(argv=None):
     ap.add_argument("--as-shipped", action="store_true",
                     help="keep the fluid blocks where the file puts them (SPlisHSPlasH's first step then blasts the "
                          "fluid out of its walls' band; warpsph's importer moves it instead)")
+    ap.add_argument("--boundary-particles", action="store_true",
+                    help="Configuration.boundaryHandlingMethod 0 and no body particleFile in the copy: both codes "
+                         "with boundary particles (SPlisHSPlasH samples the meshes itself)")
     ap.add_argument("--out", help="the comparison JSON (required unless --worker or --only)")
     ap.add_argument("--work", default="/tmp/splishsplash_bodies")
     ap.add_argument("--splishsplash-json", help="reuse a finished SPlisHSPlasH run (the worker's JSON)")
@@ -233,7 +240,8 @@ def main(argv=None):
 
     work = Path(args.work)
     work.mkdir(parents=True, exist_ok=True)
-    scene_file, shifts = scene_copy(args.pss_python, args.scene, args.radius, work, not args.as_shipped, args.map_scale)
+    scene_file, shifts = scene_copy(args.pss_python, args.scene, args.radius, work, not args.as_shipped, args.map_scale,
+                                   args.boundary_particles)
     stem = scene_file.stem
     theirs_file = Path(args.splishsplash_json) if args.splishsplash_json else work / f"{stem}.splishsplash.json"
     if not args.splishsplash_json and args.only != "warpsph":
@@ -257,6 +265,7 @@ def main(argv=None):
 
     result = {"scene": f"pysplishsplash 2.19.0 data/Scenes/{args.scene}", "particle_radius": args.radius,
               "fluid_blocks_moved_to_rest_m": shifts, "map_resolution_scale": args.map_scale,
+              "boundary_particles": args.boundary_particles,
               "device": "cpu", "machine": machine(), "commit": commit(), "warp": wp.config.version,
               "splishsplash": "pysplishsplash 2.19.0",
               "particles": {"splishsplash": theirs["initial"]["particles"], "warpsph": ours["particles"]},

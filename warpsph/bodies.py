@@ -277,6 +277,9 @@ class RigidBody:
 
     closed: bool = False  # a watertight mesh: it has an inside (no fluid there, samples inset)
     inset: float = BODY_INSET  # the samples' distance inside the surface [particle radii]; negative: outside
+    # a dynamic body that holds the fluid by a volume map (warpsph.volume_maps): the map's thickness [m]; None: by its
+    # samples (then only for its contacts)
+    volume_map: float = None
 
     @property
     def kind(self):
@@ -427,6 +430,8 @@ class MovingBodies:
         self.velocity = ctx.state.zeros("bodies", n, dtype=wp.vec3)
         self.angular_velocity = ctx.state.zeros("bodies", n, dtype=wp.vec3)
         self.totals = ctx.state.zeros("bodies", 3 * n, dtype=wp.vec3)
+        self.rotation.assign(np.stack([b.rotation for b in bodies]).astype(np.float32))  # the initial pose (:meth:`place`
+        self.position.assign(np.stack([b.position for b in bodies]).astype(np.float32))  # moves it each step)
         self.sample_counts = np.asarray(counts, np.float64)
         # dynamic state for checkpoints and retried frames: position, rotation, velocity, angular velocity,
         # and the last step's accelerations
@@ -447,6 +452,21 @@ class MovingBodies:
         self._dynamic_slices = [slice(int(starts[k]), int(starts[k + 1])) for k in range(n)]
         self._contacts = self._contact_arrays(list(obstacles)) if self.dynamic and n + len(obstacles) > 1 else None
         self.coupling = None  # the strong coupling's arrays (:meth:`start_coupling`), none unless a solver couples
+        self.maps = None  # the mapped bodies' volume maps (:meth:`attach_volume_maps`), none unless a body has one
+        self._coupled_sample_body = self._dynamic_sample_body  # the dynamic samples' bodies, then the maps' points'
+
+    def attach_volume_maps(self, maps, capacity):
+        """The mapped dynamic bodies' volume maps (warpsph.volume_maps.VolumeMaps): their points follow the dynamic
+        samples in the boundary slots (their impulses summed with the samples', their velocities placed with them)."""
+        self.maps = maps
+        dynamic_local = self.first_dynamic - self.first_sample
+        parts = [self.sample_body.numpy()[dynamic_local:], np.tile(np.asarray(maps.body_indices, np.int32), capacity)]
+        self._coupled_sample_body = self.ctx.state.array("bodies", np.concatenate(parts).astype(np.int32), wp.int32)
+
+    def _coupled_count(self):
+        """The dynamic samples and the maps' points of the fluid particles there are now."""
+        n = self.num_samples - (self.first_dynamic - self.first_sample)
+        return n + (self.ctx.state.num_fluid * self.maps.count if self.maps is not None else 0)
 
     def start_coupling(self):
         """Allocates the arrays of the strong coupling (:meth:`respond`, :meth:`couple`): the dynamic bodies'
@@ -486,12 +506,12 @@ class MovingBodies:
         nb, boundary = ctx.neighbour_lists(), ctx.boundary.samples
         ctx.launch(measure_body_response, ctx.state.num_fluid,
                    [ctx.state.fluid.x, nb, boundary, correction, stiffness, factor, surface, free_surface,
-                    self._dynamic_sample_body, self.position, ctx.constants.support_radius, ctx.state.dt, n, c["trial"], c["response"]])
+                    self._coupled_sample_body, self.position, ctx.constants.support_radius, ctx.state.dt, n, c["trial"], c["response"]])
         ctx.launch(solve_body_response, n - self.num_kinematic,
                    [c["trial"], c["response"], c["inverse_mass"], c["inertia"], ctx.constants.particle_mass, self.num_kinematic, n,
                     c["delta"]])
         ctx.launch(correct_body_stiffness, ctx.state.num_fluid,
-                   [ctx.state.fluid.x, nb, boundary, correction, factor, surface, free_surface, self._dynamic_sample_body,
+                   [ctx.state.fluid.x, nb, boundary, correction, factor, surface, free_surface, self._coupled_sample_body,
                     self.position, c["delta"], ctx.constants.support_radius, ctx.state.dt, n, stiffness])
 
     def couple(self, gravity_weight):
@@ -503,8 +523,8 @@ class MovingBodies:
         n = len(self.bodies)
         dynamic_local = self.first_dynamic - self.first_sample
         count = self.num_samples - dynamic_local
-        ctx.launch(sum_coupling_impulses, count,
-                   [ctx.boundary.impulse, ctx.boundary.x, self._dynamic_sample_body, self.position, self.first_dynamic,
+        ctx.launch(sum_coupling_impulses, self._coupled_count(),
+                   [ctx.boundary.impulse, ctx.boundary.x, self._coupled_sample_body, self.position, self.first_dynamic,
                     n, self.totals])
         ctx.launch(update_body_velocities, n - self.num_kinematic,
                    [self.totals, c["start_velocity"], c["start_angular_velocity"], c["inverse_mass"],
@@ -513,6 +533,8 @@ class MovingBodies:
         ctx.launch(place_body_velocities, count,
                    [self.local[dynamic_local:], self._dynamic_sample_body, self.rotation, self.velocity,
                     self.angular_velocity, dynamic_local, ctx.boundary.v])
+        if self.maps is not None:
+            self.maps.place_velocities(ctx.launch, ctx.state.num_fluid, self, ctx.boundary)
 
     def _contact_arrays(self, obstacles):
         """Body-space meshes and poses of every body a dynamic one can touch: the moving bodies (their own
@@ -575,8 +597,8 @@ class MovingBodies:
         rest_speed = REST_SPEED * float(np.linalg.norm(gravity)) * dt
         walls = []  # the touched walls' contacts, solved with the bodies' (:func:`solve_contacts`)
         self.totals.zero_()
-        ctx.launch(sum_body_impulses, self.num_samples - (self.first_dynamic - self.first_sample),
-                   [ctx.boundary.impulse, ctx.boundary.x, self._dynamic_sample_body, self.position, self.first_dynamic, n,
+        ctx.launch(sum_body_impulses, self._coupled_count(),
+                   [ctx.boundary.impulse, ctx.boundary.x, self._coupled_sample_body, self.position, self.first_dynamic, n,
                     self.totals])
         totals = self.totals.numpy().astype(np.float64) * ctx.constants.particle_mass
         lag = self.coupling["lag"].numpy() if self.coupling is not None else None

@@ -56,19 +56,24 @@ class NeighbourSearch:
     captured them) rarely change.
     """
 
-    def __init__(self, sim, boundary_x: wp.array):
+    def __init__(self, sim, boundary_x: wp.array, samples=None):
+        """``samples``: how many of ``boundary_x`` are samples (in the grid; default all): the rest are the volume
+        maps' points (warpsph.volume_maps), each in its own fluid particle's list only (:attr:`volume_maps`)."""
         self.sim = sim
+        self.samples = boundary_x.shape[0] if samples is None else int(samples)
+        # (VolumeMaps, a callable that places their points before the boundary list); None: no maps
+        self.volume_maps = None
         n = sim.capacity
         self.support_radius = sim.support_radius
         self.lower = wp.vec3(*np.asarray(sim.scene.domain.min, dtype=np.float32))
         self.period = wp.vec3(*sim.scene.domain.period)
         points = n if sim.halo is None else sim.halo.grid_points  # a subdomain: the whole simulation's grid
-        self.cell_size, dims = grid_geometry(sim.scene.domain, self.support_radius, points + boundary_x.shape[0])
+        self.cell_size, dims = grid_geometry(sim.scene.domain, self.support_radius, points + self.samples)
         self.fluid_grid = PointGrid(sim, self.lower, self.cell_size, dims, sim.scratch(wp.int32, 0))
         self.boundary_x = boundary_x
         self.boundary_grid = None
-        if boundary_x.shape[0] > 0:
-            ids = sim.zeros("neighbours", boundary_x.shape[0], dtype=wp.int32)
+        if self.samples > 0:
+            ids = sim.zeros("neighbours", self.samples, dtype=wp.int32)
             self.boundary_grid = PointGrid(sim, self.lower, self.cell_size, dims, ids)
             self.rebuild_boundary_grid()
         # counts are written into the offsets arrays and scanned in place (no count arrays)
@@ -81,7 +86,7 @@ class NeighbourSearch:
 
     def rebuild_boundary_grid(self):
         """After boundary samples moved: the boundary cell grid at their new positions."""
-        self.boundary_grid.build(self.boundary_x, self.boundary_x.shape[0])
+        self.boundary_grid.build(self.boundary_x, self.samples)
 
     def update(self, x: wp.array):
         """Rebuilds the fluid grid and both neighbour lists for positions ``x``."""
@@ -90,10 +95,14 @@ class NeighbourSearch:
         self.fluid_grid.build(x, n + (sim.halo.ghosts if sim.halo is not None else 0))  # ghost rows: found, not queried
         self.fluid_neighbours = self._build_list(self.fluid_grid, x, x, 1, self.fluid_offsets, self.fluid_neighbours)
         if self.boundary_grid is not None:
+            maps = None
+            if self.volume_maps is not None:
+                maps, place = self.volume_maps
+                place()  # each particle's own points, which its list then takes
             self.boundary_neighbours = self._build_list(self.boundary_grid, x, self.boundary_x, 0,
-                                                        self.boundary_offsets, self.boundary_neighbours)
+                                                        self.boundary_offsets, self.boundary_neighbours, maps)
 
-    def _build_list(self, grid, x, grid_points, exclude_self, offsets, neighbours):
+    def _build_list(self, grid, x, grid_points, exclude_self, offsets, neighbours, maps=None):
         """One CSR list: counts into ``offsets``, an exclusive scan in place (row n: the total), then
         the indices; returns the index array (reallocated when the total outgrew it)."""
         sim, n = self.sim, self.sim.num_fluid
@@ -101,9 +110,13 @@ class NeighbourSearch:
         rows = offsets[: n + 1]
         rows[n:].zero_()
         sim.launch(nk.find_neighbours, n, args + [0, rows, self._no_list])
+        if maps is not None:
+            maps.add_neighbours(sim.launch, n, self.sim.boundary.volume, 0, rows, self._no_list)
         wp.utils.array_scan(rows, rows, inclusive=False)
         neighbours = self._ensure_capacity(neighbours, int(rows[n:].numpy()[0]))
         sim.launch(nk.find_neighbours, n, args + [1, rows, neighbours])
+        if maps is not None:
+            maps.add_neighbours(sim.launch, n, self.sim.boundary.volume, 1, rows, neighbours)
         return neighbours
 
     @property

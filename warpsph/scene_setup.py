@@ -90,6 +90,9 @@ def sample_scene(scene: Scene, limit_fluid=True, with_fluid=True):
     insets = _imported_body_insets(scene)
     rigid = [load_body(o, scene.mesh_path(o), d, size, f"{Path(o.mesh).stem}_{n}", scene.fluid.density, insets[n])
              for n, o in enumerate(scene.obstacles)]
+    for b, thickness in zip(rigid, _imported_volume_maps(scene)):
+        if b.kind == "dynamic" and b.closed:
+            b.volume_map = thickness
     names = [b.name for b in rigid]
     for n, name in enumerate(names):
         if names.index(name) != n:
@@ -125,6 +128,14 @@ def _imported_body_insets(scene: Scene):
     if len(insets) != len(scene.obstacles):
         insets = [BODY_INSET] * len(scene.obstacles)
     return insets
+
+
+def _imported_volume_maps(scene: Scene):
+    """Each obstacle's volume-map thickness [m], or None: an imported SPlisHSPlasH scene's dynamic bodies with
+    boundaryHandlingMethod 2 hold the fluid by a volume map (``Conversion.volume_maps``, warpsph.volume_maps)."""
+    conversion = conversion_of(scene)
+    maps = list(conversion.volume_maps) if conversion is not None else []
+    return maps if len(maps) == len(scene.obstacles) else [None] * len(scene.obstacles)
 
 
 def remove_fluid_inside_bodies(scene, bodies, fluid_x, fluid_v, device, launch):

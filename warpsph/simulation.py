@@ -37,6 +37,7 @@ from warpsph.resources import check_fits
 from warpsph.scene import Scene
 from warpsph.state import Constants, FluidParticles, State, viscous_substeps  # noqa: F401 (public here too)
 from warpsph.scene_setup import count_particles, remove_fluid_inside_bodies, sample_scene  # noqa: F401 (public here too)
+from warpsph.volume_maps import VolumeMaps
 
 from warpsph.solvers import SolverContext, solver_class as registered_solver
 from warpsph.packing import packed_positions
@@ -167,17 +168,25 @@ class Simulation:
             self.viscous_rate = z("viscosity", self.capacity if scene.fluid.viscous else 0)
             has_dynamic = any(b.kind == "dynamic" for b in moving)
             first_dynamic = first_moving + sum(len(b.samples) for b in moving if b.kind == "kinematic")
+            # volume maps (warpsph.volume_maps): each fluid particle's point of each mapped body after the samples
+            # (the dynamic bodies of an imported scene with boundaryHandlingMethod 2; one domain)
+            mapped = [(k, float(b.volume_map)) for k, b in enumerate(moving)
+                      if b.kind == "dynamic" and b.volume_map is not None] if halo is None else []
+            maps = len(mapped)
+            slots = self.num_boundary + capacity * maps
+            if maps:
+                boundary_x = np.concatenate([boundary_x, np.zeros((capacity * maps, 3), np.float32)])
             self.boundary = BoundaryParticles(
-                x=self.array("boundary", boundary_x, wp.vec3), v=z("boundary", self.num_boundary - first_moving, dtype=wp.vec3),
-                volume=z("boundary", self.num_boundary), body=body,
-                impulse=z("bodies", self.num_boundary if has_dynamic else 0, dtype=wp.vec3), first_moving=first_moving,
+                x=self.array("boundary", boundary_x, wp.vec3), v=z("boundary", slots - first_moving, dtype=wp.vec3),
+                volume=z("boundary", slots), body=body,
+                impulse=z("bodies", slots if has_dynamic else 0, dtype=wp.vec3), first_moving=first_moving,
                 first_dynamic=first_dynamic if has_dynamic else self.num_boundary)
             bodies = BodiesContext(self.state, self.constants, self.boundary, self.launch, lambda: self.gravity,
                                    lambda: self.neighbours.lists)  # what the bodies see
             self.moving_bodies = MovingBodies(bodies, moving, first_moving,
                                               [b for b in self.bodies if b.kind == "static"]) if moving else None
             with stage("neighbour grids (boundary grid)"):
-                self.neighbours = NeighbourSearch(self, self.boundary.x)
+                self.neighbours = NeighbourSearch(self, self.boundary.x, self.num_boundary)
             if self.num_boundary:  # V_b once: static samples together, each moving body on its own
                 sample_body = wp.array(body, dtype=wp.int32, device=self.device)
                 first_moving_body = int(body[first_moving]) if moving else len(self.bodies) + 1
@@ -186,6 +195,17 @@ class Simulation:
                                 [self.neighbours.boundary_grid.grid, self.boundary.x, sample_body, first_moving_body,
                                  self.support_radius, self.neighbours.lower, self.neighbours.period,
                                  self.boundary.volume])
+            self.volume_maps = None
+            if maps:  # the mapped bodies' samples stay for their contacts (volume 0); their maps hold the fluid
+                with stage("volume maps"):
+                    self.volume_maps = VolumeMaps(self.state, self.constants, moving, mapped, self.num_boundary,
+                                                  first_moving)
+                    held = [index[id(moving[k])] for k, _ in mapped]
+                    volume = self.boundary.volume.numpy()
+                    volume[: self.num_boundary][np.isin(body, held)] = 0.0
+                    self.boundary.volume.assign(volume)
+                    self.moving_bodies.attach_volume_maps(self.volume_maps, capacity)
+                    self.neighbours.volume_maps = (self.volume_maps, self._place_volume_maps)
             self._solver_context = SolverContext(  # what the pressure solver sees
                 state=self.state, constants=self.constants, parameters=scene.solver, boundary=self.boundary,
                 neighbour_lists=lambda: self.neighbours.lists, lower=self.neighbours.lower,
@@ -663,6 +683,11 @@ class Simulation:
             self.launch(advance_clock, 1, [self.dt, self.time_device, self.steps_device])
         with t("health"):  # NaN/inf, escaped particles, runaway density: counted on the device
             self.health.check()
+
+    def _place_volume_maps(self):
+        """Each fluid particle's points of the volume maps at the bodies' poses now (before the boundary list)."""
+        self.volume_maps.place(self.launch, self.fluid.x, self.num_fluid, self.moving_bodies, self.boundary,
+                               self.constants)
 
     def update_densities(self):
         """Neighbour lists, densities (and DFSPH factors) for the current positions (the initial state, a

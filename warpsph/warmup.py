@@ -101,6 +101,8 @@ def scene_modules(scene, bodies=None, fluid=None, decomposed=False, frames=False
         bodies_launch = any(b.kind != "static" or (b.closed and fluid != 0) for b in bodies)
     if bodies_launch:
         names += _k("bodies")
+    if not decomposed and _volume_mapped(scene, bodies):
+        names += _k("volume_map")
     if scene.emitters or scene.sinks or domain.is_open:
         names += _k("inflow")
     if decomposed:
@@ -108,6 +110,19 @@ def scene_modules(scene, bodies=None, fluid=None, decomposed=False, frames=False
     if frames:
         names += frame_modules(scene)
     return list(dict.fromkeys(names))
+
+
+def _volume_mapped(scene, bodies) -> bool:
+    """Whether a dynamic body holds the fluid by a volume map (an imported SPlisHSPlasH scene with
+    boundaryHandlingMethod 2: ``RigidBody.volume_map``, or without ``bodies`` the conversion's ``volume_maps``)."""
+    if bodies is not None:
+        return any(b.kind == "dynamic" and b.volume_map is not None for b in bodies)
+    from warpsph.io.splishsplash import conversion_of
+
+    conversion = conversion_of(scene)
+    maps = list(getattr(conversion, "volume_maps", None) or []) if conversion is not None else []
+    return len(maps) == len(scene.obstacles) and any(
+        m is not None and o.dynamics is not None for m, o in zip(maps, scene.obstacles))
 
 
 def frame_modules(scene) -> list[str]:

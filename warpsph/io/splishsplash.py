@@ -237,6 +237,9 @@ class Conversion:
     notes: list = field(default_factory=list)  # approximations; keys without effect
     splishsplash_particles: int | None = None  # fluid particles at t = 0 by SPlisHSPlasH's rules (None: unknown)
     body_insets: list = field(default_factory=list)  # per obstacle: its samples' depth inside its surface [r]
+    # per obstacle: the thickness [m] of the volume map a dynamic body holds the fluid with (boundaryHandlingMethod 2,
+    # warpsph.volume_maps), or None (its samples hold it)
+    volume_maps: list = field(default_factory=list)
     run_anyway: bool = False
 
     def refusal_text(self):
@@ -498,9 +501,11 @@ class _Reader:
         self.boundary_method = boundary
         if boundary != 0:
             self.note(f"Configuration.boundaryHandlingMethod {boundary} (volume/density maps): warpsph samples walls and "
-                      "bodies with boundary particles (Akinci et al. 2012, SPlisHSPlasH's method 0); the domain's faces "
-                      "and the bodies' samples stand where SPlisHSPlasH's boundary holds the fluid (a volume map "
-                      f"{volume_map_standoff():.1f} r from its surface)")
+                      "static bodies with boundary particles (Akinci et al. 2012, SPlisHSPlasH's method 0); the domain's "
+                      "faces and the static bodies' samples stand where SPlisHSPlasH's boundary holds the fluid (a volume "
+                      f"map {volume_map_standoff():.1f} r from its surface)"
+                      + ("; dynamic bodies hold the fluid by volume maps (Bender et al. 2019), their samples serve "
+                         "their contacts" if boundary == 2 else ""))
         for key in ("kernel", "gradKernel"):
             if config.get(key, 0) not in (0, 4, -1):
                 self.note(f"Configuration.{key} {config[key]}: warpsph uses the cubic spline kernel (0)")
@@ -800,6 +805,11 @@ class _Reader:
                 thickness = float(_num(body.get("mapThickness"), 0.0)) if self.boundary_method == 2 else 0.0
                 inset, why = body_inset(self.boundary_method, thickness, self.radius)
                 self.c.body_insets.append(inset)
+                self.c.volume_maps.append(thickness if self.boundary_method == 2 and kind == "dynamic" else None)
+                if self.c.volume_maps[-1] is not None:
+                    self.mapped(f"{key} volume map, Configuration.boundaryHandlingMethod"
+                                + (f", {key}.mapThickness" if thickness else ""), f"obstacles[{len(obstacles)}]",
+                                f"a volume map of the mesh (thickness {_fmt(thickness)} m) holds the fluid")
                 self.mapped(f"{key} boundary, Configuration.boundaryHandlingMethod"
                             + (f", {key}.mapThickness" if thickness else ""),
                             f"obstacles[{len(obstacles)}] samples", f"{inset:+.3f} r inside the surface ({why})")
