@@ -90,9 +90,9 @@ def _water_level(sim, radius):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("density, measured", [(200.0, 0.195), (500.0, 0.480), (900.0, 0.884)])
-def test_floating_box_settles_at_the_archimedes_draft(density, measured):
+def test_floating_box_settles_at_the_archimedes_draft(density, measured, device):
     """Draft / height = rho_body / rho_water (Archimedes); the added-mass relaxation must not shift it."""
-    sim = make_sim(_floating_box(density), base_dir=SCENES_DIR)
+    sim = make_sim(_floating_box(density), device=device, base_dir=SCENES_DIR)
     body = sim.moving_bodies.dynamic[0]
     assert body.mass == pytest.approx(density * 0.2**3)
     submerged = []
@@ -108,12 +108,12 @@ def test_floating_box_settles_at_the_archimedes_draft(density, measured):
 
 
 @pytest.mark.parametrize("density", [100.0, 2000.0])
-def test_body_in_air_falls_at_g(density):
+def test_body_in_air_falls_at_g(density, device):
     """Nothing touches the box: gravity alone, whatever its density (the added mass is the wetted share's)."""
     box = {"mesh": "meshes/unit_box.obj", "scale": [0.2, 0.2, 0.2], "translation": [0.5, 0.8, 0.2], "name": "box",
            "dynamics": {"density": density}}
     data = tank_scene(radius=0.02, domain=(0.7, 1.0, 0.4), block=(0.2, 0.2, 0.4), obstacles=[box], output={"fps": 10})
-    sim = make_sim(data, base_dir=SCENES_DIR)
+    sim = make_sim(data, device=device, base_dir=SCENES_DIR)
     body = sim.moving_bodies.dynamic[0]
     y0 = body.position[1]
     while sim.time < 0.25:

@@ -40,7 +40,7 @@ def _tilt(body):
     return float(np.degrees(np.arccos(np.clip(body.rotation[1, 1], -1.0, 1.0))))
 
 
-def _stack(count, gap, dynamics, offsets=None, until=1.5):
+def _stack(count, gap, dynamics, offsets=None, until=1.5, device="cpu"):
     """``count`` boxes one above the other at x = 0.35 m (+ ``offsets``), the lowest on the floor, each next one
     ``gap`` above the last; run to ``until``. Returns the boxes (lowest first) and the deepest interpenetration of
     neighbours over the run [particle radii]."""
@@ -49,7 +49,7 @@ def _stack(count, gap, dynamics, offsets=None, until=1.5):
               "translation": [0.35 + offsets[i], SIDE / 2 + i * (SIDE + gap), 0.2],
               "dynamics": {"density": 800.0, **dynamics}} for i in range(count)]
     data = tank_scene(radius=R, domain=(0.7, 1.0, 0.4), block=(0.08, 0.04, 0.08), obstacles=boxes, output={"fps": 10})
-    sim = make_sim(data, base_dir=SCENES_DIR)
+    sim = make_sim(data, device=device, base_dir=SCENES_DIR)
     named = {b.name: b for b in sim.moving_bodies.dynamic}
     stack = [named[f"box{i}"] for i in range(count)]
     deepest = 0.0
@@ -72,7 +72,7 @@ def _assert_at_rest(stack, offsets, height, speed, spin, tilt, drift):
 
 
 @pytest.mark.parametrize("count, friction, measured", [(2, None, 0.0002), (3, None, 0.085), (3, 0.5, 0.085)])
-def test_stacked_boxes_rest_without_sinking_into_each_other(count, friction, measured):
+def test_stacked_boxes_rest_without_sinking_into_each_other(count, friction, measured, device):
     """The top box is dropped 3 cm onto the one under it (on the floor; three boxes: the middle one too). The contacts'
     impulses are solved together, walls and bodies, in Gauss-Seidel sweeps: solved once each, in turn, the box on top
     pushed the one under it back into the floor and nothing stopped it again, so a resting stack kept g dt (two boxes)
@@ -80,7 +80,7 @@ def test_stacked_boxes_rest_without_sinking_into_each_other(count, friction, mea
     Measured (CPU, Warp 1.19): deepest 0.0002 / 0.085 / 0.085 r over the run; at 1.5 s every centre within 0.038 r of
     its resting height, speeds below 2e-5 / 6e-5 / 4e-7 m/s, spins below 3e-6 rad/s, tilts below 0.014 degrees,
     moved across by at most 1.3e-4 m."""
-    stack, deepest = _stack(count, 0.03, {"friction": friction})
+    stack, deepest = _stack(count, 0.03, {"friction": friction}, device=device)
     assert deepest < max(1.5 * measured, 0.01) < 1.0  # never a particle radius into each other
     _assert_at_rest(stack, [0.0] * count, height=0.06, speed=1e-4, spin=1e-4, tilt=0.02, drift=2e-4)
 
