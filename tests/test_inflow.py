@@ -98,8 +98,11 @@ def test_bad_emitters_name_the_key(change, key, words):
 
 def _jet(models):
     """A 1 m/s jet emitted between two still slabs, no gravity: the particles at the jet's sides are born
-    into a shear layer, with vorticity of about 1 / spacing."""
-    return {"name": "jet", "particle_radius": 0.02, "gravity": [0, 0, 0],
+    into a shear layer, with vorticity of about 1 / spacing. The step is fixed at the viscous limit (4 ms): the adaptive
+    step dips by ~17 % on an emission step (the new layer's close pairs raise the viscous rate), and Rankine's core,
+    sqrt(4 1.25643 nu dt), shrinks with it, which by itself doubles its correction on that step (0.0034 against
+    0.0014 m/s): not what these tests measure."""
+    return {"name": "jet", "particle_radius": 0.02, "gravity": [0, 0, 0], "time": {"fixed_dt": 0.004},
             "domain": {"min": [0, 0, 0], "max": [1.0, 0.4, 0.2]},
             "fluid_blocks": [{"start": [0, 0, 0], "end": [1.0, 0.12, 0.2]}, {"start": [0, 0.28, 0], "end": [1.0, 0.4, 0.2]}],
             "emitters": [{"min": [0, 0.12, 0], "max": [0.04, 0.28, 0.2], "velocity": [1.0, 0, 0]}],
@@ -142,7 +145,7 @@ def test_emitted_particles_first_model_correction_is_no_outlier(spec):
     taken for one, so its first step fed back its whole vorticity (Rankine) or removed it (VR). Now its
     first correction is skipped (``Model.emitted``): on an emission step the new layer and the layer
     before it are corrected about as much as that layer was on the steps before. Measured (emissions in
-    steps 21-60): Rankine new / older / calm 0.0017 / 0.0017 / 0.0021 m/s (0.0055 / 0.0074 / 0.0025 with
-    zeroed history); VR 0.0026 / 0.0044 / 0.0031 (0.0042 / 0.0058 / 0.0031)."""
+    steps 21-60): Rankine new / older / calm 0.0016 / 0.0017 / 0.0024 m/s (0.0051 / 0.0071 / 0.0024 with
+    zeroed history); VR 0.0026 / 0.0044 / 0.0033 (0.0043 / 0.0061 / 0.0032)."""
     new, older, calm = _first_step_corrections(spec)
     assert new < 1.2 * calm and older < 1.6 * calm, (new, older, calm)
