@@ -42,6 +42,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from warpsph import precompiled
 from warpsph.errors import SceneError
+from warpsph.io.splishsplash import conversion_of
 from warpsph.models import REGISTRY, plugin_of
 from warpsph.scene import load_scene
 from warpsph.solvers import solver_class
@@ -117,8 +118,6 @@ def _volume_mapped(scene, bodies) -> bool:
     boundaryHandlingMethod 2: ``RigidBody.volume_map``, or without ``bodies`` the conversion's ``volume_maps``)."""
     if bodies is not None:
         return any(b.kind == "dynamic" and b.volume_map is not None for b in bodies)
-    from warpsph.io.splishsplash import conversion_of
-
     conversion = conversion_of(scene)
     maps = list(getattr(conversion, "volume_maps", None) or []) if conversion is not None else []
     return len(maps) == len(scene.obstacles) and any(
