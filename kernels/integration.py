@@ -24,20 +24,21 @@ def compute_max_speed(
     step)."""
     t = wp.tid()
     shift = gravity * dt[0]
+    with_rate = viscous_rate.shape[0] > 0
     m = float(0.0)
     m_cfl = float(0.0)
+    rate = float(0.0)
     for i in range(t, count, REDUCE_THREADS):
         m = wp.max(m, wp.length_sq(v[i]))
         m_cfl = wp.max(m_cfl, wp.length_sq(v[i] + shift))
+        if with_rate:
+            rate = wp.max(rate, viscous_rate[i])
     m = block_max(m)
     m_cfl = block_max(m_cfl)
     if first_in_block(t):
         wp.atomic_max(max_speed_sq, 0, m)
         wp.atomic_max(max_speed_sq, 1, m_cfl)
-    if viscous_rate.shape[0] > 0:
-        rate = float(0.0)
-        for i in range(t, count, REDUCE_THREADS):
-            rate = wp.max(rate, viscous_rate[i])
+    if with_rate:
         rate = block_max(rate)
         if first_in_block(t):
             wp.atomic_max(max_speed_sq, 2, rate)

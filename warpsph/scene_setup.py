@@ -90,7 +90,7 @@ def sample_scene(scene: Scene, limit_fluid=True, with_fluid=True):
     insets = _imported_body_insets(scene)
     rigid = [load_body(o, scene.mesh_path(o), d, size, f"{Path(o.mesh).stem}_{n}", scene.fluid.density, insets[n])
              for n, o in enumerate(scene.obstacles)]
-    for b, thickness in zip(rigid, _imported_volume_maps(scene)):
+    for b, thickness in zip(rigid, imported_volume_maps(scene)):
         if b.kind == "dynamic" and b.closed:
             b.volume_map = thickness
     names = [b.name for b in rigid]
@@ -130,7 +130,7 @@ def _imported_body_insets(scene: Scene):
     return insets
 
 
-def _imported_volume_maps(scene: Scene):
+def imported_volume_maps(scene: Scene):
     """Each obstacle's volume-map thickness [m], or None: an imported SPlisHSPlasH scene's dynamic bodies with
     boundaryHandlingMethod 2 hold the fluid by a volume map (``Conversion.volume_maps``, warpsph.volume_maps)."""
     conversion = conversion_of(scene)

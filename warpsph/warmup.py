@@ -42,9 +42,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from warpsph import precompiled
 from warpsph.errors import SceneError
-from warpsph.io.splishsplash import conversion_of
 from warpsph.models import REGISTRY, plugin_of
 from warpsph.scene import load_scene
+from warpsph.scene_setup import imported_volume_maps
 from warpsph.solvers import solver_class
 
 KERNELS = "warpsph.kernels"
@@ -118,10 +118,7 @@ def _volume_mapped(scene, bodies) -> bool:
     boundaryHandlingMethod 2: ``RigidBody.volume_map``, or without ``bodies`` the conversion's ``volume_maps``)."""
     if bodies is not None:
         return any(b.kind == "dynamic" and b.volume_map is not None for b in bodies)
-    conversion = conversion_of(scene)
-    maps = list(getattr(conversion, "volume_maps", None) or []) if conversion is not None else []
-    return len(maps) == len(scene.obstacles) and any(
-        m is not None and o.dynamics is not None for m, o in zip(maps, scene.obstacles))
+    return any(m is not None and o.dynamics is not None for m, o in zip(imported_volume_maps(scene), scene.obstacles))
 
 
 def frame_modules(scene) -> list[str]:
