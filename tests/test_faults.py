@@ -64,13 +64,23 @@ def reference(tmp_path_factory):
     return {"scene": scene, "final": points(out, FRAMES), "size": out.stat().st_size}
 
 
-def start(tmp_path, reference, *argv, script=None, limit=None, killed=True, group=False):
+def start(tmp_path, reference, *argv, script=None, limit=None, killed=True, group=False, env=None, compiled=True):
     """`warpsph run` of the reference scene into tmp_path/long.usdc (or ``argv`` after the verb) in a child process;
     ``script`` runs instead of the CLI's main (it calls main itself). ``limit`` caps the size of any file it writes:
-    the write that crosses it kills the child (SIGXFSZ), or with ``killed`` False fails (EFBIG, as Python has it).
-    ``group``: the child leads a process group of its own (with its mesher workers: os.killpg kills them all)."""
+    the write that crosses it kills the child (SIGXFSZ), or with ``killed`` False fails (EFBIG, as Python has it);
+    with ``compiled`` the same command runs first to frame 1 without the limit, in a folder of its own, so that
+    the limit meets the cache's saves and not Warp's kernel compiles (a module's hash in this test process may
+    differ from a fresh process's). ``group``: the child leads a process group of its own (with its mesher workers:
+    os.killpg kills them all). ``env``: variables set in the child."""
     argv = argv or ("run", str(reference["scene"]), "--out", str(tmp_path / "long.usdc"), "--checkpoint-every", str(EVERY))
     code = script or "import sys; from warpsph.cli import main; sys.exit(main(sys.argv[1:]))"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONDONTWRITEBYTECODE": "1", **(env or {})}
+    if limit and compiled and not script:
+        warm = tmp_path / "compiled"
+        warm.mkdir()
+        warm_argv = [str(warm / "long.usdc") if a == str(tmp_path / "long.usdc") else a for a in argv]
+        subprocess.run([sys.executable, "-c", code, *warm_argv, "--frames", "1", "--device", "cpu", "-q"], env=env,
+                       cwd=warm, check=True, capture_output=True)
     if limit and killed:  # Python ignores SIGXFSZ; a C program dies of it
         code = "import signal; signal.signal(signal.SIGXFSZ, signal.SIG_DFL)\n" + code
 
@@ -78,7 +88,6 @@ def start(tmp_path, reference, *argv, script=None, limit=None, killed=True, grou
         resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
 
-    env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONDONTWRITEBYTECODE": "1"}
     return subprocess.Popen([sys.executable, "-c", code, *argv, "--device", "cpu", "-q"], stderr=subprocess.PIPE,
                             text=True, env=env, cwd=tmp_path, preexec_fn=cap if limit else None, start_new_session=group)
 
@@ -398,3 +407,15 @@ def test_a_failing_save_in_the_cache_s_process_stops_the_run_in_one_line(tmp_pat
     assert "USD could not write long.partial.tmp.usdc: File too large" in err and "keeps the frames before" in err
     assert len(err.splitlines()) == 1, err
     resume_to_the_end(tmp_path, reference)
+
+
+def test_a_full_disk_at_the_kernel_compile_stops_the_run_in_one_line(tmp_path, reference):
+    """A first run on an empty kernel cache whose disk is full (the file-size limit, EFBIG, hits Warp's compile):
+    one line that names the kernel cache, exit 2, no output written; not Warp's traceback."""
+    cache = tmp_path / "kernels"
+    proc = start(tmp_path, reference, limit=4096, killed=False, env={"WARP_CACHE_PATH": str(cache)}, compiled=False)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 2, err
+    assert len(err.splitlines()) == 1 and "Traceback" not in err, err
+    assert str(cache) in err and "kernel cache" in err and "File too large" in err, err
+    assert not [p.name for p in tmp_path.iterdir() if p.name.startswith("long")]

@@ -269,7 +269,12 @@ def preload(names, device=None, max_workers=None) -> list[Loaded]:
     def load(module):
         before = _cache_files(module.name)
         start = time.perf_counter()
-        wp.force_load(device=device, modules=[module], max_workers=0)
+        try:
+            wp.force_load(device=device, modules=[module], max_workers=0)
+        except OSError as exc:  # a full disk or a quota: one line naming the cache, not Warp's traceback
+            raise SceneError(wp.config.kernel_cache_dir, "", f"Warp could not write the kernels of {module.name} "
+                             f"into its kernel cache: {exc.strerror or exc} (free space there, or set "
+                             "WARP_CACHE_PATH to a folder with room)") from None
         return Loaded(module.name, time.perf_counter() - start, bool(_cache_files(module.name) - before))
 
     modules = _modules(names)
