@@ -156,3 +156,24 @@ def test_joints_warpsph_cannot_drive_are_refused_in_one_line_with_their_count(sc
     path.write_text(json.dumps(data))
     with pytest.raises(SceneError, match=r"2 of 2 motor joints .*\[0\] RigidBodies\[1\] is in 2 joints"):
         load_scene(path)
+
+
+@pytest.mark.parametrize("change, why", [
+    ({"bodyID2": 1}, "[0] joins RigidBodies[1] to itself"),
+    ({"bodyID1": 7}, "[0] bodyID1 7 names no body"),
+    ({"axis": [0, 0, 0]}, "[0] its axis is zero"),
+    ({"target": None, "targetSequence": [0.5, -5, 1, 5]}, "[0] targetSequence starts at 0.5 s, not 0"),
+    ({"target": None, "targetSequence": [0, -5, 0, 5]}, "[0] targetSequence times [0.0, 0.0] do not increase"),
+    ({"target": None, "targetSequence": [0, -5], "repeatSequence": 1}, "[0] repeatSequence of a single (time, target) pair"),
+])
+def test_each_motor_warpsph_cannot_drive_says_why(scenes, change, why):
+    data = copy.deepcopy(MOTOR_SCENE)
+    joint = data["TargetVelocityMotorHingeJoints"][0]
+    joint.update(change)
+    if joint.get("target", 0) is None:
+        del joint["target"]
+    path = scenes / "Motor.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(SceneError) as info:
+        load_scene(path)
+    assert f"TargetVelocityMotorHingeJoints: 1 of 1 motor joints warpsph cannot drive ({why}" in str(info.value)

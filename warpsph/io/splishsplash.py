@@ -35,6 +35,9 @@ surface, its volume maps hold a fluid at rest :func:`volume_map_standoff` (2.40 
 wall layer, 1.2 r outside the domain's faces, holds it :func:`wall_layer_standoff` (2.20 r) from itself.
 A static body that touches the container then reaches past the faces: its samples behind the wall layer are dropped
 (``scene_setup.inside_wall_layer``).
+
+A velocity motor (``TargetVelocityMotorHingeJoints``) that turns a dynamic body against a static one makes that body
+kinematic, spinning about the hinge at the target rate (:meth:`_Reader.motor_joints`); other joints are refused.
 """
 
 from __future__ import annotations
@@ -864,7 +867,7 @@ class _Reader:
         for k in joints:
             for j in self.data[k] if isinstance(self.data[k], list) else []:
                 for name in ("bodyID1", "bodyID2", "rbID"):
-                    if isinstance(j, dict) and name in j:
+                    if isinstance(j, dict) and isinstance(j.get(name), int):
                         joined[j[name]] = joined.get(j[name], 0) + 1
         motors, bad = {}, []
         for i, j in enumerate(items):
@@ -887,10 +890,14 @@ class _Reader:
         """One motor joint: (RigidBodies index, motion, how), why it cannot be mapped (a str), or None (no effect)."""
         found = []
         for name in ("bodyID1", "bodyID2"):
+            if isinstance(j[name], bool) or not isinstance(j[name], int):
+                raise SceneError(self.file, f"{where}.{name}", f"expected an integer, got {json.dumps(j[name])}")
             named = ids.get(j[name], [])
             if len(named) != 1:
                 return f"{name} {_fmt(j[name])} names " + (f"{len(named)} bodies (their id)" if named else "no body")
             found.append(named[0])
+        if found[0] == found[1]:
+            return f"joins RigidBodies[{found[0]}] to itself"
         dynamic = [n for n in found if bodies[n].get("isDynamic")]
         if len(dynamic) == 2:
             return f"joins two dynamic bodies (RigidBodies[{found[0]}] and [{found[1]}])"
@@ -905,25 +912,33 @@ class _Reader:
         if not np.any(axis):
             return "its axis is zero"
         sign = -1.0 if n == found[0] else 1.0  # the target is axis . (omega2 - omega1), the static body at rest
-        motion = {"center": position.tolist(), "axis": axis.tolist()}
-        if "target" in j:  # SPlisHSPlasH reads targetSequence only without target
-            motion["angular_velocity"] = sign * float(j["target"])
-            how = f"spins at {_fmt(motion['angular_velocity'])} rad/s"
-            if "targetSequence" in j:
-                self.note(f"{where}.targetSequence: not read when target is given (SPlisHSPlasH reads target)")
-        else:
-            rates = self.motor_sequence(where, j)
-            if isinstance(rates, str):
-                return rates
-            motion["spin_rates"] = [{"time": t, "rate": sign * w} for t, w in rates]
-            motion["spin_repeat"] = bool(j.get("repeatSequence", False)) and len(rates) > 1
-            how = (f"spins at {_fmt([[t, sign * w] for t, w in rates])} ([time s, rate rad/s], linear between"
-                   + (", repeated)" if motion["spin_repeat"] else ")"))
+        spin = self.motor_spin(where, j, sign)
+        if isinstance(spin, str):
+            return spin
+        motion, how = {"center": position.tolist(), "axis": axis.tolist(), **spin[0]}, spin[1]
         self.note(f"{where}: PositionBasedDynamics sets the spin to the target at each step's end, so a step late (a "
                   "sequence's target at the step's end); warpsph spins the body at the target from t = 0, the fluid's "
                   "torque on it does not act (PositionBasedDynamics lets it turn the body within a step)")
         return n, motion, (f"RigidBodies[{n}] kinematic: {how} about {_fmt(axis.tolist())} through {_fmt(position.tolist())}"
                            f" ({'-' if sign < 0 else '+'}target: the target is bodyID2's spin less bodyID1's)")
+
+    def motor_spin(self, where, j, sign):
+        """A motor's spin as the motion's keys and how, from its target times ``sign``: ``target`` (SPlisHSPlasH reads
+        targetSequence only without it) or ``targetSequence`` / ``repeatSequence``; or why it cannot be mapped."""
+        if "target" in j:
+            if isinstance(j["target"], bool) or not isinstance(j["target"], (int, float)):
+                raise SceneError(self.file, f"{where}.target", f"expected a number, got {json.dumps(j['target'])}")
+            if "targetSequence" in j:
+                self.note(f"{where}.targetSequence: not read when target is given (SPlisHSPlasH reads target)")
+            rate = sign * float(j["target"])
+            return {"angular_velocity": rate}, f"spins at {_fmt(rate)} rad/s"
+        rates = self.motor_sequence(where, j)
+        if isinstance(rates, str):
+            return rates
+        repeat = bool(j.get("repeatSequence", False)) and len(rates) > 1
+        return ({"spin_rates": [{"time": t, "rate": sign * w} for t, w in rates], "spin_repeat": repeat},
+                f"spins at {_fmt([[t, sign * w] for t, w in rates])} ([time s, rate rad/s], linear between"
+                + (", repeated)" if repeat else ")"))
 
     def motor_sequence(self, where, j):
         """A motor's targetSequence [t0, w0, t1, w1, ...] as [(t, w)] (SPlisHSPlasH drops an odd last value; none:
