@@ -75,6 +75,28 @@ def test_keyframed_and_accelerating_motion():
     np.testing.assert_allclose(v, 0.0)
 
 
+def test_spin_rates_follow_their_sequence_and_are_checked_by_key():
+    from warpsph.bodies import kinematic_pose
+    from warpsph.scene import parse_dataclass, Motion
+
+    m = parse_dataclass(Motion, {"spin_rates": [{"time": 0.5, "rate": 2.0}, {"time": 1.0, "rate": 4.0}]})
+    for t, angle, rate in ((0.25, 0.5, 2.0), (0.75, 1.625, 3.0), (2.0, 6.5, 4.0)):  # held before, linear, held after
+        _, R, _, w = kinematic_pose(m, np.zeros(3), t)
+        np.testing.assert_allclose(w, [0, rate, 0])
+        np.testing.assert_allclose([R[0, 0], R[0, 2]], [np.cos(angle), np.sin(angle)], atol=1e-12)
+    m = parse_dataclass(Motion, {"spin_rates": [{"time": 0.0, "rate": 1.0}, {"time": 1.0, "rate": 3.0}],
+                                 "spin_repeat": True})
+    _, R, _, w = kinematic_pose(m, np.zeros(3), 2.5)  # two periods of 2 rad, then half of one: 0.5 + 0.5^2
+    np.testing.assert_allclose(w, [0, 2.0, 0])
+    np.testing.assert_allclose(R[0, 2], np.sin(4.75), atol=1e-12)
+    one = [{"time": 0.0, "rate": 1.0}]
+    for bad, key in (({"spin_rates": one * 2}, "spin_rates"), ({"spin_rates": one, "angular_velocity": 1.0}, "spin_rates"),
+                     ({"spin_rates": one, "spin_up": 0.5}, "spin_rates"), ({"spin_rates": one, "spin_repeat": True}, "spin_repeat"),
+                     ({"spin_rates": one, "axis": [0, 0, 0]}, "axis")):
+        with pytest.raises(SceneError, match=key):
+            parse_dataclass(Motion, bad).validate("s.json", "motion")
+
+
 def _floating_box(density, radius=0.02):
     box = {"mesh": "meshes/unit_box.obj", "scale": [0.2, 0.2, 0.2], "translation": [0.3, 0.42, 0.2], "name": "box",
            "dynamics": {"density": density}}

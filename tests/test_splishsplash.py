@@ -353,7 +353,10 @@ def test_emitters_map_to_warpsph_emitters(scenes):
     ({"FluidBlocks__0__initialAngularVelocity": [0, 1, 0]}, "FluidBlocks[0].initialAngularVelocity"),
     ({"AnimationFields": [{"particleField": "velocity", "expression_x": "1"}]}, "AnimationFields: 1 fields"),
     ({"FluidModels": [{"particleFile": "../models/bunny.bgeo"}]}, "FluidModels[0].particleFile: '../models/bunny.bgeo'"),
-    ({"TargetVelocityMotorHingeJoints": [{"bodyID1": 1, "bodyID2": 0}]}, "TargetVelocityMotorHingeJoints: 1 joints"),
+    ({"TargetVelocityMotorHingeJoints": [{"bodyID1": 1, "bodyID2": 0, "position": [0, 0, 0], "axis": [0, 1, 0],
+                                          "target": 2}]},
+     "TargetVelocityMotorHingeJoints: 1 of 1 motor joints warpsph cannot drive ([0] bodyID1 1 names no body)"),
+    ({"BallJoints": [{"bodyID1": 1, "bodyID2": 0, "position": [0, 0, 0]}]}, "BallJoints: 1 joints between rigid bodies"),
 ])
 def test_unsupported_physics_is_refused_by_key(scenes, change, refused):
     path = write(scenes, edited(**change))

@@ -3,12 +3,16 @@
 SPlisHSPlasH (pysplishsplash 2.19.0, its own virtual environment, headless) and warpsph run the same
 scene file on the CPU, at a coarser ``particleRadius`` when asked (the copy is written beside a link to
 SPlisHSPlasH's ``data/models``, so the file's relative mesh paths still resolve; both codes read that
-copy). Each dynamic body's position (its centre of mass in both codes) is recorded every step and
-sampled at 0.1 ... ``--stop`` s by linear interpolation between steps. The difference is reported as a
-percentage of the body's travel in SPlisHSPlasH (|x(t_end) - x(0)|).
+copy). Each dynamic body's position (its centre of mass in both codes; a body a motor joint drives is kinematic
+in warpsph, its mesh's centre of mass there) and one corner (the mesh vertex furthest along CORNER at the start,
+the same point in both codes) are recorded every step and sampled at 0.1 ... ``--stop`` s by linear interpolation
+between steps. Each difference is reported as a percentage of that point's travel in SPlisHSPlasH
+(|x(t_end) - x(0)|; none when it stays put, a paddle's centre on its hinge).
 
     nice -n 10 python tools/splishsplash_bodies.py --pss-python /work/splish-venv/bin/python \
         --scene DamBreakWithObjects.json --radius 0.05 --out tools/results/splishsplash_bodies_dbwo.json
+    nice -n 10 python tools/splishsplash_bodies.py --pss-python /work/main/.venv/bin/python \
+        --scene MotorScene.json --radius 0.05 --out tools/results/splishsplash_motor_r0.05_cpu.json
 
 The SPlisHSPlasH half runs this file under the other interpreter (``--worker splishsplash``) with
 ``LD_PRELOAD`` of the system libGLdispatch (its import segfaults without it; nothing is drawn).
@@ -28,6 +32,12 @@ import numpy as np
 
 GLDISPATCH = "/lib/x86_64-linux-gnu/libGLdispatch.so.0"
 FLUID_TIMES = (0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5)  # fluid positions kept in each code's own JSON (not compared)
+CORNER = np.array([1.0, 1e-3, 1e-6])  # the tracked corner: the vertex furthest along this at the start
+
+
+def corner_index(vertices):
+    """The vertex furthest along CORNER (ties, as a box's, broken by y, then z)."""
+    return int(np.argmax(np.asarray(vertices, np.float64) @ CORNER))
 
 
 def blocks_at_rest(data, file):
@@ -108,9 +118,11 @@ def run_splishsplash(scene_file, stop, out_dir):
         rbs = bodies(sim)
         if not first:
             first.update(particles=sim.getFluidModel(0).numActiveParticles(), radius=sim.getParticleRadius(),
-                         masses=[float(rb.getMass()) for rb in rbs])
+                         masses=[float(rb.getMass()) for rb in rbs],
+                         corners=[corner_index(rb.getVertices()) for rb in rbs])
         steps.append([tm.getTime()] + [float(c) for rb in rbs for c in np.asarray(rb.getPosition()).ravel()]
-                     + [float(c) for rb in rbs for c in np.asarray(rb.getVelocity()).ravel()])
+                     + [float(c) for rb in rbs for c in np.asarray(rb.getVelocity()).ravel()]
+                     + [float(c) for rb, k in zip(rbs, first["corners"]) for c in np.asarray(rb.getVertices())[k]])
         while pending and tm.getTime() >= pending[0] - 1e-4:
             fm = sim.getFluidModel(0)
             fluid.append({"t": pending.pop(0), "x": np.asarray(fm.getFieldBuffer("position"))[
@@ -118,12 +130,16 @@ def run_splishsplash(scene_file, stop, out_dir):
 
     base.setTimeStepCB(on_step)
     base.run()
-    # the bodies exist from the first step on: their start is the first step's position less v t (to O(g t^2))
+    # the bodies exist from the first step on: their start is the first step's position less v t (to O(g t^2));
+    # a corner's, the first step's less the same v t (a motor's body has not turned yet: its first step's spin is 0)
     a = np.asarray(steps[0], np.float64)
     n = len(first["masses"])
-    initial = (a[1:1 + 3 * n] - a[1 + 3 * n:1 + 6 * n] * a[0]).tolist()
+    shift = a[1 + 3 * n:1 + 6 * n] * a[0]
+    initial = (a[1:1 + 3 * n] - shift).tolist()
+    corners = (a[1 + 6 * n:1 + 9 * n] - shift).tolist()
     return {"program": "SPlisHSPlasH (pysplishsplash 2.19.0)", "scene": str(scene_file), "initial": first,
-            "initial_positions": initial, "steps": steps, "fluid": fluid, "wall_s": time.perf_counter() - start}
+            "initial_positions": initial, "initial_corners": corners, "steps": steps, "fluid": fluid,
+            "wall_s": time.perf_counter() - start}
 
 
 # -- warpsph ---------------------------------------------------------------------------------------
@@ -141,9 +157,22 @@ def run_warpsph(scene_file, stop):
         warnings.simplefilter("ignore")
         scene = load_scene(str(scene_file))
     sim = Simulation(scene, device="cpu")
-    mb = sim.moving_bodies
-    dynamic = mb.dynamic if mb is not None else []
-    initial = [b.position.tolist() for b in dynamic]
+    moving = [b for b in sim.bodies if b.kind != "static"]  # the scene's order: SPlisHSPlasH's dynamic bodies'
+    centres = [centre_of_mass(b) for b in moving]
+    corners = [corner_index(b.to_world(b.vertices)) for b in moving]
+
+    def row():
+        """The moving bodies' centres, their velocities and corners at sim.time (a kinematic body's pose is placed
+        at each step's start: taken from its motion at the step's end here)."""
+        poses = [pose(b, sim.time) for b in moving]
+        x = [R @ c + p for (p, R, _, _), c in zip(poses, centres)]
+        v = [u + np.cross(w, R @ c) for (_, R, u, w), c in zip(poses, centres)]
+        k = [R @ b.vertices[n] + p for (p, R, _, _), b, n in zip(poses, moving, corners)]
+        return [float(c) for part in (x, v, k) for vec in part for c in vec]
+
+    first = np.asarray(row(), np.float64)
+    n = len(moving)
+    initial, initial_corners = first[:3 * n].reshape(n, 3).tolist(), first[6 * n:].reshape(n, 3).tolist()
     steps, fluid, pending = [], [], list(FLUID_TIMES)
     start = time.perf_counter()
     while sim.time < stop - 1e-9:
@@ -151,44 +180,78 @@ def run_warpsph(scene_file, stop):
         problem = sim.check_health()
         if problem is not None:
             raise problem
-        steps.append([sim.time] + [float(c) for b in dynamic for c in b.position]
-                     + [float(c) for b in dynamic for c in b.velocity])
+        steps.append([sim.time] + row())
         while pending and sim.time >= pending[0] - 1e-4:
             fluid.append({"t": pending.pop(0), "x": sim.fluid.x.numpy()[:sim.num_fluid].round(4).tolist()})
     conversion = conversion_of(scene)
     return {"program": "warpsph", "scene": str(scene_file), "particles": sim.num_fluid,
-            "masses": [b.mass for b in dynamic], "names": [b.name for b in dynamic],
-            "initial_positions": initial, "steps": steps, "fluid": fluid, "wall_s": time.perf_counter() - start,
+            "masses": [b.mass for b in moving], "names": [b.name for b in moving], "kinds": [b.kind for b in moving],
+            "initial_positions": initial, "initial_corners": initial_corners, "steps": steps, "fluid": fluid, "wall_s": time.perf_counter() - start,
             "mapped": conversion.mapped if conversion else None, "notes": conversion.notes if conversion else None}
 
 
+# -- warpsph's bodies -------------------------------------------------------------------------------
+def centre_of_mass(body):
+    """A moving body's centre of mass in its body space (a dynamic body's origin; a kinematic one's mesh centroid)."""
+    if body.kind == "dynamic":
+        return np.zeros(3)
+    import trimesh
+
+    return np.asarray(trimesh.Trimesh(body.vertices, body.faces).center_mass, np.float64)
+
+
+def pose(body, t):
+    """(position, rotation, velocity, angular velocity) of a moving body at time t."""
+    if body.kind == "kinematic":
+        from warpsph.bodies import kinematic_pose
+
+        return kinematic_pose(body.obstacle.motion, body.reference, t)
+    return body.position, body.rotation, body.velocity, body.angular_velocity
+
+
 # -- comparison ------------------------------------------------------------------------------------
-def at(steps, initial, times, n_bodies):
-    """Positions [time, body, xyz] interpolated linearly between the recorded steps (t = 0: ``initial``)."""
+def at(steps, initial, times, n_bodies, block=0):
+    """Positions [time, body, xyz] of the ``block``-th point of each step's row (0: centres, 2: corners)
+    interpolated linearly between the recorded steps (t = 0: ``initial``)."""
     a = np.asarray(steps, np.float64)
     t = np.concatenate([[0.0], a[:, 0]])
-    x = np.concatenate([np.asarray(initial, np.float64).reshape(1, -1), a[:, 1:1 + 3 * n_bodies]])
+    lo = 1 + 3 * n_bodies * block
+    x = np.concatenate([np.asarray(initial, np.float64).reshape(1, -1), a[:, lo:lo + 3 * n_bodies]])
     return np.stack([[np.interp(s, t, x[:, k]) for k in range(3 * n_bodies)] for s in times]).reshape(len(times), n_bodies, 3)
 
 
+def rows_of(xs, x0_s, xw, x0_w, times):
+    """One tracked point's travel in SPlisHSPlasH and rows: both codes' positions and their difference as a share of
+    that travel (None when the point stays put)."""
+    travel = float(np.linalg.norm(xs[-1] - x0_s))
+    rows = []
+    for k, t in enumerate(times):
+        miss = float(np.linalg.norm((xw[k] - x0_w) - (xs[k] - x0_s)))
+        rows.append({"t": t, "splishsplash": xs[k].round(4).tolist(), "warpsph": xw[k].round(4).tolist(),
+                     "difference_m": miss, "percent_of_travel": 100.0 * miss / travel if travel > 1e-6 else None})
+    return travel, rows
+
+
 def compare(theirs, ours, times):
+    """Per body, its centre's rows (``rows``) and, when both runs recorded it, its corner's (``corner_rows``)."""
     n = len(ours["initial_positions"])
-    x0_s = np.asarray(theirs["initial_positions"] or theirs["steps"][0][1:1 + 3 * n], np.float64).reshape(n, 3)
-    x0_w = np.asarray(ours["initial_positions"], np.float64).reshape(n, 3)
-    xs, xw = at(theirs["steps"], x0_s, times, n), at(ours["steps"], x0_w, times, n)
+    tracks = {}
+    for prefix, name, block in (("", "initial_positions", 0), ("corner_", "initial_corners", 2)):
+        if name in theirs and name in ours:  # (runs saved before the corners have none)
+            x0_s = np.asarray(theirs[name] or theirs["steps"][0][1:1 + 3 * n], np.float64).reshape(n, 3)
+            x0_w = np.asarray(ours[name], np.float64).reshape(n, 3)
+            tracks[prefix] = (x0_s, x0_w, at(theirs["steps"], x0_s, times, n, block),
+                              at(ours["steps"], x0_w, times, n, block))
     bodies = []
     for b in range(n):
-        travel = float(np.linalg.norm(xs[-1, b] - x0_s[b]))
-        rows = []
-        for k, t in enumerate(times):
-            ds, dw = xs[k, b] - x0_s[b], xw[k, b] - x0_w[b]
-            rows.append({"t": t, "splishsplash": xs[k, b].round(4).tolist(), "warpsph": xw[k, b].round(4).tolist(),
-                         "difference_m": float(np.linalg.norm(dw - ds)),
-                         "percent_of_travel": 100.0 * float(np.linalg.norm(dw - ds)) / travel if travel else None})
-        bodies.append({"name": ours["names"][b], "mass": {"splishsplash": theirs["initial"]["masses"][b],
-                                                          "warpsph": ours["masses"][b]},
-                       "initial": {"splishsplash": x0_s[b].round(4).tolist(), "warpsph": x0_w[b].round(4).tolist()},
-                       "travel_splishsplash_m": travel, "rows": rows})
+        body = {"name": ours["names"][b], "kind": ours.get("kinds", ["dynamic"] * n)[b],
+                "mass": {"splishsplash": theirs["initial"]["masses"][b], "warpsph": ours["masses"][b]}}
+        for prefix, (x0_s, x0_w, xs, xw) in tracks.items():
+            travel, rows = rows_of(xs[:, b], x0_s[b], xw[:, b], x0_w[b], times)
+            body.update({f"{prefix}initial": {"splishsplash": x0_s[b].round(4).tolist(),
+                                              "warpsph": x0_w[b].round(4).tolist()},
+                         f"{prefix}travel_splishsplash_m": travel, f"{prefix}rows": rows})
+        bodies.append(body)
     return bodies
 
 
@@ -275,11 +338,14 @@ def main(argv=None):
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(result, indent=1) + "\n")
     for b in bodies:
-        print(f"{b['name']}: mass {b['mass']['splishsplash']:.4g} / {b['mass']['warpsph']:.4g} kg, "
-              f"travel {b['travel_splishsplash_m']:.3f} m")
-        for r in b["rows"]:
-            print(f"  t={r['t']:.1f}  SPlisHSPlasH {r['splishsplash']}  warpsph {r['warpsph']}  "
-                  f"{r['percent_of_travel']:.1f} % of travel")
+        print(f"{b['name']} ({b['kind']} in warpsph): mass {b['mass']['splishsplash']:.4g} / "
+              f"{b['mass']['warpsph']:.4g} kg")
+        for prefix, point in (("", "centre"), ("corner_", "corner")):
+            if f"{prefix}rows" in b:
+                print(f" {point}: travel {b[f'{prefix}travel_splishsplash_m']:.3f} m")
+            for r in b.get(f"{prefix}rows", []):
+                share = "-" if r["percent_of_travel"] is None else f"{r['percent_of_travel']:.1f} %"
+                print(f"  t={r['t']:.1f}  SPlisHSPlasH {r['splishsplash']}  warpsph {r['warpsph']}  {share} of travel")
     return 0
 
 

@@ -340,7 +340,10 @@ def load_body(obstacle: Obstacle, path, spacing, domain_size, default_name, flui
 
 def _spin(m: Motion, t):
     """Spin angle and rate at time t: zero before spin_start, ramped linearly up over spin_up and, from
-    spin_end on, down to rest over spin_down."""
+    spin_end on, down to rest over spin_down; or following spin_rates."""
+    if m.spin_rates:
+        angle, rate = _spin_rates(m, t)
+        return angle - _spin_rates(m, 0.0)[0], rate
     if m.spin_end is not None and t > m.spin_end:
         angle, rate = _spin_up(m, m.spin_end)
         tau = min(t - m.spin_end, m.spin_down)
@@ -358,6 +361,26 @@ def _spin_up(m: Motion, t):
     if tau < m.spin_up:
         return 0.5 * w * tau * tau / m.spin_up, w * tau / m.spin_up
     return w * (tau - 0.5 * m.spin_up), w
+
+
+def _spin_rates(m: Motion, t):
+    """(integral of the rate from the first time to t, rate at t) of spin_rates: the rate linear between entries, held
+    before the first and after the last; with spin_repeat, periodic from the first time on (period last - first)."""
+    times = np.array([s.time for s in m.spin_rates], np.float64)
+    rates = np.array([s.rate for s in m.spin_rates], np.float64)
+    if t <= times[0]:
+        return float(rates[0] * (t - times[0])), float(rates[0])
+    turns = 0.0
+    if m.spin_repeat:
+        period = times[-1] - times[0]
+        turns, rest = divmod(t - times[0], period)
+        t = times[0] + rest
+    elif t >= times[-1]:
+        return float(np.trapezoid(rates, times) + rates[-1] * (t - times[-1])), float(rates[-1])
+    n = int(np.searchsorted(times, t, side="right")) - 1
+    rate = rates[n] + (rates[n + 1] - rates[n]) * (t - times[n]) / (times[n + 1] - times[n])
+    partial = np.trapezoid(rates[:n + 1], times[:n + 1]) + 0.5 * (rates[n] + rate) * (t - times[n])
+    return float(turns * np.trapezoid(rates, times) + partial), float(rate)
 
 
 def _keyframed(m: Motion, t):

@@ -117,9 +117,18 @@ class Keyframe:
 
 
 @schema
+class SpinRate:
+    """A kinematic body's spin rate at one time; linear in between."""
+
+    time: float = key(doc="time", unit="s")
+    rate: float = key(doc="spin rate about the motion's axis (right-handed)", unit="rad/s")
+
+
+@schema
 class Motion:
     """Prescribed motion of a kinematic body: the sum of a keyframed path, a constant-acceleration
-    drift (from ``start``: falling blocks) and a spin about ``axis`` through ``center``."""
+    drift (from ``start``: falling blocks) and a spin about ``axis`` through ``center``, at
+    ``angular_velocity`` with its ramps or following ``spin_rates``."""
 
     keyframes: Tuple[Keyframe, ...] = key((), doc="keyframed path, times increasing")
     velocity: Vec3 = key((0.0, 0.0, 0.0), doc="drift velocity from start on", unit="m/s")
@@ -134,18 +143,38 @@ class Motion:
     spin_end: Optional[float] = key(None, doc="when the spin starts to stop (the propeller of the Rankine paper's "
                                               "Fig 13); null: never", unit="s", ge=0)
     spin_down: float = key(0.0, doc="ramp from the rate at spin_end to rest", unit="s", ge=0)
+    spin_rates: Tuple[SpinRate, ...] = key(
+        (), doc="spin rate over time instead of angular_velocity and its ramps (SPlisHSPlasH's motor targetSequence): "
+                "linear between entries, times increasing, held before the first and after the last")
+    spin_repeat: bool = key(False, doc="spin_rates repeat from the first time on, with the period last time - first "
+                                       "time (SPlisHSPlasH's repeatSequence)")
 
     def validate(self, file, key):
         times = [k.time for k in self.keyframes]
         if any(b <= a for a, b in zip(times, times[1:])):
             raise SceneError(file, f"{key}.keyframes", f"times must increase, got {times}")
+        self.validate_spin_rates(file, key)
         if self.end is not None and self.end <= self.start:
             raise SceneError(file, f"{key}.end", f"must be after start ({self.start:g} s), got {self.end:g}")
         if self.spin_end is not None and self.spin_end <= self.spin_start:
             raise SceneError(file, f"{key}.spin_end", f"must be after spin_start ({self.spin_start:g} s), "
                                                        f"got {self.spin_end:g}")
-        if self.angular_velocity != 0.0 and not any(self.axis):
+        if (self.angular_velocity != 0.0 or self.spin_rates) and not any(self.axis):
             raise SceneError(file, f"{key}.axis", "the spin axis is zero")
+
+    def validate_spin_rates(self, file, key):
+        times = [s.time for s in self.spin_rates]
+        if any(b <= a for a, b in zip(times, times[1:])):
+            raise SceneError(file, f"{key}.spin_rates", f"times must increase, got {times}")
+        ramps = {"angular_velocity": self.angular_velocity != 0.0, "spin_start": self.spin_start != 0.0,
+                 "spin_up": self.spin_up != 0.0, "spin_end": self.spin_end is not None, "spin_down": self.spin_down != 0.0}
+        if self.spin_rates and any(ramps.values()):
+            given = next(k for k, v in ramps.items() if v)
+            raise SceneError(file, f"{key}.spin_rates", f"give either spin_rates or {given} (angular_velocity and its "
+                                                        "ramps), not both")
+        if self.spin_repeat and len(times) < 2:
+            raise SceneError(file, f"{key}.spin_repeat", f"repeats spin_rates over last - first time: needs two times "
+                                                         f"or more, got {len(times)}")
 
 
 @schema

@@ -35,6 +35,9 @@ surface, its volume maps hold a fluid at rest :func:`volume_map_standoff` (2.40 
 wall layer, 1.2 r outside the domain's faces, holds it :func:`wall_layer_standoff` (2.20 r) from itself.
 A static body that touches the container then reaches past the faces: its samples behind the wall layer are dropped
 (``scene_setup.inside_wall_layer``).
+
+A velocity motor (``TargetVelocityMotorHingeJoints``) that turns a dynamic body against a static one makes that body
+kinematic, spinning about the hinge at the target rate (:meth:`_Reader.motor_joints`); other joints are refused.
 """
 
 from __future__ import annotations
@@ -121,6 +124,8 @@ BODY_NO_EFFECT = {"color", "mapFile", "mapResolution", "samplingMode", "id", "ta
 BODY_PBD_CONTACT = {"friction", "restitution", "collisionObjectType", "collisionObjectScale", "collisionObjectFileName",
                     "testMesh", "invertSDF", "resolutionSDF", "thicknessSDF", "boundingBoxMin", "boundingBoxMax",
                     "tubeMapOrder"}
+MOTOR = "TargetVelocityMotorHingeJoints"  # the joint warpsph maps (a kinematic body): PositionBasedDynamics' motor
+MOTOR_KEYS = ("bodyID1", "bodyID2", "position", "axis")  # without one of them SPlisHSPlasH skips the joint
 TOP_KNOWN = {"Configuration", "Materials", "FluidBlocks", "FluidModels", "Emitters", "RigidBodies", "AnimationFields",
              "Simulation", "warpsph"}
 
@@ -375,6 +380,8 @@ class _Reader:
         self.materials(phases)
         self.fluid_blocks()
         self.fluid_models()
+        joints = [k for k in d if "Joint" in k]
+        self.motors = self.motor_joints(joints)
         self.bodies()
         self.emitters()
         if "domain" not in scene:
@@ -384,8 +391,7 @@ class _Reader:
         if d.get("AnimationFields"):
             self.refuse("AnimationFields", f"{len(d['AnimationFields'])} fields that set the particles' velocity (or "
                                            "other quantities) by expressions over time: the fluid would not be driven")
-        joints = [k for k in d if "Joint" in k]
-        for k in joints:
+        for k in (k for k in joints if k != MOTOR):
             self.refuse(k, f"{len(d[k]) if isinstance(d[k], list) else ''} joints between rigid bodies (PositionBasedDynamics): "
                            "warpsph has no joints, the bodies would move freely")
         pbd_models = [k for k in d if k in ("TriangleModels", "TetModels")]
@@ -786,7 +792,14 @@ class _Reader:
                             "rotation_axis": list(_vec(body.get("rotationAxis"), [1, 0, 0], self.file, f"{key}.rotationAxis")),
                             "rotation_angle": angle}
                 kind = "static"
-                if body.get("isDynamic"):
+                if n in self.motors:
+                    kind = "kinematic"
+                    joint, obstacle["motion"], how = self.motors[n]
+                    self.mapped(f"{joint} (bodyID1, bodyID2, position, axis, target/targetSequence/repeatSequence)",
+                                f"obstacles[{len(obstacles)}].motion", how)
+                    self.no_effect(key, [k for k in body if k in BODY_PBD_CONTACT | {"density", "velocity", "angularVelocity"}],
+                                   f"rigid-body settings of a body {joint} drives (kinematic in warpsph)")
+                elif body.get("isDynamic"):
                     kind = "dynamic"
                     density = float(_num(body.get("density"), 1.0))  # PositionBasedDynamics' default
                     dynamics = {"density": density}
@@ -823,7 +836,8 @@ class _Reader:
                 self.note(f"{key}.mapThickness {_fmt(body['mapThickness'])}: the map thickness of boundaryHandlingMethod "
                           f"{self.boundary_method} is not modelled")
             if not body.get("isDynamic"):
-                walls = container is not None and any(b.get("isDynamic") for b in self.data.get("RigidBodies") or [])
+                walls = container is not None and any(b.get("isDynamic") and m not in self.motors
+                                                      for m, b in enumerate(self.data.get("RigidBodies") or []))
                 used = {"restitution", "friction"} if walls else set()  # in the dynamic bodies' wall contact
                 self.no_effect(key, [k for k in body if (k in BODY_PBD_CONTACT or k in ("density", "velocity", "angularVelocity"))
                                      and k not in used],
@@ -834,6 +848,120 @@ class _Reader:
         if domain is not None:
             self.c.scene["domain"] = domain
         self.c.scene["obstacles"] = obstacles
+
+    def motor_joints(self, joints):
+        """The TargetVelocityMotorHingeJoints that spin a dynamic body against a static one, as warpsph motions:
+        {RigidBodies index: (joint key, motion, how)}. PositionBasedDynamics holds the body on the hinge (``position``,
+        ``axis``) and sets the relative spin omega2 - omega1 about the axis to the target every step, so the body
+        spins kinematically at -target (bodyID1 dynamic) or +target (bodyID2 dynamic). The joints it cannot express
+        are refused in one line with their count."""
+        if MOTOR not in joints:
+            return {}
+        items = self.data[MOTOR] if isinstance(self.data[MOTOR], list) else []
+        bodies = self.data.get("RigidBodies") or []
+        ids = {}  # PositionBasedDynamics' body ids ("id", default 0) of the bodies it loads (those with a geometryFile)
+        for n, b in enumerate(bodies):
+            if isinstance(b, dict) and b.get("geometryFile"):
+                ids.setdefault(b.get("id", 0), []).append(n)
+        joined = {}  # body id -> the joints (of every type) it is in
+        for k in joints:
+            for j in self.data[k] if isinstance(self.data[k], list) else []:
+                for name in ("bodyID1", "bodyID2", "rbID"):
+                    if isinstance(j, dict) and isinstance(j.get(name), int):
+                        joined[j[name]] = joined.get(j[name], 0) + 1
+        motors, bad = {}, []
+        for i, j in enumerate(items):
+            where = f"{MOTOR}[{i}]"
+            if not isinstance(j, dict) or any(k not in j for k in MOTOR_KEYS):
+                self.note(f"{where} lacks one of {', '.join(MOTOR_KEYS)}: SPlisHSPlasH skips it too")
+                continue
+            found = self.motor(where, j, ids, joined, bodies)
+            if isinstance(found, str):
+                bad.append(f"[{i}] {found}")
+            elif found is not None:
+                n, motion, how = found
+                motors[n] = (where, motion, how)
+        if bad:
+            self.refuse(MOTOR, f"{len(bad)} of {len(items)} motor joints warpsph cannot drive ({'; '.join(bad)}): warpsph "
+                               "turns a body only about a hinge against a static body, the bodies would move freely")
+        return motors
+
+    def motor(self, where, j, ids, joined, bodies):
+        """One motor joint: (RigidBodies index, motion, how), why it cannot be mapped (a str), or None (no effect)."""
+        found = []
+        for name in ("bodyID1", "bodyID2"):
+            if isinstance(j[name], bool) or not isinstance(j[name], int):
+                raise SceneError(self.file, f"{where}.{name}", f"expected an integer, got {json.dumps(j[name])}")
+            named = ids.get(j[name], [])
+            if len(named) != 1:
+                return f"{name} {_fmt(j[name])} names " + (f"{len(named)} bodies (their id)" if named else "no body")
+            found.append(named[0])
+        if found[0] == found[1]:
+            return f"joins RigidBodies[{found[0]}] to itself"
+        dynamic = [n for n in found if bodies[n].get("isDynamic")]
+        if len(dynamic) == 2:
+            return f"joins two dynamic bodies (RigidBodies[{found[0]}] and [{found[1]}])"
+        if not dynamic:
+            self.note(f"{where} joins two static bodies: nothing moves (in SPlisHSPlasH neither)")
+            return None
+        n = dynamic[0]
+        if joined.get(bodies[n].get("id", 0), 0) > 1:
+            return f"RigidBodies[{n}] is in {joined[bodies[n].get('id', 0)]} joints: this motor alone does not move it"
+        position = _vec(j["position"], [0, 0, 0], self.file, f"{where}.position")
+        axis = _vec(j["axis"], [0, 1, 0], self.file, f"{where}.axis")
+        if not np.any(axis):
+            return "its axis is zero"
+        sign = -1.0 if n == found[0] else 1.0  # the target is axis . (omega2 - omega1), the static body at rest
+        spin = self.motor_spin(where, j, sign)
+        if isinstance(spin, str):
+            return spin
+        motion, how = {"center": position.tolist(), "axis": axis.tolist(), **spin[0]}, spin[1]
+        self.note(f"{where}: PositionBasedDynamics sets the spin to the target at each step's end, so a step late (a "
+                  "sequence's target at the step's end); warpsph spins the body at the target from t = 0, the fluid's "
+                  "torque on it does not act (PositionBasedDynamics lets it turn the body within a step)")
+        return n, motion, (f"RigidBodies[{n}] kinematic: {how} about {_fmt(axis.tolist())} through {_fmt(position.tolist())}"
+                           f" ({'-' if sign < 0 else '+'}target: the target is bodyID2's spin less bodyID1's)")
+
+    def motor_spin(self, where, j, sign):
+        """A motor's spin as the motion's keys and how, from its target times ``sign``: ``target`` (SPlisHSPlasH reads
+        targetSequence only without it) or ``targetSequence`` / ``repeatSequence``; or why it cannot be mapped."""
+        if "target" in j:
+            if isinstance(j["target"], bool) or not isinstance(j["target"], (int, float)):
+                raise SceneError(self.file, f"{where}.target", f"expected a number, got {json.dumps(j['target'])}")
+            if "targetSequence" in j:
+                self.note(f"{where}.targetSequence: not read when target is given (SPlisHSPlasH reads target)")
+            rate = sign * float(j["target"])
+            return {"angular_velocity": rate}, f"spins at {_fmt(rate)} rad/s"
+        rates = self.motor_sequence(where, j)
+        if isinstance(rates, str):
+            return rates
+        repeat = bool(j.get("repeatSequence", False)) and len(rates) > 1
+        return ({"spin_rates": [{"time": t, "rate": sign * w} for t, w in rates], "spin_repeat": repeat},
+                f"spins at {_fmt([[t, sign * w] for t, w in rates])} ([time s, rate rad/s], linear between"
+                + (", repeated)" if repeat else ")"))
+
+    def motor_sequence(self, where, j):
+        """A motor's targetSequence [t0, w0, t1, w1, ...] as [(t, w)] (SPlisHSPlasH drops an odd last value; none:
+        target 0), or why it cannot be mapped. PositionBasedDynamics' TimeStepController interpolates the target
+        linearly between the pairs, holds the last, and with repeatSequence takes the time less the sequence's
+        duration (last - first time) while it exceeds it."""
+        seq = j.get("targetSequence", [])
+        if not isinstance(seq, list) or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in seq):
+            raise SceneError(self.file, f"{where}.targetSequence", f"expected a list of numbers, got {json.dumps(seq)}")
+        if len(seq) % 2:
+            self.note(f"{where}.targetSequence has an odd number of values: the last, {_fmt(seq[-1])}, is dropped "
+                      "(SPlisHSPlasH drops it too)")
+        pairs = [(float(seq[k]), float(seq[k + 1])) for k in range(0, len(seq) - 1, 2)]
+        if not pairs:
+            return [(0.0, 0.0)]  # target 0: the body is held still
+        times = [t for t, _ in pairs]
+        if times[0] != 0.0:
+            return f"targetSequence starts at {_fmt(times[0])} s, not 0 (SPlisHSPlasH reads before the sequence until then)"
+        if any(b <= a for a, b in zip(times, times[1:])):
+            return f"targetSequence times {_fmt(times)} do not increase"
+        if j.get("repeatSequence") and len(pairs) == 1:
+            return "repeatSequence of a single (time, target) pair: SPlisHSPlasH never finishes its step"
+        return pairs
 
     def contact(self, body, key, ours, dynamics):
         """A dynamic body's restitution and friction (PositionBasedDynamics' defaults 0.6 and 0.2). Its contacts

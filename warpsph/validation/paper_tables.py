@@ -237,8 +237,8 @@ def with_series(row, r, series=ENERGIES):
 
 def stop_time(sweep):
     """calm's t_s: the last keyframe time of the moving bodies of the sweep's first cell's scene (a drift's end
-    too, and a spin's spin_end + spin_down); None when no body has keyframes, or one spins or drifts to the run's end
-    (give --stop)."""
+    too, a spin's spin_end + spin_down, the last of its spin_rates); None when no body has keyframes, or one spins or
+    drifts to the run's end (give --stop)."""
     times = []
     for body in scene_of(cells(load_sweep(sweep))[0]).obstacles:
         m = body.motion
@@ -247,8 +247,10 @@ def stop_time(sweep):
         drifts, spins = any(m.velocity) or any(m.acceleration), m.angular_velocity != 0.0
         if (spins and m.spin_end is None) or (drifts and m.end is None):
             return None
+        if m.spin_rates and (m.spin_repeat or m.spin_rates[-1].rate != 0.0):
+            return None
         times += (([m.keyframes[-1].time] if m.keyframes else []) + ([m.end] if drifts else [])
-                  + ([m.spin_end + m.spin_down] if spins else []))
+                  + ([m.spin_end + m.spin_down] if spins else []) + ([m.spin_rates[-1].time] if m.spin_rates else []))
     return max(times, default=None)
 
 
