@@ -27,7 +27,7 @@ KEPT = (
     "validate_lamb-oseen_models_session20_h100.json", "validate_vortex-surface_h200_216628b.json",
     "validate_vortex-surface_models_h100.json", "validate_standing-wave_256_h200.json",
     "validate_vortices_session20_h100.json", "rest_32_session21_h100.json", "validate_tank-at-rest_h200.json",
-    "validate_sinking-sphere_h100.json", "validate_dam-front_h100_37.json",
+    "validate_sinking-sphere_h200.json", "validate_dam-front_h100_37.json",
     # docs/validation.md, performance (and docs/method.md, docs/splishsplash.md)
     "bench_dam_break_1M_models_h100.json", "scaling_h200x4.json", "multi_gpu_h200x2.json",
     "scaling_mpi_h200x4.json",
@@ -336,7 +336,8 @@ def test_the_cases_paragraphs_quote_their_files():
     dam40 = row("validate_dam-front_h100_37.json", "dfsph", 40)
     tanks = {t["fill"]: t["max_speed_last_second_over_sqrt_gH_pct"] for t in rest["adopted_surface_only_T5"]}
     vortices = load("validate_vortices_session20_h100.json")["same_lease_b47a492_vs_stress_patch"]
-    sphere = [row("validate_sinking-sphere_h100.json", "dfsph", n)["speed_over_reference"] for n in (5, 10, 16)]
+    spheres = load("validate_sinking-sphere_h200.json")["rows"]
+    sphere = {(r["resolution"], r["boundary_viscosity"]): r for r in spheres}
     # the worst tank at each resolution
     density = [abs(r["density_error_mean_pct"]) for r in load("validate_tank-at-rest_h200.json")["rows"]]
     quotes = [  # (a passage of docs/validation.md, the values of its numbers in order; None: not from a file)
@@ -347,7 +348,11 @@ def test_the_cases_paragraphs_quote_their_files():
         ("32 across: **12.2 / 17.5 / 8.8 / 13.5 %**", [None, tanks[1.0], tanks[0.95], tanks[0.93], tanks[0.88]]),
         ("16 across: 0.95 % for the worst of the four", [None, vortices["tank_at_rest_16_worst_pct"]["stress"]]),
         ("mean density error 0.004 % at 25 across", [vortices["hydrostatic_25_density_error_pct"]["stress"], None]),
-        ("terminal speed 1.276 / 1.227 / 1.205 ×", sphere),
+        ("speed **1.077 / 1.035** × the middle of the reference band (0.133–0.140 m/s) at 5 / 10 particles",
+         [sphere[5, 0.1]["speed_over_reference"], sphere[10, 0.1]["speed_over_reference"],
+          sphere[5, 0.1]["reference_band"][0], sphere[5, 0.1]["reference_band"][1], None, None]),
+        ("(40K / 323K particles, 3,818 / 16,029 steps)", [sphere[5, 0.1]["steps"], sphere[10, 0.1]["steps"]]),
+        ("the same lease gave 1.233 at 5 across", [sphere[5, 0.05]["speed_over_reference"], None]),
         ("mean density error 0.01–0.03 %", [min(density), max(density)]),
     ]
     flat = " ".join(text.split())

@@ -25,9 +25,10 @@ def test_reference_speed_is_stokes_oseen_with_the_walls_factor():
 
 @pytest.mark.skipif(not wp.is_cuda_available(), reason="needs a CUDA device (40K particles, 1,600 steps)")
 def test_sphere_sinks_at_a_speed_consistent_with_its_drag():
-    """At 5 particles across the sphere, H100 (7b171c7): 1.276x the middle of the reference band (1.227 / 1.205 at
-    10 / 16 across: the Akinci samples' friction is a partial slip). The sphere crosses the window at a steady speed."""
+    """At 5 particles across the sphere, H200 (10b4e5b): 1.077x the middle of the reference band with no slip on the
+    samples (boundary viscosity 2 nu; 1.035x at 10 across), 1.233x with the fluid's nu there (a partial slip). The
+    sphere crosses the window at a steady speed."""
     r = sinking_sphere(5, "cuda:0")
     r.pop("sim")
     assert r["crossed_window"]
-    assert 1.0 < r["speed_over_reference"] < 1.41
+    assert 0.96 < r["speed_over_reference"] < 1.115

@@ -22,7 +22,8 @@ VALIDATION = ROOT / "warpsph" / "validation"
 # ``warpsph validate`` case -> its package under warpsph/validation/
 FOLDERS = {"taylor-green": "taylor_green", "lamb-oseen": "lamb_oseen", "vortex-surface": "lamb_oseen",
            "standing-wave": "standing_wave", "hydrostatic": "hydrostatic", "dam-front": "dam_front",
-           "tank-at-rest": "rest", "sinking-sphere": "sinking"}
+           "tank-at-rest": "rest", "sinking-sphere": "sinking",
+           "poiseuille": "poiseuille"}
 # the cases that bring a command line of their own (``python -m warpsph.validation.NAME``)
 COMMANDS = ("taylor_green", "lamb_oseen", "hydrostatic", "dam_front")
 

@@ -853,12 +853,12 @@ def _validate_parser(sub):
     """``warpsph validate``: the validation cases."""
     check = sub.add_parser("validate", help="validation cases with the default solver: error, particles, steps and "
                                             "wall time per method and resolution (JSON and a table)")
-    check.add_argument("case", metavar="CASE", help="taylor-green, lamb-oseen, vortex-surface, standing-wave, hydrostatic, dam-front, tank-at-rest or "
-                            "sinking-sphere")
+    check.add_argument("case", metavar="CASE", help="taylor-green, lamb-oseen, vortex-surface, standing-wave, hydrostatic, dam-front, tank-at-rest, "
+                            "sinking-sphere or poiseuille")
     check.add_argument("--resolutions", nargs="+", required=True, metavar="N",
                        help="integers >= 4: particles across L (vortices), along the tank (standing-wave), across the water cube (hydrostatic) or "
-                            "across the column width a (dam-front), across the 0.4 m tank (tank-at-rest) or across the "
-                            "sphere's diameter (sinking-sphere)")
+                            "across the column width a (dam-front), across the 0.4 m tank (tank-at-rest), across the "
+                            "sphere's diameter (sinking-sphere) or across the 0.2 m channel (poiseuille)")
     check.add_argument("--methods", nargs="+", default=["dfsph"], choices=list(METHODS),
                        help="dfsph (the solver alone, default), vr, rankine, micropolar")
     check.add_argument("--solver", choices=solver_names(),

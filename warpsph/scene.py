@@ -73,7 +73,9 @@ class Fluid:
     viscosity: float = key(0.05, doc="kinematic viscosity nu of the artificial viscosity (VR paper eq 4)", unit="m^2/s", ge=0)
     boundary_viscosity: float = key(
         0.0, doc="nu between fluid and boundary samples (SPlisHSPlasH's viscosityBoundary): friction with walls and "
-                 "bodies; the fluid drags moving bodies along and they feel it", unit="m^2/s", ge=0)
+                 "bodies; the fluid drags moving bodies along and they feel it. Twice fluid.viscosity holds the fluid "
+                 "at the samples (no slip; with the same value it slips by about half a particle spacing)",
+        unit="m^2/s", ge=0)
 
     @property
     def viscous(self):

@@ -29,7 +29,10 @@ error_units, wall_s, steps (and setup_s and the case's own measurements).
   density error and surface count in ``tanks``; resolution = particles across the side);
 - sinking-sphere: the terminal speed of a sphere (D = 0.1 m, 3000 kg/m^3) sinking on the axis of a square tank 6 D
   wide, against Stokes-Oseen drag with Haberman & Sayre's wall factor (``sinking``): distance from the middle of the
-  band that the square's inscribed and equal-area tubes give, in %; resolution = particles across D.
+  band that the square's inscribed and equal-area tubes give, in %; resolution = particles across D;
+- poiseuille: a channel's steady flow between two walls with ``fluid.boundary_viscosity`` 2 nu (``poiseuille``): the
+  slip of its fitted parabola's no-slip planes beyond the walls, in particle spacings (``error_units`` "spacings");
+  resolution = particles across the 0.2 m channel.
 
 Every row reports the summation density's unremoved error away from the free surface at the end
 (``density_error_mean_pct``, :func:`density_error`).
@@ -60,12 +63,13 @@ from ..simulation import InstabilityError
 from .dam_front import DEPTH, T_END, compare, dam_front
 from .hydrostatic import SIDE, hydrostatic
 from .rest import FILLS, tank_at_rest
+from .poiseuille import poiseuille
 from .sinking import sinking_sphere
 from .standing_wave import standing_wave
 from warpsph.kernels.free_surface import BAND, SURFACE
 
 CASES = ("taylor-green", "lamb-oseen", "vortex-surface", "standing-wave", "hydrostatic", "dam-front", "tank-at-rest",
-         "sinking-sphere")
+         "sinking-sphere", "poiseuille")
 MIN_RESOLUTION = 4
 FRAMES = 10  # measurements per vortex run (and frame 0)
 
@@ -84,12 +88,15 @@ ERRORS = {
     "sinking-sphere": ("%", "terminal speed of a sphere sinking on the axis of a square tank against Stokes-Oseen drag "
                             "with Haberman & Sayre's wall factor: distance from the middle of the band the square's "
                             "inscribed and equal-area tubes give, %"),
+    "poiseuille": ("spacings", "slip of a channel's flow between two walls (fluid.boundary_viscosity 2 nu): the no-slip "
+                               "planes of its fitted parabola against the walls, in particle spacings (not a percentage)"),
 }
 RESOLUTION_MEANS = {"taylor-green": "particles across L = 1 m", "lamb-oseen": "particles across L = 1 m",
                     "vortex-surface": "particles across L = 1 m", "standing-wave": "particles along the 1 m tank",
                     "hydrostatic": "particles across the 0.4 m water cube", "dam-front": "particles across the column width a",
                     "tank-at-rest": "particles across the 0.4 m tank",
-                    "sinking-sphere": "particles across the sphere's 0.1 m diameter"}
+                    "sinking-sphere": "particles across the sphere's 0.1 m diameter",
+                    "poiseuille": "particles across the 0.2 m channel"}
 
 
 def timed_run(sim, run, on_frame=None):
@@ -248,9 +255,19 @@ def sinking_sphere_row(models, resolution, device, overrides=None):
     return {**r, "wall_s": timing[0], "setup_s": time.perf_counter() - start - timing[0], **density_error(sim)}
 
 
+def poiseuille_row(models, resolution, device, overrides=None):
+    timing = []
+    start = time.perf_counter()
+    r = poiseuille(resolution, device, models=models, overrides=overrides,
+                   on_run=lambda sim, run: timing.append(timed_run(sim, lambda cb: run())[0]))
+    sim = r.pop("sim")
+    return {**r, "wall_s": timing[0], "setup_s": time.perf_counter() - start - timing[0], **density_error(sim)}
+
+
 ROWS = {"taylor-green": taylor_green_row, "lamb-oseen": lamb_oseen_row, "vortex-surface": vortex_surface_row,
         "standing-wave": standing_wave_row, "hydrostatic": hydrostatic_row, "dam-front": dam_front_row,
-        "tank-at-rest": tank_at_rest_row, "sinking-sphere": sinking_sphere_row}
+        "tank-at-rest": tank_at_rest_row, "sinking-sphere": sinking_sphere_row,
+        "poiseuille": poiseuille_row}
 
 
 def warm_up(models, device, overrides=None):
