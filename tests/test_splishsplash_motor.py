@@ -9,12 +9,12 @@ import json
 
 import numpy as np
 import pytest
-import trimesh
 
 from warpsph import SceneError, load_scene
 from warpsph.bodies import kinematic_pose
 from warpsph.io.splishsplash import SplishSplashWarning, conversion_of
 from warpsph.simulation import Simulation
+from test_splishsplash import scenes, write  # noqa: F401 (scenes: the fixture)
 
 MOTOR_SCENE = {
     "Configuration": {
@@ -57,19 +57,9 @@ def motor_scene_2():
 SPLISHSPLASH_SPIN = ((0.101, 4.04), (0.301, 2.04), (0.501, 0.04), (0.601, -0.96), (2.201, 3.04), (2.401, 1.04))
 
 
-@pytest.fixture
-def scenes(tmp_path):
-    (tmp_path / "models").mkdir()
-    trimesh.creation.box(extents=(1, 1, 1)).export(tmp_path / "models" / "UnitBox.obj")
-    (tmp_path / "Scenes").mkdir()
-    return tmp_path / "Scenes"
-
-
 def load(folder, data, name="MotorScene"):
-    path = folder / f"{name}.json"
-    path.write_text(json.dumps(data))
     with pytest.warns(SplishSplashWarning):
-        return load_scene(path)
+        return load_scene(write(folder, data, name))
 
 
 def test_motor_scene_gives_a_kinematic_paddle(scenes):

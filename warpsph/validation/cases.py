@@ -246,22 +246,23 @@ def tank_at_rest_row(models, resolution, device, overrides=None):
             "density_error_mean_pct": max((t["density_error_mean_pct"] for t in tanks), key=abs)}
 
 
-def sinking_sphere_row(models, resolution, device, overrides=None):
+def _one_run_row(case, models, resolution, device, overrides=None):
+    """The row of a case that is one run of ``case(resolution, device, models=, overrides=, on_run=)``, which
+    returns its measurements with the simulation under "sim": the run timed alone."""
     timing = []
     start = time.perf_counter()
-    r = sinking_sphere(resolution, device, models=models, overrides=overrides,
-                       on_run=lambda sim, run: timing.append(timed_run(sim, lambda cb: run())[0]))
+    r = case(resolution, device, models=models, overrides=overrides,
+             on_run=lambda sim, run: timing.append(timed_run(sim, lambda cb: run())[0]))
     sim = r.pop("sim")
     return {**r, "wall_s": timing[0], "setup_s": time.perf_counter() - start - timing[0], **density_error(sim)}
+
+
+def sinking_sphere_row(models, resolution, device, overrides=None):
+    return _one_run_row(sinking_sphere, models, resolution, device, overrides)
 
 
 def poiseuille_row(models, resolution, device, overrides=None):
-    timing = []
-    start = time.perf_counter()
-    r = poiseuille(resolution, device, models=models, overrides=overrides,
-                   on_run=lambda sim, run: timing.append(timed_run(sim, lambda cb: run())[0]))
-    sim = r.pop("sim")
-    return {**r, "wall_s": timing[0], "setup_s": time.perf_counter() - start - timing[0], **density_error(sim)}
+    return _one_run_row(poiseuille, models, resolution, device, overrides)
 
 
 ROWS = {"taylor-green": taylor_green_row, "lamb-oseen": lamb_oseen_row, "vortex-surface": vortex_surface_row,
