@@ -68,9 +68,9 @@ def start(tmp_path, reference, *argv, script=None, limit=None, killed=True, grou
     """`warpsph run` of the reference scene into tmp_path/long.usdc (or ``argv`` after the verb) in a child process;
     ``script`` runs instead of the CLI's main (it calls main itself). ``limit`` caps the size of any file it writes:
     the write that crosses it kills the child (SIGXFSZ), or with ``killed`` False fails (EFBIG, as Python has it);
-    with ``compiled`` the same command runs first to frame 1 without the limit, in a folder of its own, so that
+    with ``compiled`` the same command runs first to its end without the limit, in a folder of its own, so that
     the limit meets the cache's saves and not Warp's kernel compiles (a module's hash in this test process may
-    differ from a fresh process's). ``group``: the child leads a process group of its own (with its mesher workers:
+    differ from a fresh process's, and a module may load only at a later step: a re-sort, a checkpoint). ``group``: the child leads a process group of its own (with its mesher workers:
     os.killpg kills them all). ``env``: variables set in the child."""
     argv = argv or ("run", str(reference["scene"]), "--out", str(tmp_path / "long.usdc"), "--checkpoint-every", str(EVERY))
     code = script or "import sys; from warpsph.cli import main; sys.exit(main(sys.argv[1:]))"
@@ -79,7 +79,7 @@ def start(tmp_path, reference, *argv, script=None, limit=None, killed=True, grou
         warm = tmp_path / "compiled"
         warm.mkdir()
         warm_argv = [str(warm / "long.usdc") if a == str(tmp_path / "long.usdc") else a for a in argv]
-        subprocess.run([sys.executable, "-c", code, *warm_argv, "--frames", "1", "--device", "cpu", "-q"], env=env,
+        subprocess.run([sys.executable, "-c", code, *warm_argv, "--device", "cpu", "-q"], env=env,
                        cwd=warm, check=True, capture_output=True)
     if limit and killed:  # Python ignores SIGXFSZ; a C program dies of it
         code = "import signal; signal.signal(signal.SIGXFSZ, signal.SIG_DFL)\n" + code
