@@ -363,6 +363,11 @@ def _spin_up(m: Motion, t):
     return w * (tau - 0.5 * m.spin_up), w
 
 
+def _area(rates, times):
+    """The trapezoid rule's integral of ``rates`` over ``times`` (numpy's trapezoid needs numpy 2)."""
+    return float(np.sum(0.5 * (rates[1:] + rates[:-1]) * np.diff(times)))
+
+
 def _spin_rates(m: Motion, t):
     """(integral of the rate from the first time to t, rate at t) of spin_rates: the rate linear between entries, held
     before the first and after the last; with spin_repeat, periodic from the first time on (period last - first)."""
@@ -376,11 +381,11 @@ def _spin_rates(m: Motion, t):
         turns, rest = divmod(t - times[0], period)
         t = times[0] + rest
     elif t >= times[-1]:
-        return float(np.trapezoid(rates, times) + rates[-1] * (t - times[-1])), float(rates[-1])
+        return _area(rates, times) + float(rates[-1] * (t - times[-1])), float(rates[-1])
     n = int(np.searchsorted(times, t, side="right")) - 1
     rate = rates[n] + (rates[n + 1] - rates[n]) * (t - times[n]) / (times[n + 1] - times[n])
-    partial = np.trapezoid(rates[:n + 1], times[:n + 1]) + 0.5 * (rates[n] + rate) * (t - times[n])
-    return float(turns * np.trapezoid(rates, times) + partial), float(rate)
+    partial = _area(rates[:n + 1], times[:n + 1]) + 0.5 * (rates[n] + rate) * (t - times[n])
+    return float(turns * _area(rates, times) + partial), float(rate)
 
 
 def _keyframed(m: Motion, t):
