@@ -73,9 +73,9 @@ def poiseuille(resolution, device="cpu", T=T_END, models=(), overrides=None, on_
     nu, force = sim.scene.fluid.viscosity, sim.scene.gravity[0]
     y, u = np.concatenate(heights), np.concatenate(speeds)
     y0, y1, curvature = fit_profile(y, u, nu, force)
-    spacing = 2 * radius
+    slip = float((y1 - W) - y0) / (2 * 2 * radius)  # the two walls' mean, in spacings 2r
     mean = float(u.mean()) / no_slip_mean(nu, force)
     return {"particles": sim.num_fluid, "steps": sim.step_count, "mean_over_no_slip": mean,
-            "error_pct": abs(float((y1 - W) - y0) / (2 * spacing)), "slip_spacings": float((y1 - W) - y0) / (2 * spacing),
+            "error_pct": abs(slip), "slip_spacings": slip,
             "no_slip_planes_m": [float(y0), float(y1)], "curvature_ratio": curvature,
             "boundary_viscosity": sim.scene.fluid.boundary_viscosity, "sim": sim}
