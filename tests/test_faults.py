@@ -70,8 +70,9 @@ def start(tmp_path, reference, *argv, script=None, limit=None, killed=True, grou
     the write that crosses it kills the child (SIGXFSZ), or with ``killed`` False fails (EFBIG, as Python has it);
     with ``compiled`` the same command runs first to its end without the limit, in a folder of its own, so that
     the limit meets the cache's saves and not Warp's kernel compiles (a module's hash in this test process may
-    differ from a fresh process's, and a module may load only at a later step: a re-sort, a checkpoint). ``group``: the child leads a process group of its own (with its mesher workers:
-    os.killpg kills them all). ``env``: variables set in the child."""
+    differ from a fresh process's, and a module may load only at a later step: a re-sort, a checkpoint).
+    ``group``: the child leads a process group of its own (with its mesher workers: os.killpg kills them all).
+    ``env``: variables set in the child."""
     argv = argv or ("run", str(reference["scene"]), "--out", str(tmp_path / "long.usdc"), "--checkpoint-every", str(EVERY))
     code = script or "import sys; from warpsph.cli import main; sys.exit(main(sys.argv[1:]))"
     env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONDONTWRITEBYTECODE": "1", **(env or {})}
